@@ -1,0 +1,838 @@
+"""Maximum-likelihood refinement (sparse bundle adjustment), covariance and the CRLB.
+
+The refinement minimises the reprojection error of every observation
+
+    r_ij = uv_ij - pi(K, dist, Q_i R (X_j - T_i))                      (paper eq. 2 + distortion)
+
+over the intrinsics ``(fx, fy, cx, cy[, skew])``, the lens distortion (OpenCV
+convention, :func:`transcalib.camera.distort`), the rotation ``R`` (3 parameters, local
+update ``R <- exp([w]x) R``), every scene point ``X_j`` and optionally
+
+* the translations ``T_i`` as noisy measurements with standard deviation ``sigma_T``
+  (cost term ``|T_i - T_i^meas|^2 / sigma_T^2``, errors in images *and* robot);
+* a small rotation ``Q_i = exp([w_i]x)`` per view ``i >= 1`` (view 0 is the reference),
+  which models a robot that did not purely translate (DESIGN.md §4, diagnostics).
+
+Levenberg-Marquardt on the normal equations. The Jacobian has one 2x3 block per
+observation for its point, so the normal matrix is ``[[U, W], [W^T, V]]`` with ``V``
+block-diagonal (one 3x3 block ``V_j`` per point). Each iteration eliminates the points
+with the Schur complement
+
+    S = U - sum_j W_j V_j^-1 W_j^T,    S dg = b_g - sum_j W_j V_j^-1 b_j,
+    dX_j = V_j^-1 (b_j - W_j^T dg),
+
+which costs O(n) time and memory (batched 3x3 inverses, BLAS products; no loop over
+points). The covariance of the global parameters is ``sigma^2 S^-1`` at the solution and
+that of each point ``sigma^2 (V_j^-1 + V_j^-1 W_j^T S^-1 W_j V_j^-1)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from .camera import DIST_MODELS, K_from_params
+from .types import Calibration, DegenerateError, InputError, LinearEstimate
+
+__all__ = ["refine", "crlb", "LOSSES"]
+
+#: Robust losses of the refinement, ``rho(e^2)`` of the residual norm ``e = |r_ij|`` (px).
+LOSSES = ("linear", "huber", "cauchy")
+
+_DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
+_RAD2DEG = 180.0 / np.pi
+
+
+# ----------------------------------------------------------------------------------------
+# Problem layout and state
+# ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Layout:
+    """Where each global parameter sits in the vector ``g`` solved for by the Schur step."""
+
+    n_views: int
+    n_dist: int
+    estimate_skew: bool
+    view_rotations: bool
+    t_free: np.ndarray  # (n_views,) bool: translation i is a parameter
+
+    def __post_init__(self):
+        self.n_intr = 5 if self.estimate_skew else 4
+        self.i_dist = self.n_intr
+        self.i_rot = self.i_dist + self.n_dist
+        self.n_common = self.i_rot + 3
+        start = self.n_common
+        self.i_vrot = {}
+        if self.view_rotations:
+            for i in range(1, self.n_views):
+                self.i_vrot[i] = start
+                start += 3
+        self.i_T = {}
+        for i in np.flatnonzero(self.t_free):
+            self.i_T[int(i)] = start
+            start += 3
+        self.size = start
+
+    def view_columns(self, i: int) -> np.ndarray:
+        """Global indices of the columns of view ``i``'s local Jacobian (common first)."""
+        cols = list(range(self.n_common))
+        if i in self.i_vrot:
+            cols += range(self.i_vrot[i], self.i_vrot[i] + 3)
+        if i in self.i_T:
+            cols += range(self.i_T[i], self.i_T[i] + 3)
+        return np.array(cols)
+
+    def names(self) -> tuple:
+        names = ["fx", "fy", "cx", "cy"] + (["skew"] if self.estimate_skew else [])
+        names += list(_DIST_NAMES[: self.n_dist]) if self.n_dist != 2 else ["k1", "k2"]
+        names += ["rx", "ry", "rz"]
+        for i in self.i_vrot:
+            names += [f"view{i}_rx", f"view{i}_ry", f"view{i}_rz"]
+        for i in self.i_T:
+            names += [f"T{i}_x", f"T{i}_y", f"T{i}_z"]
+        return tuple(names)
+
+    def rotation_mask(self) -> np.ndarray:
+        """(size,) bool: parameters that are rotation angles (reported in degrees)."""
+        m = np.zeros(self.size, bool)
+        m[self.i_rot: self.i_rot + 3] = True
+        for s in self.i_vrot.values():
+            m[s: s + 3] = True
+        return m
+
+
+@dataclass
+class _State:
+    """Current estimate. ``X`` holds only the used points."""
+
+    intr: np.ndarray  # (5,) fx, fy, cx, cy, skew
+    dist5: np.ndarray  # (5,) k1, k2, p1, p2, k3 (zeros beyond the model)
+    R: np.ndarray  # (3, 3)
+    Q: np.ndarray  # (n_views, 3, 3) per-view rotations, Q[0] = I
+    T: np.ndarray  # (n_views, 3)
+    X: np.ndarray  # (n_used, 3)
+
+    def copy(self) -> "_State":
+        return _State(self.intr.copy(), self.dist5.copy(), self.R.copy(), self.Q.copy(), self.T.copy(), self.X.copy())
+
+
+@dataclass
+class _Data:
+    """Observations grouped by view: ``pts[i]`` indexes the used points seen in view i."""
+
+    pts: list  # of (n_i,) int
+    uv: list  # of (n_i, 2) float
+    T_meas: np.ndarray  # (n_views, 3)
+    t_weight: np.ndarray  # (n_views,) sigma_px / sigma_T_i for free translations (else 0)
+    n_points: int  # used points
+
+    @property
+    def n_obs(self) -> int:
+        return int(sum(len(p) for p in self.pts))
+
+
+def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    """``exp([w]x)`` for a rotation vector ``w`` (3,) in radians (Rodrigues)."""
+    theta = float(np.linalg.norm(w))
+    Wx = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-8:
+        return np.eye(3) + Wx + 0.5 * Wx @ Wx
+    return np.eye(3) + np.sin(theta) / theta * Wx + (1.0 - np.cos(theta)) / theta**2 * Wx @ Wx
+
+
+def _matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_rotvec_to_matrix` (angles below pi)."""
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arccos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
+    if theta < 1e-8:
+        return v
+    return v * theta / np.sin(theta)
+
+
+# ----------------------------------------------------------------------------------------
+# Model and Jacobians of one view
+# ----------------------------------------------------------------------------------------
+
+
+def _predict_view(state: _State, lay: _Layout, i: int, pts: np.ndarray, jacobian: bool = True):
+    """Predicted pixels of the used points ``pts`` in view ``i`` and their Jacobians.
+
+    Returns
+    -------
+    pred : (n, 2) float
+        ``pi(K, dist, Q_i R (X_j - T_i))``.
+    z : (n,) float
+        Camera depth (must be positive).
+    Jg : (n, 2, q) float
+        d pred / d (global parameters of this view), columns ``lay.view_columns(i)``.
+    JX : (n, 2, 3) float
+        d pred / d X_j.
+    """
+    X = state.X[pts]
+    y = (X - state.T[i]) @ state.R.T  # R (X - T_i)
+    Q = state.Q[i]
+    xc = y @ Q.T  # camera frame
+    z = xc[:, 2]
+    iz = 1.0 / z
+    x, yy = xc[:, 0] * iz, xc[:, 1] * iz
+    k1, k2, p1, p2, k3 = state.dist5
+    r2 = x * x + yy * yy
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * yy + p2 * (r2 + 2.0 * x * x)
+    yd = yy * radial + p1 * (r2 + 2.0 * yy * yy) + 2.0 * p2 * x * yy
+    fx, fy, cx, cy, s = state.intr
+    pred = np.stack([fx * xd + s * yd + cx, fy * yd + cy], axis=-1)
+    if not jacobian:
+        return pred, z, None, None
+
+    n = len(pts)
+    # d(xd, yd)/d(x, y)
+    dR = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    a11 = radial + 2.0 * x * x * dR + 2.0 * p1 * yy + 6.0 * p2 * x
+    a12 = 2.0 * x * yy * dR + 2.0 * p1 * x + 2.0 * p2 * yy
+    a22 = radial + 2.0 * yy * yy * dR + 6.0 * p1 * yy + 2.0 * p2 * x
+    # M = [[fx, s], [0, fy]] d(xd, yd)/d(x, y);  P = d pred / d xc = M [[1, 0, -x], [0, 1, -y]] / z
+    m11, m12 = fx * a11 + s * a12, fx * a12 + s * a22
+    m21, m22 = fy * a12, fy * a22
+    P = np.empty((n, 2, 3))
+    P[:, 0, 0], P[:, 0, 1], P[:, 0, 2] = m11 * iz, m12 * iz, -(m11 * x + m12 * yy) * iz
+    P[:, 1, 0], P[:, 1, 1], P[:, 1, 2] = m21 * iz, m22 * iz, -(m21 * x + m22 * yy) * iz
+
+    q = lay.n_common + 3 * (i in lay.i_vrot) + 3 * (i in lay.i_T)
+    Jg = np.zeros((n, 2, q))
+    # intrinsics: u = fx xd + s yd + cx, v = fy yd + cy
+    Jg[:, 0, 0] = xd
+    Jg[:, 1, 1] = yd
+    Jg[:, 0, 2] = 1.0
+    Jg[:, 1, 3] = 1.0
+    if lay.estimate_skew:
+        Jg[:, 0, 4] = yd
+    # distortion: d(xd, yd)/dk, then through [[fx, s], [0, fy]]
+    if lay.n_dist:
+        r4 = r2 * r2
+        grads = [(x * r2, yy * r2), (x * r4, yy * r4), (2.0 * x * yy, r2 + 2.0 * yy * yy),
+                 (r2 + 2.0 * x * x, 2.0 * x * yy), (x * r4 * r2, yy * r4 * r2)]
+        for c, (gx, gy) in enumerate(grads[: lay.n_dist]):
+            Jg[:, 0, lay.i_dist + c] = fx * gx + s * gy
+            Jg[:, 1, lay.i_dist + c] = fy * gy
+    # rotation R <- exp([w]x) R: d xc / dw = -Q [y]x, and a^T (-[y]x) = (y x a)^T
+    PQ = P @ Q
+    Jg[:, :, lay.i_rot: lay.i_rot + 3] = np.cross(y[:, None, :], PQ)
+    col = lay.n_common
+    if i in lay.i_vrot:  # Q_i <- exp([w_i]x) Q_i: d xc / dw_i = -[xc]x
+        Jg[:, :, col: col + 3] = np.cross(xc[:, None, :], P)
+        col += 3
+    JX = PQ @ state.R  # d xc / dX = Q R
+    if i in lay.i_T:
+        Jg[:, :, col: col + 3] = -JX
+    return pred, z, Jg, JX
+
+
+# ----------------------------------------------------------------------------------------
+# Losses, cost, normal equations
+# ----------------------------------------------------------------------------------------
+
+
+def _loss(e2: np.ndarray, loss: str, c: float):
+    """``rho(e^2)`` and the IRLS weight ``w = d rho / d(e^2)`` (cost = sum rho / 2)."""
+    if loss == "linear":
+        return e2, np.ones_like(e2)
+    c2 = c * c
+    if loss == "huber":
+        e = np.sqrt(e2)
+        inside = e <= c
+        rho = np.where(inside, e2, 2.0 * c * e - c2)
+        w = np.where(inside, 1.0, c / np.maximum(e, 1e-300))
+        return rho, w
+    # cauchy
+    return c2 * np.log1p(e2 / c2), 1.0 / (1.0 + e2 / c2)
+
+
+def _cost(state: _State, lay: _Layout, data: _Data, loss: str, c: float) -> float:
+    """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0."""
+    total = 0.0
+    for i, pts in enumerate(data.pts):
+        if len(pts) == 0:
+            continue
+        pred, z, _, _ = _predict_view(state, lay, i, pts, jacobian=False)
+        if not np.all(z > 0):
+            return np.inf
+        r = data.uv[i] - pred
+        total += np.sum(_loss(np.einsum("nk,nk->n", r, r), loss, c)[0])
+    dT = (state.T - data.T_meas) * data.t_weight[:, None]
+    return 0.5 * (total + np.sum(dT * dT))
+
+
+def _normal_equations(state, lay, data, loss, c, obs_weight=None):
+    """Assemble ``U (p, p)``, ``W (n, p, 3)``, ``V (n, 3, 3)``, ``b_g (p,)``, ``b_X (n, 3)``.
+
+    ``obs_weight``: optional list of (n_i,) weights replacing the loss weights (used for
+    the covariance). Returns also the residuals per view.
+    """
+    p, n = lay.size, data.n_points
+    U = np.zeros((p, p))
+    W = np.zeros((n, p, 3))
+    V = np.zeros((n, 3, 3))
+    bg = np.zeros(p)
+    bX = np.zeros((n, 3))
+    residuals = []
+    for i, pts in enumerate(data.pts):
+        if len(pts) == 0:
+            residuals.append(np.zeros((0, 2)))
+            continue
+        pred, _, Jg, JX = _predict_view(state, lay, i, pts)
+        r = data.uv[i] - pred
+        residuals.append(r)
+        if obs_weight is None:
+            w = _loss(np.einsum("nk,nk->n", r, r), loss, c)[1]
+        else:
+            w = obs_weight[i]
+        cols = lay.view_columns(i)
+        q = len(cols)
+        Jw = Jg * w[:, None, None]
+        JXw = JX * w[:, None, None]
+        U[np.ix_(cols, cols)] += Jw.reshape(-1, q).T @ Jg.reshape(-1, q)
+        bg[cols] += Jw.reshape(-1, q).T @ r.reshape(-1)
+        W[pts[:, None], cols[None, :], :] += np.einsum("nka,nkb->nab", Jw, JX)
+        V[pts] += np.einsum("nka,nkb->nab", JXw, JX)
+        bX[pts] += np.einsum("nka,nk->na", JXw, r)
+    # translation priors: residual t_w (T^meas - T), Jacobian of the prediction t_w I
+    for i, s in lay.i_T.items():
+        tw2 = data.t_weight[i] ** 2
+        U[s: s + 3, s: s + 3] += tw2 * np.eye(3)
+        bg[s: s + 3] += tw2 * (data.T_meas[i] - state.T[i])
+    return U, W, V, bg, bX, residuals
+
+
+def _inv3_spd(V: np.ndarray) -> np.ndarray:
+    """Inverses of symmetric positive definite 3x3 blocks ``V (n, 3, 3)``, vectorised.
+
+    Jacobi-scaled adjugate: ``V^-1 = D (D V D)^-1 D`` with ``D = diag(V)^-1/2``.
+    """
+    d = 1.0 / np.sqrt(np.maximum(np.einsum("nii->ni", V), 1e-300))
+    A = V * d[:, :, None] * d[:, None, :]
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    e, f, h = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
+    c00, c01, c02 = e * h - f * f, c * f - b * h, b * f - c * e
+    c11, c12, c22 = a * h - c * c, b * c - a * f, a * e - b * b
+    det = a * c00 + b * c01 + c * c02
+    inv = np.stack([np.stack([c00, c01, c02], -1), np.stack([c01, c11, c12], -1),
+                    np.stack([c02, c12, c22], -1)], -2) / det[:, None, None]
+    return inv * d[:, :, None] * d[:, None, :], det
+
+
+def _schur(U, W, V, bg, bX):
+    """Reduced system ``S dg = rhs`` and ``V^-1`` (points eliminated)."""
+    Vinv, det = _inv3_spd(V)
+    Y = np.einsum("npa,nab->npb", W, Vinv)  # W_j V_j^-1
+    p = U.shape[0]
+    S = U - Y.transpose(1, 0, 2).reshape(p, -1) @ W.transpose(1, 0, 2).reshape(p, -1).T
+    rhs = bg - np.einsum("npa,na->p", Y, bX)
+    return 0.5 * (S + S.T), rhs, Vinv, det
+
+
+def _solve_spd(S: np.ndarray, rhs: np.ndarray):
+    """Solve ``S x = rhs`` (Jacobi-scaled Cholesky); None if not positive definite."""
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    try:
+        cf = scipy.linalg.cho_factor(S * d[:, None] * d[None, :])
+    except np.linalg.LinAlgError:
+        return None
+    return d * scipy.linalg.cho_solve(cf, rhs * d)
+
+
+def _apply_step(state: _State, lay: _Layout, dg: np.ndarray, dX: np.ndarray) -> _State:
+    new = state.copy()
+    new.intr[: lay.n_intr] += dg[: lay.n_intr]
+    new.dist5[: lay.n_dist] += dg[lay.i_dist: lay.i_dist + lay.n_dist]
+    new.R = _rotvec_to_matrix(dg[lay.i_rot: lay.i_rot + 3]) @ state.R
+    for i, s in lay.i_vrot.items():
+        new.Q[i] = _rotvec_to_matrix(dg[s: s + 3]) @ state.Q[i]
+    for i, s in lay.i_T.items():
+        new.T[i] += dg[s: s + 3]
+    new.X += dX
+    return new
+
+
+def _levenberg_marquardt(state, lay, data, loss, c, max_iterations, tol, progress):
+    """Minimise the (robust) cost; returns the final state, cost, iterations, stop reason."""
+    cost = _cost(state, lay, data, loss, c)
+    if not np.isfinite(cost):
+        raise DegenerateError("the initial estimate puts some used points behind the camera; "
+                              "start from a better initial estimate (e.g. the linear one)")
+    mu, nu = None, 2.0
+    reason = f"max_iterations ({max_iterations}) reached"
+    floor = 1e-22 * max(data.n_obs, 1)  # residuals ~1e-11 px: exact data
+    it = 0
+    while it < max_iterations:
+        if cost <= floor:
+            reason = "converged: zero residual"
+            break
+        U, W, V, bg, bX, _ = _normal_equations(state, lay, data, loss, c)
+        dU, dV = np.diag(U).copy(), np.einsum("nii->ni", V).copy()
+        if mu is None:
+            mu = 1e-3
+        accepted = False
+        while not accepted:
+            eps = 1e-12 * max(dU.max(), 1e-300)
+            Ud = U + np.diag(mu * np.maximum(dU, eps))
+            Vd = V + mu * np.maximum(dV, 1e-12 * dV.max(axis=1, keepdims=True))[:, :, None] * np.eye(3)
+            S, rhs, Vinv, det = _schur(Ud, W, Vd, bg, bX)
+            dg = _solve_spd(S, rhs) if np.all(det > 0) else None
+            if dg is not None:
+                dX = np.einsum("nab,nb->na", Vinv, bX - np.einsum("npa,p->na", W, dg))
+                new = _apply_step(state, lay, dg, dX)
+                new_cost = _cost(new, lay, data, loss, c)
+                # decrease predicted by the damped quadratic model
+                predicted = 0.5 * (dg @ (mu * np.maximum(dU, eps) * dg + bg)
+                                   + np.sum(dX * (mu * np.maximum(dV, 0) * dX + bX)))
+                gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
+            else:
+                gain = -1.0
+            if gain > 0:
+                accepted = True
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+            else:
+                mu *= nu
+                nu *= 2.0
+                if mu > 1e16:
+                    break
+        if not accepted:
+            reason = "converged: no step decreases the cost (minimum within numerical precision)"
+            break
+        it += 1
+        decrease = cost - new_cost
+        state, cost = new, new_cost
+        if progress is not None:
+            progress({"iteration": it, "cost": cost, "damping": mu})
+        if decrease <= tol * cost:
+            reason = f"converged: relative cost decrease below tol={tol:g}"
+            break
+    return state, cost, it, reason
+
+
+# ----------------------------------------------------------------------------------------
+# Public API
+# ----------------------------------------------------------------------------------------
+
+
+def _check_inputs(uv, T, initial, distortion, loss, loss_scale_px, sigma_px, sigma_T, max_iterations, tol):
+    uv = np.asarray(uv, dtype=float)
+    T = np.asarray(T, dtype=float)
+    if uv.ndim != 3 or uv.shape[2] != 2:
+        raise InputError(f"uv must have shape (n_views, n_points, 2), got {uv.shape}; "
+                         "stack the pixel coordinates of every point in every view (NaN where unseen)")
+    n_views, n_points = uv.shape[:2]
+    if T.shape != (n_views, 3):
+        raise InputError(f"T must have shape (n_views, 3) = ({n_views}, 3) to match uv, got {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise InputError("T contains NaN or inf; every view needs a measured translation")
+    if np.any(np.isinf(uv)):
+        raise InputError("uv contains inf; mark unseen points with NaN")
+    if not isinstance(initial, (LinearEstimate, Calibration)):
+        raise InputError(f"initial must be a LinearEstimate or a Calibration, got {type(initial).__name__}; "
+                         "run transcalib.estimate_linear(uv, T) first")
+    X0 = np.asarray(initial.X, dtype=float)
+    if X0.shape != (n_points, 3):
+        raise InputError(f"initial.X has shape {X0.shape}, expected (n_points, 3) = ({n_points}, 3) to match uv")
+    K0 = np.asarray(initial.K, dtype=float)
+    if K0.shape != (3, 3) or not np.all(np.isfinite(K0)) or K0[0, 0] <= 0 or K0[1, 1] <= 0:
+        raise InputError(f"initial.K must be a finite 3x3 matrix with fx, fy > 0, got {K0.tolist()}")
+    if distortion not in DIST_MODELS:
+        raise InputError(f"distortion must be one of {sorted(DIST_MODELS)}, got {distortion!r}")
+    if loss not in LOSSES:
+        raise InputError(f"loss must be one of {LOSSES}, got {loss!r}")
+    if not (np.isfinite(loss_scale_px) and loss_scale_px > 0):
+        raise InputError(f"loss_scale_px must be a positive number of pixels, got {loss_scale_px!r}")
+    if sigma_px is not None and not (np.isfinite(sigma_px) and sigma_px > 0):
+        raise InputError(f"sigma_px must be None (estimate it) or a positive number, got {sigma_px!r}")
+    if sigma_T is not None:
+        s = np.asarray(sigma_T, dtype=float)
+        if s.shape not in ((), (n_views,)) or not np.all(np.isfinite(s)) or np.any(s < 0) or not np.any(s > 0):
+            raise InputError(f"sigma_T must be a positive number or an (n_views,) = ({n_views},) array "
+                             f"of standard deviations >= 0 (0: exact), got {sigma_T!r}")
+    if int(max_iterations) != max_iterations or max_iterations < 0:
+        raise InputError(f"max_iterations must be a non-negative integer, got {max_iterations!r}")
+    if not (tol >= 0):
+        raise InputError(f"tol must be >= 0, got {tol!r}")
+    return uv, T, X0, K0
+
+
+def _initial_dist(initial, n_dist: int) -> np.ndarray:
+    d5 = np.zeros(5)
+    dist = np.asarray(getattr(initial, "dist", ()), dtype=float).ravel()
+    if dist.size == 2:
+        d5[:2] = dist
+    elif dist.size in (4, 5):
+        d5[: dist.size] = dist
+    keep = {0: [], 2: [0, 1], 5: [0, 1, 2, 3, 4]}[n_dist]
+    out = np.zeros(5)
+    out[keep] = d5[keep]
+    return out
+
+
+def _build_data(uv, seen, used_idx, T_meas, t_weight):
+    """Group the observations of the used points by view."""
+    pts, obs = [], []
+    for i in range(uv.shape[0]):
+        sel = np.flatnonzero(seen[i, used_idx])
+        pts.append(sel)
+        obs.append(uv[i, used_idx[sel]])
+    return _Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=len(used_idx))
+
+
+def _covariance(state, lay, data, obs_weight):
+    """``S^-1`` (unscaled), per-point ``diag`` of the X covariance (unscaled), point mask."""
+    U, W, V, _, _, _ = _normal_equations(state, lay, data, "linear", 1.0, obs_weight=obs_weight)
+    n_w = np.zeros(data.n_points, int)
+    for i, pts in enumerate(data.pts):
+        np.add.at(n_w, pts, obs_weight[i] > 0)
+    ok = n_w >= 2
+    V[~ok] = np.eye(3)  # excluded points: W rows are zero, so they do not enter S
+    W[~ok] = 0.0
+    S, _, Vinv, det = _schur(U, W, V, np.zeros(lay.size), np.zeros((data.n_points, 3)))
+    if np.any(det[ok] <= 0):
+        raise DegenerateError(f"{int(np.sum(det[ok] <= 0))} points are not determined by their observations "
+                              "(rays nearly parallel); remove them or add views with larger translations")
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    Sn = S * d[:, None] * d[None, :]
+    evals, evecs = np.linalg.eigh(Sn)
+    if evals[0] <= 1e-13 * evals[-1]:
+        names = lay.names()
+        worst = [names[k] for k in np.argsort(-np.abs(evecs[:, 0]))[:3]]
+        raise DegenerateError("the data do not determine all parameters (the reduced normal matrix is "
+                              f"singular; the weakest combination involves {', '.join(worst)}). Use a simpler "
+                              "distortion model, more points spread over the image, or more views.")
+    Sinv = (evecs / evals) @ evecs.T * d[:, None] * d[None, :]
+    Z = np.einsum("nab,npb->nap", Vinv, W)  # V_j^-1 W_j^T
+    var_X = np.einsum("naa->na", Vinv) + np.einsum("nap,pq,naq->na", Z, Sinv, Z)
+    return Sinv, var_X, ok
+
+
+def refine(
+    uv,
+    T,
+    initial,
+    *,
+    distortion: str = "none",
+    estimate_skew: bool = False,
+    sigma_T=None,
+    loss: str = "linear",
+    loss_scale_px: float = 1.0,
+    inlier_threshold_px: float | None = None,
+    sigma_px: float | None = None,
+    max_iterations: int = 100,
+    tol: float = 1e-10,
+    estimate_view_rotations: bool = False,
+    progress=None,
+) -> Calibration:
+    """Maximum-likelihood refinement of a calibration (sparse bundle adjustment).
+
+    Minimises ``0.5 sum_ij rho(|r_ij|^2) [+ 0.5 sum_i |T_i - T_i^meas|^2 sigma^2/sigma_T^2]``
+    with ``r_ij = uv_ij - pi(K, dist, Q_i R (X_j - T_i))`` (paper eq. 2 with OpenCV
+    distortion) by Levenberg-Marquardt, eliminating the points with the Schur complement
+    (one iteration costs O(n_points)).
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        Observed pixels, NaN where a point is not seen.
+    T : (n_views, 3) float
+        Measured robot translations (world frame, user units).
+    initial : LinearEstimate or Calibration
+        Starting point: ``K``, ``R``, ``X`` (and ``dist`` of a Calibration). Points with
+        non-finite ``X``, seen in fewer than 2 views, or behind the camera in some view
+        are left out (NaN in the result; counted in ``info["n_points_excluded"]``).
+    distortion : {"none", "radial2", "opencv5"}
+        Lens distortion model, OpenCV order ``k1, k2, p1, p2, k3`` (values can be passed
+        to ``cv2.undistort`` unchanged).
+    estimate_skew : bool
+        Estimate the skew ``K[0, 1]``; otherwise it is fixed at 0 (OpenCV's model).
+    sigma_T : float or (n_views,) float, optional
+        Standard deviation of the measured translations (user units, per coordinate).
+        If given, the translations are parameters with this measurement prior (0 in the
+        array: that view's translation is exact); otherwise they are fixed.
+    loss : {"linear", "huber", "cauchy"}
+        Loss of the residual norm ``e = |r_ij|``, with scale ``c = loss_scale_px``:
+        linear ``e^2``; Huber ``e^2`` (e <= c), ``2 c e - c^2``; Cauchy
+        ``c^2 log(1 + e^2/c^2)``. Robust losses are minimised by IRLS inside LM.
+    loss_scale_px : float
+        Scale ``c`` of the robust loss (pixels); about twice the pixel noise is a good value.
+    inlier_threshold_px : float, optional
+        A point is an inlier when its residual norm is at most this in **every** view
+        that sees it (default ``3 * loss_scale_px``). Only used with a robust loss.
+    sigma_px : float, optional
+        Known pixel noise (per coordinate). By default estimated from the residuals as
+        ``sqrt(sum |r|^2 / dof)``, ``dof = 2 n_obs - n_global - 3 n_points``.
+    max_iterations : int
+        Maximum number of accepted LM steps.
+    tol : float
+        Stop when an accepted step decreases the cost by less than ``tol * cost``.
+    estimate_view_rotations : bool
+        Add a rotation ``Q_i = exp([w_i]x)`` per view ``i >= 1`` (camera rotation
+        ``R_i = Q_i R``), to detect a robot that rotated; reported in
+        ``info["view_rotations_deg"]`` and ``info["view_rotations_std_deg"]``.
+    progress : callable, optional
+        Called after each accepted step with a dict ``{iteration, cost, damping}``.
+
+    Returns
+    -------
+    Calibration
+        ``K``, ``R``, ``X``, ``dist``, ``residuals_px``, ``rms_px``, ``T`` (refined when
+        ``sigma_T`` is given), ``cov`` / ``std`` / ``param_names`` (rotations in
+        **degrees**, translations in user units), ``X_std``, ``inliers`` (robust loss only,
+        else None), ``info`` (iterations, cost, stop_reason, sigma_px, dof, ...),
+        ``linear`` (when ``initial`` is a LinearEstimate). ``diagnostics`` is empty.
+
+    Raises
+    ------
+    InputError
+        Malformed input.
+    DegenerateError
+        Fewer than 2 usable points, no residual degrees of freedom to estimate the noise,
+        or parameters the data do not determine.
+    """
+    t_start = time.perf_counter()
+    uv, T, X0, K0 = _check_inputs(uv, T, initial, distortion, loss, loss_scale_px, sigma_px, sigma_T,
+                                  max_iterations, tol)
+    n_views, n_points = uv.shape[:2]
+    n_dist = DIST_MODELS[distortion]
+    seen = np.all(np.isfinite(uv), axis=2)
+
+    R0 = np.asarray(initial.R, dtype=float)
+    intr = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], K0[0, 1] if estimate_skew else 0.0])
+    dist5 = _initial_dist(initial, n_dist)
+    # used points: finite X, >= 2 views, in front of the camera in every view that sees them
+    usable = np.all(np.isfinite(X0), axis=1) & (seen.sum(axis=0) >= 2)
+    z0 = np.einsum("b,vnb->vn", R0[2], X0[None] - T[:, None])
+    in_front = np.all(~seen | (z0 > 0) | ~usable[None], axis=0)
+    used = usable & in_front
+    n_behind = int(np.sum(usable & ~in_front))
+    used_idx = np.flatnonzero(used)
+    if len(used_idx) < 2:
+        raise DegenerateError(f"only {len(used_idx)} usable points (finite initial X, seen in >= 2 views, in "
+                              "front of the camera); refinement needs at least 2. Track more points.")
+
+    if sigma_T is None:
+        t_sigma = np.zeros(n_views)
+    else:
+        t_sigma = np.broadcast_to(np.asarray(sigma_T, dtype=float), (n_views,)).copy()
+    lay = _Layout(n_views, n_dist, bool(estimate_skew), bool(estimate_view_rotations), t_sigma > 0)
+    state = _State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy())
+
+    n_obs = int(seen[:, used_idx].sum())
+    n_global_no_T = lay.size - 3 * len(lay.i_T)
+    dof = 2 * n_obs - n_global_no_T - 3 * len(used_idx)
+    if dof < 0 or (dof == 0 and sigma_px is None):
+        raise DegenerateError(f"too few observations: {2 * n_obs} residuals for {n_global_no_T + 3 * len(used_idx)} "
+                              f"unknowns ({len(used_idx)} points, {n_global_no_T} camera parameters). Track more "
+                              "points, use more views, or a simpler distortion model.")
+    c = float(loss_scale_px)
+    thr = 3.0 * c if inlier_threshold_px is None else float(inlier_threshold_px)
+
+    def run(state, tw, iters):
+        data = _build_data(uv, seen, used_idx, T, tw)
+        return (*_levenberg_marquardt(state, lay, data, loss, c, iters, tol, progress), data)
+
+    total_it = 0
+    if lay.i_T:
+        # errors in both images and robot: the prior weight needs the pixel noise
+        if sigma_px is None:  # estimate it: fixed-T fit first, then sigma^2 = |r|^2 / (dof - chi2_T)
+            lay_fixed = _Layout(n_views, n_dist, bool(estimate_skew), bool(estimate_view_rotations),
+                                np.zeros(n_views, bool))
+            data0 = _build_data(uv, seen, used_idx, T, np.zeros(n_views))
+            s0 = _State(state.intr, state.dist5, state.R, state.Q, state.T, state.X)
+            s0, _, it0, _ = _levenberg_marquardt(s0, lay_fixed, data0, loss, c, max_iterations, tol, progress)
+            total_it += it0
+            state = s0.copy()
+            sig = _sigma_from(s0, lay_fixed, data0, loss, c, thr, dof)
+            for _ in range(5):
+                tw = np.where(t_sigma > 0, sig / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
+                state, cost, it, reason, data = run(state, tw, max_iterations)
+                total_it += it
+                r2 = _sum_sq_inliers(state, lay, data, loss, c, thr)
+                dT = (state.T - T) / np.where(t_sigma > 0, t_sigma, 1.0)[:, None]
+                chi2_T = float(np.sum(dT[t_sigma > 0] ** 2))
+                new_sig = float(np.sqrt(r2 / max(dof - chi2_T, 0.5 * dof)))
+                if abs(new_sig - sig) <= 1e-3 * sig:
+                    sig = new_sig
+                    break
+                sig = new_sig
+            sigma_used = sig
+        else:
+            sigma_used = float(sigma_px)
+            tw = np.where(t_sigma > 0, sigma_used / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
+            state, cost, total_it, reason, data = run(state, tw, max_iterations)
+    else:
+        state, cost, total_it, reason, data = run(state, np.zeros(n_views), max_iterations)
+        sigma_used = None
+
+    # residuals, inliers
+    residuals = np.full((n_views, n_points, 2), np.nan)
+    obs_inlier = []
+    for i, pts in enumerate(data.pts):
+        if len(pts) == 0:
+            obs_inlier.append(np.zeros(0))
+            continue
+        pred, _, _, _ = _predict_view(state, lay, i, pts, jacobian=False)
+        r = data.uv[i] - pred
+        residuals[i, used_idx[pts]] = r
+        e = np.sqrt(np.einsum("nk,nk->n", r, r))
+        obs_inlier.append((e <= thr).astype(float) if loss != "linear" else np.ones(len(pts)))
+    used_res = residuals[:, used_idx][seen[:, used_idx]]
+    rms = float(np.sqrt(np.mean(np.sum(used_res**2, axis=1))))
+    inliers = None
+    if loss != "linear":
+        inliers = np.zeros(n_points, bool)
+        bad = np.zeros(len(used_idx), bool)
+        for i, pts in enumerate(data.pts):
+            bad[pts[obs_inlier[i] == 0]] = True
+        inliers[used_idx[~bad]] = True
+
+    # noise level and covariance
+    Sinv, var_X, ok = _covariance(state, lay, data, obs_inlier)
+    n_obs_in = int(sum(np.sum(w > 0) for w in obs_inlier))
+    dof_in = 2 * n_obs_in - n_global_no_T - 3 * int(ok.sum())
+    if sigma_px is not None:
+        sigma = float(sigma_px)
+    elif sigma_used is not None:
+        sigma = sigma_used
+    else:
+        if dof_in <= 0:
+            raise DegenerateError("no residual degrees of freedom left among the inliers to estimate the pixel "
+                                  "noise; pass sigma_px or track more points")
+        sigma = float(np.sqrt(_sum_sq_inliers(state, lay, data, loss, c, thr) / dof_in))
+    # the prior weights were built with sigma_used, so sigma^2 S^-1 is the covariance
+    cov = sigma**2 * Sinv
+    names = lay.names()
+    rot = lay.rotation_mask()
+    scale = np.where(rot, _RAD2DEG, 1.0)
+    cov = cov * scale[:, None] * scale[None, :]
+    std = {nm: float(np.sqrt(cov[k, k])) for k, nm in enumerate(names)}
+    X_std = np.full((n_points, 3), np.nan)
+    X_std[used_idx[ok]] = sigma * np.sqrt(var_X[ok])
+    X = np.full((n_points, 3), np.nan)
+    X[used_idx] = state.X
+
+    view_rot = np.zeros((n_views, 3))
+    view_rot_std = np.zeros((n_views, 3))
+    for i, s in lay.i_vrot.items():
+        view_rot[i] = _matrix_to_rotvec(state.Q[i]) * _RAD2DEG
+        view_rot_std[i] = np.sqrt(np.diag(cov)[s: s + 3])
+    K = K_from_params(*state.intr)
+    info = {
+        "stage": "refine",
+        "iterations": int(total_it),
+        "cost": float(cost),
+        "stop_reason": reason,
+        "converged": reason.startswith("converged"),
+        "sigma_px": sigma,
+        "sigma_px_estimated": sigma_px is None,
+        "dof": int(dof_in),
+        "n_observations": n_obs,
+        "n_points_used": int(len(used_idx)),
+        "n_points_excluded": int(n_points - len(used_idx)),
+        "n_points_behind_camera": n_behind,
+        "distortion": distortion,
+        "loss": loss,
+        "loss_scale_px": c,
+        "inlier_threshold_px": thr if loss != "linear" else None,
+        "time_s": time.perf_counter() - t_start,
+    }
+    if estimate_view_rotations:
+        info["view_rotations_deg"] = view_rot
+        info["view_rotations_std_deg"] = view_rot_std
+        info["view_rotation_angles_deg"] = np.linalg.norm(view_rot, axis=1)
+    if lay.i_T:
+        info["sigma_T"] = t_sigma
+    return Calibration(
+        K=K,
+        R=state.R,
+        X=X,
+        dist=state.dist5[:n_dist].copy() if n_dist != 2 else state.dist5[:2].copy(),
+        dist_model=distortion,
+        residuals_px=residuals,
+        rms_px=rms,
+        diagnostics=[],
+        T=state.T.copy(),
+        linear=initial if isinstance(initial, LinearEstimate) else getattr(initial, "linear", None),
+        cov=cov,
+        std=std,
+        param_names=names,
+        X_std=X_std,
+        inliers=inliers,
+        info=info,
+    )
+
+
+def _sum_sq_inliers(state, lay, data, loss, c, thr) -> float:
+    """Sum of squared pixel residuals over the inlier observations (all for a linear loss)."""
+    total = 0.0
+    for i, pts in enumerate(data.pts):
+        if len(pts) == 0:
+            continue
+        pred, _, _, _ = _predict_view(state, lay, i, pts, jacobian=False)
+        e2 = np.sum((data.uv[i] - pred) ** 2, axis=1)
+        total += float(np.sum(e2 if loss == "linear" else e2[e2 <= thr * thr]))
+    return total
+
+
+def _sigma_from(state, lay, data, loss, c, thr, dof) -> float:
+    return float(np.sqrt(_sum_sq_inliers(state, lay, data, loss, c, thr) / max(dof, 1)))
+
+
+def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False) -> dict:
+    """Cramér-Rao lower bound on the parameter standard deviations of a simulated scene.
+
+    The Fisher information ``J^T J / noise_px^2`` (plus ``1 / robot_noise^2`` on the
+    translations of views ``i >= 1`` when the scene has robot noise, as
+    :func:`transcalib.simulate.observe` draws it) at the ground truth, for the
+    observation pattern of ``scene.uv``; the points are eliminated with the Schur
+    complement as in :func:`refine`.
+
+    Parameters
+    ----------
+    scene : transcalib.simulate.Scene
+        With ``noise_px > 0``.
+    distortion : {"none", "radial2", "opencv5"}, optional
+        Model whose parameters are bounded; default from the number of true coefficients.
+    estimate_skew : bool
+        Include the skew as a parameter.
+
+    Returns
+    -------
+    dict of str to float
+        Lower bound of the standard deviation of each parameter, named as in
+        ``Calibration.std`` (rotations in degrees).
+    """
+    if not scene.noise_px > 0:
+        raise InputError(f"the CRLB needs a scene with pixel noise > 0, got noise_px={scene.noise_px!r}")
+    n_true = np.asarray(scene.dist).size
+    if distortion is None:
+        distortion = {0: "none", 2: "radial2"}.get(n_true, "opencv5")
+    if distortion not in DIST_MODELS:
+        raise InputError(f"distortion must be one of {sorted(DIST_MODELS)}, got {distortion!r}")
+    n_views, n_points = scene.uv.shape[:2]
+    seen = np.all(np.isfinite(scene.uv), axis=2)
+    used_idx = np.flatnonzero(seen.sum(axis=0) >= 2)
+    t_sigma = np.zeros(n_views)
+    if scene.robot_noise > 0:
+        t_sigma[1:] = scene.robot_noise
+    lay = _Layout(n_views, DIST_MODELS[distortion], bool(estimate_skew), False, t_sigma > 0)
+    K = scene.K
+    state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]),
+                   _initial_dist(scene, DIST_MODELS[distortion]), scene.R.copy(),
+                   np.tile(np.eye(3), (n_views, 1, 1)), scene.T_true.copy(), scene.X[used_idx].copy())
+    tw = np.where(t_sigma > 0, scene.noise_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
+    data = _build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
+    Sinv, _, _ = _covariance(state, lay, data, [np.ones(len(p)) for p in data.pts])
+    scale = np.where(lay.rotation_mask(), _RAD2DEG, 1.0)
+    sd = scene.noise_px * np.sqrt(np.diag(Sinv)) * scale
+    return {nm: float(v) for nm, v in zip(lay.names(), sd)}
