@@ -163,31 +163,33 @@ def _matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
 def _predict_view(state: _State, lay: _Layout, i: int, pts: np.ndarray, jacobian: bool = True):
     """Predicted pixels of the used points ``pts`` in view ``i`` and their Jacobians.
 
+    Arrays are laid out with the points last, so that every operation below is a
+    vector operation over points.
+
     Returns
     -------
-    pred : (n, 2) float
+    pred : (2, n) float
         ``pi(K, dist, Q_i R (X_j - T_i))``.
     z : (n,) float
         Camera depth (must be positive).
-    Jg : (n, 2, q) float
+    Jg : (q, 2, n) float
         d pred / d (global parameters of this view), columns ``lay.view_columns(i)``.
-    JX : (n, 2, 3) float
+    JX : (3, 2, n) float
         d pred / d X_j.
     """
-    X = state.X[pts]
-    y = (X - state.T[i]) @ state.R.T  # R (X - T_i)
-    Q = state.Q[i]
-    xc = y @ Q.T  # camera frame
-    z = xc[:, 2]
+    R, Q = state.R, state.Q[i]
+    y = R @ (state.X[pts] - state.T[i]).T  # (3, n): R (X_j - T_i)
+    xc = Q @ y  # camera frame
+    z = xc[2]
     iz = 1.0 / z
-    x, yy = xc[:, 0] * iz, xc[:, 1] * iz
+    x, yy = xc[0] * iz, xc[1] * iz
     k1, k2, p1, p2, k3 = state.dist5
     r2 = x * x + yy * yy
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     xd = x * radial + 2.0 * p1 * x * yy + p2 * (r2 + 2.0 * x * x)
     yd = yy * radial + p1 * (r2 + 2.0 * yy * yy) + 2.0 * p2 * x * yy
     fx, fy, cx, cy, s = state.intr
-    pred = np.stack([fx * xd + s * yd + cx, fy * yd + cy], axis=-1)
+    pred = np.stack([fx * xd + s * yd + cx, fy * yd + cy])
     if not jacobian:
         return pred, z, None, None
 
@@ -200,38 +202,48 @@ def _predict_view(state: _State, lay: _Layout, i: int, pts: np.ndarray, jacobian
     # M = [[fx, s], [0, fy]] d(xd, yd)/d(x, y);  P = d pred / d xc = M [[1, 0, -x], [0, 1, -y]] / z
     m11, m12 = fx * a11 + s * a12, fx * a12 + s * a22
     m21, m22 = fy * a12, fy * a22
-    P = np.empty((n, 2, 3))
-    P[:, 0, 0], P[:, 0, 1], P[:, 0, 2] = m11 * iz, m12 * iz, -(m11 * x + m12 * yy) * iz
-    P[:, 1, 0], P[:, 1, 1], P[:, 1, 2] = m21 * iz, m22 * iz, -(m21 * x + m22 * yy) * iz
+    P = np.empty((2, 3, n))
+    P[0, 0], P[0, 1], P[0, 2] = m11 * iz, m12 * iz, -(m11 * x + m12 * yy) * iz
+    P[1, 0], P[1, 1], P[1, 2] = m21 * iz, m22 * iz, -(m21 * x + m22 * yy) * iz
 
     q = lay.n_common + 3 * (i in lay.i_vrot) + 3 * (i in lay.i_T)
-    Jg = np.zeros((n, 2, q))
+    Jg = np.zeros((q, 2, n))
     # intrinsics: u = fx xd + s yd + cx, v = fy yd + cy
-    Jg[:, 0, 0] = xd
-    Jg[:, 1, 1] = yd
-    Jg[:, 0, 2] = 1.0
-    Jg[:, 1, 3] = 1.0
+    Jg[0, 0] = xd
+    Jg[1, 1] = yd
+    Jg[2, 0] = 1.0
+    Jg[3, 1] = 1.0
     if lay.estimate_skew:
-        Jg[:, 0, 4] = yd
+        Jg[4, 0] = yd
     # distortion: d(xd, yd)/dk, then through [[fx, s], [0, fy]]
     if lay.n_dist:
         r4 = r2 * r2
         grads = [(x * r2, yy * r2), (x * r4, yy * r4), (2.0 * x * yy, r2 + 2.0 * yy * yy),
                  (r2 + 2.0 * x * x, 2.0 * x * yy), (x * r4 * r2, yy * r4 * r2)]
         for c, (gx, gy) in enumerate(grads[: lay.n_dist]):
-            Jg[:, 0, lay.i_dist + c] = fx * gx + s * gy
-            Jg[:, 1, lay.i_dist + c] = fy * gy
-    # rotation R <- exp([w]x) R: d xc / dw = -Q [y]x, and a^T (-[y]x) = (y x a)^T
-    PQ = P @ Q
-    Jg[:, :, lay.i_rot: lay.i_rot + 3] = np.cross(y[:, None, :], PQ)
+            Jg[lay.i_dist + c, 0] = fx * gx + s * gy
+            Jg[lay.i_dist + c, 1] = fy * gy
+    # rows of P Q (d pred / d y), then d pred / dX = P Q R
+    PQ = np.einsum("kcn,cd->kdn", P, Q) if lay.view_rotations else P
+    JX = np.einsum("kcn,cd->dkn", PQ, R)  # (3, 2, n)
+    # rotation R <- exp([w]x) R: d y / dw = -[y]x, and a^T (-[y]x) = (y x a)^T
+    _cross_rows(y, PQ, Jg[lay.i_rot: lay.i_rot + 3])
     col = lay.n_common
     if i in lay.i_vrot:  # Q_i <- exp([w_i]x) Q_i: d xc / dw_i = -[xc]x
-        Jg[:, :, col: col + 3] = np.cross(xc[:, None, :], P)
+        _cross_rows(xc, P, Jg[col: col + 3])
         col += 3
-    JX = PQ @ state.R  # d xc / dX = Q R
     if i in lay.i_T:
-        Jg[:, :, col: col + 3] = -JX
+        Jg[col: col + 3] = -JX
     return pred, z, Jg, JX
+
+
+def _cross_rows(v: np.ndarray, A: np.ndarray, out: np.ndarray) -> None:
+    """``out[:, k, n] = v[:, n] x A[k, :, n]`` for v (3, n), A (2, 3, n), out (3, 2, n)."""
+    for k in range(2):
+        a = A[k]
+        out[0, k] = v[1] * a[2] - v[2] * a[1]
+        out[1, k] = v[2] * a[0] - v[0] * a[2]
+        out[2, k] = v[0] * a[1] - v[1] * a[0]
 
 
 # ----------------------------------------------------------------------------------------
@@ -254,86 +266,114 @@ def _loss(e2: np.ndarray, loss: str, c: float):
     return c2 * np.log1p(e2 / c2), 1.0 / (1.0 + e2 / c2)
 
 
+def _residual_view(state, lay, data, i, jacobian=False):
+    """Residuals ``r (2, n_i)`` of view i (observed - predicted), depths, Jacobians."""
+    pred, z, Jg, JX = _predict_view(state, lay, i, data.pts[i], jacobian)
+    return data.uv[i] - pred, z, Jg, JX
+
+
 def _cost(state: _State, lay: _Layout, data: _Data, loss: str, c: float) -> float:
     """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0."""
     total = 0.0
     for i, pts in enumerate(data.pts):
         if len(pts) == 0:
             continue
-        pred, z, _, _ = _predict_view(state, lay, i, pts, jacobian=False)
+        r, z, _, _ = _residual_view(state, lay, data, i)
         if not np.all(z > 0):
             return np.inf
-        r = data.uv[i] - pred
-        total += np.sum(_loss(np.einsum("nk,nk->n", r, r), loss, c)[0])
+        total += np.sum(_loss(r[0] ** 2 + r[1] ** 2, loss, c)[0])
     dT = (state.T - data.T_meas) * data.t_weight[:, None]
     return 0.5 * (total + np.sum(dT * dT))
 
 
 def _normal_equations(state, lay, data, loss, c, obs_weight=None):
-    """Assemble ``U (p, p)``, ``W (n, p, 3)``, ``V (n, 3, 3)``, ``b_g (p,)``, ``b_X (n, 3)``.
+    """Assemble the normal equations ``[[U, W], [W^T, V]] [dg; dX] = [b_g; b_X]``.
 
-    ``obs_weight``: optional list of (n_i,) weights replacing the loss weights (used for
-    the covariance). Returns also the residuals per view.
+    Returns ``U (p, p)``, ``W (p, 3, n)``, ``V (3, 3, n)``, ``b_g (p,)``, ``b_X (3, n)``
+    (points last). ``obs_weight``: optional list of (n_i,) weights replacing the loss's
+    IRLS weights (used for the covariance).
     """
     p, n = lay.size, data.n_points
     U = np.zeros((p, p))
-    W = np.zeros((n, p, 3))
-    V = np.zeros((n, 3, 3))
+    W = np.zeros((p, 3, n))
+    V = np.zeros((3, 3, n))
     bg = np.zeros(p)
-    bX = np.zeros((n, 3))
-    residuals = []
+    bX = np.zeros((3, n))
     for i, pts in enumerate(data.pts):
         if len(pts) == 0:
-            residuals.append(np.zeros((0, 2)))
             continue
-        pred, _, Jg, JX = _predict_view(state, lay, i, pts)
-        r = data.uv[i] - pred
-        residuals.append(r)
-        if obs_weight is None:
-            w = _loss(np.einsum("nk,nk->n", r, r), loss, c)[1]
-        else:
-            w = obs_weight[i]
+        r, _, Jg, JX = _residual_view(state, lay, data, i, jacobian=True)
+        w = _loss(r[0] ** 2 + r[1] ** 2, loss, c)[1] if obs_weight is None else obs_weight[i]
         cols = lay.view_columns(i)
         q = len(cols)
-        Jw = Jg * w[:, None, None]
-        JXw = JX * w[:, None, None]
-        U[np.ix_(cols, cols)] += Jw.reshape(-1, q).T @ Jg.reshape(-1, q)
-        bg[cols] += Jw.reshape(-1, q).T @ r.reshape(-1)
-        W[pts[:, None], cols[None, :], :] += np.einsum("nka,nkb->nab", Jw, JX)
-        V[pts] += np.einsum("nka,nkb->nab", JXw, JX)
-        bX[pts] += np.einsum("nka,nk->na", JXw, r)
+        Jw = Jg * w
+        JXw = JX * w
+        U[np.ix_(cols, cols)] += Jw.reshape(q, -1) @ Jg.reshape(q, -1).T
+        bg[cols] += Jw.reshape(q, -1) @ r.reshape(-1)
+        whole = len(pts) == n  # every used point seen: plain slices, no scatter
+        for a in range(3):
+            for b in range(a, 3):
+                vab = JXw[a, 0] * JX[b, 0] + JXw[a, 1] * JX[b, 1]
+                if whole:
+                    V[a, b] += vab
+                else:
+                    V[a, b, pts] += vab
+            bXa = JXw[a, 0] * r[0] + JXw[a, 1] * r[1]
+            if whole:
+                bX[a] += bXa
+            else:
+                bX[a, pts] += bXa
+        for la, ga in enumerate(cols):
+            wab = Jw[la, 0] * JX[:, 0] + Jw[la, 1] * JX[:, 1]  # (3, n_i)
+            if whole:
+                W[ga] += wab
+            else:
+                W[ga][:, pts] += wab
+    for a in range(3):
+        for b in range(a):
+            V[a, b] = V[b, a]
     # translation priors: residual t_w (T^meas - T), Jacobian of the prediction t_w I
     for i, s in lay.i_T.items():
         tw2 = data.t_weight[i] ** 2
         U[s: s + 3, s: s + 3] += tw2 * np.eye(3)
         bg[s: s + 3] += tw2 * (data.T_meas[i] - state.T[i])
-    return U, W, V, bg, bX, residuals
+    return U, W, V, bg, bX
 
 
-def _inv3_spd(V: np.ndarray) -> np.ndarray:
-    """Inverses of symmetric positive definite 3x3 blocks ``V (n, 3, 3)``, vectorised.
+def _inv3_spd(V: np.ndarray):
+    """Inverses of symmetric positive definite 3x3 blocks ``V (3, 3, n)``, vectorised.
 
-    Jacobi-scaled adjugate: ``V^-1 = D (D V D)^-1 D`` with ``D = diag(V)^-1/2``.
+    Jacobi-scaled adjugate: ``V^-1 = D (D V D)^-1 D`` with ``D = diag(V)^-1/2``. Returns
+    the inverses ``(3, 3, n)`` and the determinants of the scaled blocks ``(n,)``.
     """
-    d = 1.0 / np.sqrt(np.maximum(np.einsum("nii->ni", V), 1e-300))
-    A = V * d[:, :, None] * d[:, None, :]
-    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
-    e, f, h = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
+    d = 1.0 / np.sqrt(np.maximum(np.stack([V[0, 0], V[1, 1], V[2, 2]]), 1e-300))
+    A = V * d[:, None] * d[None, :]
+    a, b, c = A[0, 0], A[0, 1], A[0, 2]
+    e, f, h = A[1, 1], A[1, 2], A[2, 2]
     c00, c01, c02 = e * h - f * f, c * f - b * h, b * f - c * e
     c11, c12, c22 = a * h - c * c, b * c - a * f, a * e - b * b
     det = a * c00 + b * c01 + c * c02
-    inv = np.stack([np.stack([c00, c01, c02], -1), np.stack([c01, c11, c12], -1),
-                    np.stack([c02, c12, c22], -1)], -2) / det[:, None, None]
-    return inv * d[:, :, None] * d[:, None, :], det
+    idet = 1.0 / np.where(det > 0, det, 1.0)
+    inv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) * idet
+    return inv * d[:, None] * d[None, :], det
+
+
+def _matvec3(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M_j v_j`` for M (3, 3, n), v (3, n)."""
+    return M[:, 0] * v[0] + M[:, 1] * v[1] + M[:, 2] * v[2]
 
 
 def _schur(U, W, V, bg, bX):
-    """Reduced system ``S dg = rhs`` and ``V^-1`` (points eliminated)."""
+    """Reduced system ``S dg = rhs`` with the points eliminated, and ``V^-1``.
+
+    ``S = U - sum_j W_j V_j^-1 W_j^T``, ``rhs = b_g - sum_j W_j V_j^-1 b_j``.
+    """
     Vinv, det = _inv3_spd(V)
-    Y = np.einsum("npa,nab->npb", W, Vinv)  # W_j V_j^-1
-    p = U.shape[0]
-    S = U - Y.transpose(1, 0, 2).reshape(p, -1) @ W.transpose(1, 0, 2).reshape(p, -1).T
-    rhs = bg - np.einsum("npa,na->p", Y, bX)
+    p, n = U.shape[0], V.shape[2]
+    # Y_j = W_j V_j^-1  (p, 3, n)
+    Y = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]
+    S = U - Y.reshape(p, -1) @ W.reshape(p, -1).T
+    rhs = bg - Y.reshape(p, -1) @ bX.reshape(-1)
     return 0.5 * (S + S.T), rhs, Vinv, det
 
 
@@ -356,7 +396,7 @@ def _apply_step(state: _State, lay: _Layout, dg: np.ndarray, dX: np.ndarray) -> 
         new.Q[i] = _rotvec_to_matrix(dg[s: s + 3]) @ state.Q[i]
     for i, s in lay.i_T.items():
         new.T[i] += dg[s: s + 3]
-    new.X += dX
+    new.X += dX.T
     return new
 
 
@@ -368,30 +408,34 @@ def _levenberg_marquardt(state, lay, data, loss, c, max_iterations, tol, progres
                               "start from a better initial estimate (e.g. the linear one)")
     mu, nu = None, 2.0
     reason = f"max_iterations ({max_iterations}) reached"
-    floor = 1e-22 * max(data.n_obs, 1)  # residuals ~1e-11 px: exact data
+    floor = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
     it = 0
     while it < max_iterations:
         if cost <= floor:
             reason = "converged: zero residual"
             break
-        U, W, V, bg, bX, _ = _normal_equations(state, lay, data, loss, c)
-        dU, dV = np.diag(U).copy(), np.einsum("nii->ni", V).copy()
+        U, W, V, bg, bX = _normal_equations(state, lay, data, loss, c)
+        dU = np.diag(U).copy()
+        dV = np.stack([V[0, 0], V[1, 1], V[2, 2]])  # (3, n)
+        dV_floor = np.maximum(dV, 1e-12 * dV.max(axis=0))
         if mu is None:
             mu = 1e-3
         accepted = False
         while not accepted:
             eps = 1e-12 * max(dU.max(), 1e-300)
             Ud = U + np.diag(mu * np.maximum(dU, eps))
-            Vd = V + mu * np.maximum(dV, 1e-12 * dV.max(axis=1, keepdims=True))[:, :, None] * np.eye(3)
+            Vd = V.copy()
+            for a in range(3):
+                Vd[a, a] += mu * dV_floor[a]
             S, rhs, Vinv, det = _schur(Ud, W, Vd, bg, bX)
             dg = _solve_spd(S, rhs) if np.all(det > 0) else None
             if dg is not None:
-                dX = np.einsum("nab,nb->na", Vinv, bX - np.einsum("npa,p->na", W, dg))
+                dX = _matvec3(Vinv, bX - np.tensordot(dg, W, axes=1))  # (3, n)
                 new = _apply_step(state, lay, dg, dX)
                 new_cost = _cost(new, lay, data, loss, c)
                 # decrease predicted by the damped quadratic model
                 predicted = 0.5 * (dg @ (mu * np.maximum(dU, eps) * dg + bg)
-                                   + np.sum(dX * (mu * np.maximum(dV, 0) * dX + bX)))
+                                   + np.sum(dX * (mu * dV_floor * dX + bX)))
                 gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
             else:
                 gain = -1.0
@@ -484,26 +528,30 @@ def _build_data(uv, seen, used_idx, T_meas, t_weight):
     for i in range(uv.shape[0]):
         sel = np.flatnonzero(seen[i, used_idx])
         pts.append(sel)
-        obs.append(uv[i, used_idx[sel]])
+        obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
     return _Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=len(used_idx))
 
 
 def _covariance(state, lay, data, obs_weight):
-    """``S^-1`` (unscaled), per-point ``diag`` of the X covariance (unscaled), point mask."""
-    U, W, V, _, _, _ = _normal_equations(state, lay, data, "linear", 1.0, obs_weight=obs_weight)
+    """Unscaled covariances at the solution: ``S^-1 (p, p)``, ``diag`` of each point's ``(n, 3)``.
+
+    Observations with ``obs_weight == 0`` are left out; so are the points left with fewer
+    than 2 observations (returned mask ``ok`` False; their variances are NaN).
+    """
     n_w = np.zeros(data.n_points, int)
     for i, pts in enumerate(data.pts):
         np.add.at(n_w, pts, obs_weight[i] > 0)
     ok = n_w >= 2
-    V[~ok] = np.eye(3)  # excluded points: W rows are zero, so they do not enter S
-    W[~ok] = 0.0
-    S, _, Vinv, det = _schur(U, W, V, np.zeros(lay.size), np.zeros((data.n_points, 3)))
-    if np.any(det[ok] <= 0):
-        raise DegenerateError(f"{int(np.sum(det[ok] <= 0))} points are not determined by their observations "
+    weights = [np.where(ok[pts], w, 0.0) for pts, w in zip(data.pts, obs_weight)]
+    U, W, V, _, _ = _normal_equations(state, lay, data, "linear", 1.0, obs_weight=weights)
+    for a in range(3):
+        V[a, a, ~ok] = 1.0  # excluded points: W is zero there, they do not enter S
+    S, _, Vinv, det = _schur(U, W, V, np.zeros(lay.size), np.zeros((3, data.n_points)))
+    if np.any(det[ok] <= 1e-14):
+        raise DegenerateError(f"{int(np.sum(det[ok] <= 1e-14))} points are not determined by their observations "
                               "(rays nearly parallel); remove them or add views with larger translations")
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
-    Sn = S * d[:, None] * d[None, :]
-    evals, evecs = np.linalg.eigh(Sn)
+    evals, evecs = np.linalg.eigh(S * d[:, None] * d[None, :])
     if evals[0] <= 1e-13 * evals[-1]:
         names = lay.names()
         worst = [names[k] for k in np.argsort(-np.abs(evecs[:, 0]))[:3]]
@@ -511,8 +559,13 @@ def _covariance(state, lay, data, obs_weight):
                               f"singular; the weakest combination involves {', '.join(worst)}). Use a simpler "
                               "distortion model, more points spread over the image, or more views.")
     Sinv = (evecs / evals) @ evecs.T * d[:, None] * d[None, :]
-    Z = np.einsum("nab,npb->nap", Vinv, W)  # V_j^-1 W_j^T
-    var_X = np.einsum("naa->na", Vinv) + np.einsum("nap,pq,naq->na", Z, Sinv, Z)
+    # cov(X_j) = V_j^-1 + Z_j^T S^-1 Z_j with Z_j = W_j V_j^-1 (p, 3): diagonal only
+    p, n = lay.size, data.n_points
+    Z = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]
+    SZ = (Sinv @ Z.reshape(p, -1)).reshape(p, 3, n)
+    var_X = np.stack([Vinv[0, 0], Vinv[1, 1], Vinv[2, 2]]) + np.sum(Z * SZ, axis=0)  # (3, n)
+    var_X = var_X.T
+    var_X[~ok] = np.nan
     return Sinv, var_X, ok
 
 
@@ -681,10 +734,9 @@ def refine(
         if len(pts) == 0:
             obs_inlier.append(np.zeros(0))
             continue
-        pred, _, _, _ = _predict_view(state, lay, i, pts, jacobian=False)
-        r = data.uv[i] - pred
-        residuals[i, used_idx[pts]] = r
-        e = np.sqrt(np.einsum("nk,nk->n", r, r))
+        r = _residual_view(state, lay, data, i)[0]
+        residuals[i, used_idx[pts]] = r.T
+        e = np.sqrt(r[0] ** 2 + r[1] ** 2)
         obs_inlier.append((e <= thr).astype(float) if loss != "linear" else np.ones(len(pts)))
     used_res = residuals[:, used_idx][seen[:, used_idx]]
     rms = float(np.sqrt(np.mean(np.sum(used_res**2, axis=1))))
@@ -778,8 +830,8 @@ def _sum_sq_inliers(state, lay, data, loss, c, thr) -> float:
     for i, pts in enumerate(data.pts):
         if len(pts) == 0:
             continue
-        pred, _, _, _ = _predict_view(state, lay, i, pts, jacobian=False)
-        e2 = np.sum((data.uv[i] - pred) ** 2, axis=1)
+        r = _residual_view(state, lay, data, i)[0]
+        e2 = r[0] ** 2 + r[1] ** 2
         total += float(np.sum(e2 if loss == "linear" else e2[e2 <= thr * thr]))
     return total
 
