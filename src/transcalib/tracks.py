@@ -1,0 +1,800 @@
+"""Image front-end: images taken at pure translations -> point tracks.
+
+Stages (each timed in ``Tracks.info["time_s"]``):
+
+1. **detect** - SIFT keypoints and descriptors, plus Shi-Tomasi corners refined with
+   ``cv2.cornerSubPix`` (corners carry repetitive textures such as checkerboards).
+2. **match** - SIFT descriptors between **all** view pairs, with Lowe's ratio test and a
+   mutual (cross) check.
+3. **verify** - under pure translation the fundamental matrix of every view pair is
+   ``F = [e]_x``: the epipole ``e`` is the same point in both images and ``x``, ``x'``,
+   ``e`` are collinear. Two correspondences fix ``e`` (the intersection of the lines
+   ``x1 x1'`` and ``x2 x2'``), so a 2-point RANSAC rejects mismatches. Writing
+   ``x' = x + rho (e3 x - e_xy)``, ``rho = 1 / depth'`` must have one sign for all
+   points (cheirality), and the epipoles of all pairs must be consistent
+   (``e_ik`` on the line through ``e_ij`` and ``e_jk``, since ``t_ik = t_ij + t_jk``).
+   Corners, whose descriptors are ambiguous on repetitive textures, are then matched
+   **guided by the epipole**: their ``rho`` is interpolated from the verified matches
+   nearby, the prediction is snapped to the nearest corner in the other view, and the
+   match is kept only if it is mutual and on the epipolar line.
+4. **chain** - all verified matches are joined into tracks by union-find (connected
+   components); a track with two features in one view is a conflict and loses those
+   observations.
+5. **refine** - every observation is aligned to the track's reference view (its first)
+   by Lucas-Kanade with an affine warp and gain/offset (batched Gauss-Newton over all
+   tracks, bicubic sampling); observations that do not converge or correlate poorly are
+   dropped, epipoles are re-estimated from the refined points and observations off
+   their epipolar line are dropped.
+
+Coordinates follow OpenCV: the centre of the top-left pixel is (0, 0).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .types import DegenerateError, InputError
+
+__all__ = ["Tracks", "track", "load_images", "epipole_ransac"]
+
+log = logging.getLogger("transcalib.tracks")
+
+
+@dataclass(frozen=True, eq=False)
+class Tracks:
+    """Point tracks across views.
+
+    Attributes
+    ----------
+    uv : (n_views, n_points, 2) float
+        Pixels (OpenCV convention, centre of the top-left pixel = (0, 0)); NaN where a
+        point is not seen.
+    ids : (n_points,) int
+        Point identifiers (written to the ``point`` column of ``tracks.csv``).
+    colors : (n_points, 3) uint8 or None
+        RGB colour of each point (from its reference view), when the images had colour.
+    view_names : tuple of str
+        Name of each view (file stem, or ``"0"``, ``"1"``, ... for arrays).
+    info : dict
+        Statistics: per-stage times ``time_s``, counts, epipoles.
+    """
+
+    uv: np.ndarray
+    ids: np.ndarray
+    colors: np.ndarray | None = None
+    view_names: tuple = ()
+    info: dict = field(default_factory=dict)
+
+    @property
+    def n_views(self) -> int:
+        return int(self.uv.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        return int(self.uv.shape[1])
+
+    def to_csv(self, path) -> None:
+        """Write ``view,point,u,v`` rows (one per observation), atomically.
+
+        ``view`` is the view index ``0..n_views-1`` (the order of the images given to
+        :func:`track`), ``point`` the id; ``u, v`` in pixels with 6 decimals.
+        """
+        path = Path(path)
+        seen = np.isfinite(self.uv[..., 0])
+        vi, pj = np.nonzero(seen)
+        rows = [f"{v},{self.ids[p]},{self.uv[v, p, 0]:.6f},{self.uv[v, p, 1]:.6f}" for v, p in zip(vi, pj)]
+        text = "view,point,u,v\n" + "\n".join(rows) + ("\n" if rows else "")
+        d = path.parent if str(path.parent) else Path(".")
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=d)
+        try:
+            with os.fdopen(fd, "w", newline="") as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+
+# --------------------------------------------------------------------------- input
+def load_images(images) -> tuple[list[np.ndarray], list[np.ndarray | None], tuple[str, ...]]:
+    """Read and check images.
+
+    Parameters
+    ----------
+    images : sequence of path or array, or array (n_views, h, w[, 3])
+        File paths (read with OpenCV, colour converted to RGB) or arrays (2-D grey, or
+        3-D ``(h, w, 3)`` taken as RGB), all of one size.
+
+    Returns
+    -------
+    grey : list of (h, w) float32
+        Intensities 0..255.
+    rgb : list of (h, w, 3) uint8 or None
+    names : tuple of str
+    """
+    if isinstance(images, (str, os.PathLike)):
+        raise InputError("track: expected a sequence of images (paths or arrays), got a single path "
+                         f"{str(images)!r}; pass a list such as [img0.png, img1.png, ...]")
+    images = list(images)
+    if len(images) < 2:
+        raise InputError(f"track: need at least 2 images (4+ for calibration), got {len(images)}")
+    grey, rgb, names = [], [], []
+    for k, im in enumerate(images):
+        if isinstance(im, (str, os.PathLike)):
+            p = Path(im)
+            if not p.is_file():
+                raise InputError(f"track: image file {str(p)!r} does not exist")
+            arr = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if arr is None:
+                raise InputError(f"track: cannot read image {str(p)!r} (not an image format OpenCV can decode)")
+            if arr.ndim == 3 and arr.shape[2] == 4:
+                arr = arr[..., :3]
+            if arr.ndim == 3:
+                arr = cv2.cvtColor(arr, cv2.COLOR_BGR2RGB)
+            names.append(p.stem)
+        else:
+            arr = np.asarray(im)
+            names.append(str(k))
+        if arr.ndim == 3 and arr.shape[2] == 1:
+            arr = arr[..., 0]
+        if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3) or min(arr.shape[:2]) < 16:
+            raise InputError(f"track: image {names[-1]} has shape {arr.shape}; expected (h, w) grey or (h, w, 3) "
+                             "colour with h, w >= 16")
+        if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)):
+            raise InputError(f"track: image {names[-1]} has non-numeric or non-finite pixels")
+        scale = 1.0
+        if arr.dtype == np.uint16:
+            scale = 255.0 / 65535.0
+        elif np.issubdtype(arr.dtype, np.floating) and arr.max() <= 1.0:
+            scale = 255.0
+        a = arr.astype(np.float32) * np.float32(scale)
+        if a.ndim == 3:
+            rgb.append(np.clip(np.rint(a), 0, 255).astype(np.uint8))
+            a = a @ np.array([0.299, 0.587, 0.114], np.float32)
+        else:
+            rgb.append(None)
+        grey.append(np.ascontiguousarray(a, dtype=np.float32))
+    shapes = {g.shape for g in grey}
+    if len(shapes) > 1:
+        raise InputError("track: all images must have the same size (one camera); got sizes "
+                         + ", ".join(f"{n}: {g.shape[1]}x{g.shape[0]}" for n, g in zip(names, grey)))
+    return grey, rgb, tuple(names)
+
+
+# --------------------------------------------------------------------------- epipole
+def _direction(e: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``e3 x - e_xy`` ``(n, 2)``: direction of the epipolar line from ``e`` through ``x``."""
+    return e[2] * x - e[:2]
+
+
+def _epi_residual(e: np.ndarray, x: np.ndarray, y: np.ndarray):
+    """Distance of ``y`` from the epipolar line through ``x`` (px) and ``rho`` per match.
+
+    ``y = x + rho (e3 x - e_xy) + perpendicular residual``.
+    """
+    d = _direction(e, x)
+    nd = np.linalg.norm(d, axis=-1)
+    disp = y - x
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.abs(d[..., 0] * disp[..., 1] - d[..., 1] * disp[..., 0]) / nd
+        rho = (disp * d).sum(-1) / nd**2
+    small = np.linalg.norm(disp, axis=-1) < 0.5  # negligible motion: any line fits
+    dist = np.where(small, np.linalg.norm(disp, axis=-1) * 0.0, dist)
+    dist = np.where(np.isfinite(dist), dist, np.inf)
+    return dist, rho
+
+
+def _normalised_lines(x, y):
+    """Lines through ``x`` and ``y`` (homogeneous, unit normal)."""
+    xh = np.column_stack([x, np.ones(len(x))])
+    yh = np.column_stack([y, np.ones(len(y))])
+    L = np.cross(xh, yh)
+    n = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
+    return L / np.where(n > 0, n, 1.0)
+
+
+def _fit_epipole(x, y, scale):
+    """Least-squares common point of the lines ``x_k y_k`` (unit 3-vector)."""
+    L = _normalised_lines(x, y)
+    Hn = np.diag([1.0 / scale, 1.0 / scale, 1.0])  # condition: image units ~ 1
+    # line l in pixels, point e in pixels: l . e ; with e = Hinv e_n  ->  (Hinv^T l) . e_n
+    Ln = L @ np.linalg.inv(Hn).T
+    e_n = np.linalg.svd(Ln, full_matrices=False)[2][-1]
+    e = np.linalg.inv(Hn) @ e_n
+    return e / np.linalg.norm(e)
+
+
+def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, iterations: int = 400, rng=None):
+    """Epipole of a pure translation from correspondences ``x -> y`` (2-point RANSAC).
+
+    Parameters
+    ----------
+    x, y : (n, 2) float
+        Matched pixels in two views.
+    threshold_px : float
+        Inlier distance of ``y`` from the epipolar line through ``x``.
+    iterations : int
+    rng : seed or Generator
+
+    Returns
+    -------
+    e : (3,) float or None
+        Homogeneous epipole, unit norm, signed so that ``rho > 0`` (``e ~ A (T_j - T_i)``);
+        None if there are fewer than 3 inliers.
+    inliers : (n,) bool
+    rho : (n,) float
+        ``y = x + rho (e3 x - e_xy)``: ``rho`` is proportional to the inverse depth in
+        the second view.
+    """
+    rng = np.random.default_rng(rng)
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    n = len(x)
+    none = (None, np.zeros(n, bool), np.full(n, np.nan))
+    if n < 3:
+        return none
+    disp = np.linalg.norm(y - x, axis=1)
+    if np.median(disp) < 0.5:  # no motion between these views: nothing to verify
+        return none
+    scale = max(np.abs(x).max(), 1.0)
+    L = _normalised_lines(x, y)
+    moving = disp >= 0.5
+    idx = np.flatnonzero(moving)
+    if len(idx) < 2:
+        return none
+    pairs = rng.integers(0, len(idx), size=(iterations, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    E = np.cross(L[idx[pairs[:, 0]]], L[idx[pairs[:, 1]]])
+    En = np.linalg.norm(E, axis=1)
+    E = E[En > 1e-12] / En[En > 1e-12, None]
+    if len(E) == 0:
+        return none
+    # score every hypothesis on every match (vectorised): count inliers with rho of the majority sign
+    d = E[:, None, 2:3] * x[None] - E[:, None, :2]
+    nd = np.linalg.norm(d, axis=-1)
+    dv = (y - x)[None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.abs(d[..., 0] * dv[..., 1] - d[..., 1] * dv[..., 0]) / nd
+        rho = (dv * d).sum(-1)
+    ok = (dist < threshold_px) | ~moving[None]
+    pos = (ok & ((rho > 0) | ~moving[None])).sum(1)
+    neg = (ok & ((rho < 0) | ~moving[None])).sum(1)
+    score = np.maximum(pos, neg)
+    b = int(np.argmax(score))
+    e = E[b] * (1.0 if pos[b] >= neg[b] else -1.0)
+    for _ in range(3):  # refit on inliers, then re-score
+        dist, rho = _epi_residual(e, x, y)
+        inl = (dist < threshold_px) & ((rho > 0) | ~moving)
+        if inl.sum() < 3:
+            return none
+        m = inl & moving
+        if m.sum() >= 2:
+            e_new = _fit_epipole(x[m], y[m], scale)
+            # keep the sign: majority rho > 0
+            _, r_new = _epi_residual(e_new, x[m], y[m])
+            e = e_new if np.sum(r_new > 0) >= np.sum(r_new < 0) else -e_new
+    dist, rho = _epi_residual(e, x, y)
+    inl = (dist < threshold_px) & ((rho > 0) | ~moving)
+    return e, inl, rho
+
+
+# --------------------------------------------------------------------------- detection
+def _to_u8(g):
+    return np.clip(np.rint(g), 0, 255).astype(np.uint8)
+
+
+def _detect(grey, max_features, max_corners, corner_quality):
+    sift = cv2.SIFT_create(nfeatures=max_features, contrastThreshold=0.02)
+    feats = []
+    for g in grey:
+        u8 = _to_u8(g)
+        kps, desc = sift.detectAndCompute(u8, None)
+        pts = np.array([k.pt for k in kps], float).reshape(-1, 2)
+        size = np.array([k.size for k in kps], float)
+        if desc is None:
+            desc = np.zeros((0, 128), np.float32)
+        c = cv2.goodFeaturesToTrack(g, maxCorners=max_corners, qualityLevel=corner_quality, minDistance=6,
+                                    blockSize=5)
+        if c is None:
+            corners = np.zeros((0, 2), float)
+        else:
+            c = cv2.cornerSubPix(g, c.astype(np.float32), (4, 4), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 1e-3))
+            corners = c.reshape(-1, 2).astype(float)
+        feats.append({"sift": pts, "size": size, "desc": desc, "corners": corners})
+    return feats
+
+
+def _match_pair(d1, d2, ratio):
+    """Mutual nearest neighbours passing the ratio test: index pairs ``(k, 2)``."""
+    if len(d1) < 2 or len(d2) < 2:
+        return np.zeros((0, 2), int)
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+
+    def one_way(a, b):
+        m = bf.knnMatch(a, b, k=2)
+        q = np.array([[mm[0].queryIdx, mm[0].trainIdx, mm[0].distance, mm[1].distance] for mm in m if len(mm) == 2])
+        if len(q) == 0:
+            return {}
+        good = q[:, 2] < ratio * q[:, 3]
+        return dict(zip(q[good, 0].astype(int), q[good, 1].astype(int)))
+
+    f = one_way(d1, d2)
+    b = one_way(d2, d1)
+    pairs = [(i, j) for i, j in f.items() if b.get(j) == i]
+    return np.array(pairs, int).reshape(-1, 2)
+
+
+def _predict(e, seeds_x, seeds_rho, query, k=6):
+    """Predict positions in the other view of ``query`` points from nearby seeds' rho."""
+    tree = cKDTree(seeds_x)
+    kk = min(k, len(seeds_x))
+    _, nn = tree.query(query, k=kk)
+    nn = nn.reshape(len(query), kk)
+    rho = np.median(seeds_rho[nn], axis=1)
+    return query + rho[:, None] * _direction(e, query)
+
+
+def _guided_corners(ci, cj, e, xi, xj, threshold_px):
+    """Match corners ``ci`` (view i) to ``cj`` (view j) guided by epipole and seeds."""
+    if len(ci) == 0 or len(cj) == 0 or len(xi) < 3:
+        return np.zeros((0, 2), int)
+    _, rho_ij = _epi_residual(e, xi, xj)
+    _, rho_ji = _epi_residual(-e, xj, xi)
+    pred_j = _predict(e, xi, rho_ij, ci)
+    pred_i = _predict(-e, xj, rho_ji, cj)
+    tj, ti = cKDTree(cj), cKDTree(ci)
+    # search radius: well below the corner spacing, so a repeated neighbour is never taken
+    sp_j = np.median(tj.query(cj, k=2)[0][:, 1]) if len(cj) > 1 else 10.0
+    sp_i = np.median(ti.query(ci, k=2)[0][:, 1]) if len(ci) > 1 else 10.0
+    r = float(np.clip(0.4 * min(sp_i, sp_j), 1.0, 6.0))
+    dj, nj = tj.query(pred_j, k=1)
+    di, ni = ti.query(pred_i, k=1)
+    a = np.arange(len(ci))
+    ok = (dj < r) & (ni[np.minimum(nj, len(cj) - 1)] == a) & (di[np.minimum(nj, len(cj) - 1)] < r)
+    pairs = np.column_stack([a[ok], nj[ok]])
+    if len(pairs):
+        dist, rho = _epi_residual(e, ci[pairs[:, 0]], cj[pairs[:, 1]])
+        pairs = pairs[(dist < threshold_px) & (rho > -1e-3)]
+    return pairs
+
+
+# --------------------------------------------------------------------------- refinement
+def _sample(img, x, y):
+    """Bicubic samples of ``img`` at float arrays ``x, y`` of shape (m, P) (m*P any)."""
+    m, P = x.shape
+    out = np.empty((m, P), np.float32)
+    step = max(1, 30000 // max(P, 1))
+    for r0 in range(0, m, step):
+        out[r0:r0 + step] = cv2.remap(img, x[r0:r0 + step].astype(np.float32), y[r0:r0 + step].astype(np.float32),
+                                      cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _lk_affine(ref_img, ref_gx, tgt, tgt_gx, tgt_gy, p_ref, p0, M0, radius, iterations=20):
+    """Batched Lucas-Kanade: align patches of ``tgt`` to template patches of ``ref_img``.
+
+    Warp: ``x_tgt = p + M o`` for template offsets ``o`` around ``p_ref``; photometric
+    ``a I_tgt + b``. Returns refined ``p (m, 2)``, ``M (m, 2, 2)``, ``ncc (m,)``,
+    ``min_eig (m,)`` (texture strength), ``converged (m,)``.
+    """
+    m = len(p_ref)
+    r = np.arange(-radius, radius + 1, dtype=float)
+    ox, oy = [a.ravel() for a in np.meshgrid(r, r)]
+    sig = 0.5 * radius + 0.5
+    wgt = np.exp(-(ox**2 + oy**2) / (2 * sig**2))
+    Tm = _sample(ref_img, p_ref[:, :1] + ox[None], p_ref[:, 1:2] + oy[None]).astype(float)
+    p = p0.astype(float).copy()
+    M = M0.astype(float).copy()
+    a = np.ones(m)
+    b = np.zeros(m)
+    conv = np.zeros(m, bool)
+    active = np.ones(m, bool)
+    for _ in range(iterations):
+        ia = np.flatnonzero(active)
+        if len(ia) == 0:
+            break
+        wx = p[ia, :1] + M[ia, 0, :1] * ox[None] + M[ia, 0, 1:2] * oy[None]
+        wy = p[ia, 1:2] + M[ia, 1, :1] * ox[None] + M[ia, 1, 1:2] * oy[None]
+        I = _sample(tgt, wx, wy).astype(float)
+        Gx = _sample(tgt_gx, wx, wy).astype(float)
+        Gy = _sample(tgt_gy, wx, wy).astype(float)
+        aa = a[ia, None]
+        res = aa * I + b[ia, None] - Tm[ia]
+        J = np.stack([aa * Gx, aa * Gy, aa * Gx * ox, aa * Gx * oy, aa * Gy * ox, aa * Gy * oy, I,
+                      np.ones_like(I)], axis=-1)
+        Jw = J * wgt[None, :, None]
+        H = np.einsum("mpa,mpb->mab", Jw, J)
+        g = np.einsum("mpa,mp->ma", Jw, res)
+        H = H + 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(8)
+        try:
+            delta = -np.linalg.solve(H, g[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            delta = -np.einsum("mab,mb->ma", np.linalg.pinv(H), g)
+        step = np.linalg.norm(delta[:, :2], axis=1)
+        step = np.where(np.isfinite(step), step, np.inf)
+        lim = np.minimum(1.0, 2.0 / np.maximum(step, 1e-12))  # at most 2 px per step
+        delta = np.where(np.isfinite(delta), delta, 0.0) * lim[:, None]
+        p[ia] += delta[:, :2]
+        M[ia] += delta[:, 2:6].reshape(-1, 2, 2)
+        a[ia] += delta[:, 6]
+        b[ia] += delta[:, 7]
+        done = step < 2e-3
+        conv[ia[done]] = True
+        active[ia[done]] = False
+    # final quality: weighted NCC and the translation block's smallest eigenvalue
+    wx = p[:, :1] + M[:, 0, :1] * ox[None] + M[:, 0, 1:2] * oy[None]
+    wy = p[:, 1:2] + M[:, 1, :1] * ox[None] + M[:, 1, 1:2] * oy[None]
+    I = _sample(tgt, wx, wy).astype(float)
+    ncc = _wncc(I, Tm, wgt)
+    Gx = _sample(tgt_gx, wx, wy).astype(float)
+    Gy = _sample(tgt_gy, wx, wy).astype(float)
+    hxx, hxy, hyy = (wgt * Gx * Gx).sum(1), (wgt * Gx * Gy).sum(1), (wgt * Gy * Gy).sum(1)
+    min_eig = 0.5 * (hxx + hyy - np.sqrt((hxx - hyy) ** 2 + 4 * hxy**2)) / wgt.sum()
+    return p, M, ncc, min_eig, conv
+
+
+def _wncc(I, T, w):
+    w = w / w.sum()
+    Ic = I - (I * w).sum(1, keepdims=True)
+    Tc = T - (T * w).sum(1, keepdims=True)
+    num = (w * Ic * Tc).sum(1)
+    den = np.sqrt((w * Ic * Ic).sum(1) * (w * Tc * Tc).sum(1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, num / den, 0.0)
+
+
+# --------------------------------------------------------------------------- main
+def _progress_fn(progress):
+    if progress is None or progress is False:
+        return lambda stage, done, total: None
+    if progress is True:
+        def report(stage, done, total):
+            print(f"[track] {stage}: {done}/{total}", file=sys.stderr, flush=True)
+        return report
+    return progress
+
+
+def track(
+    images,
+    *,
+    method: str = "auto",
+    max_features: int = 4000,
+    max_corners: int = 3000,
+    corner_quality: float = 0.02,
+    ratio: float = 0.8,
+    threshold_px: float = 1.5,
+    refine: bool = True,
+    window_radius: int = 8,
+    min_ncc: float = 0.9,
+    final_threshold_px: float = 0.5,
+    min_views: int = 2,
+    min_tracks: int = 8,
+    max_tracks: int | None = 4000,
+    progress=None,
+    rng=0,
+) -> Tracks:
+    """Track points across images taken at pure camera translations.
+
+    Parameters
+    ----------
+    images : sequence of path or array, or array (n_views, h, w[, 3])
+        The views, in order (the order of the robot poses). Arrays: grey or RGB.
+    method : {"auto", "sift", "corners"}
+        Features: ``"sift"`` descriptors only, ``"corners"`` Shi-Tomasi corners matched
+        through the epipoles (epipoles still come from SIFT), ``"auto"`` both.
+    max_features, max_corners : int
+        Caps on SIFT keypoints and corners per image.
+    corner_quality : float
+        ``qualityLevel`` of ``cv2.goodFeaturesToTrack``.
+    ratio : float
+        Lowe's ratio-test threshold.
+    threshold_px : float
+        Epipolar distance for accepting a match before refinement.
+    refine : bool
+        Sub-pixel refinement by affine Lucas-Kanade against the reference view.
+    window_radius : int
+        Half-size of the refinement window (pixels).
+    min_ncc : float
+        Minimum normalised cross-correlation of a refined observation with its template.
+    final_threshold_px : float
+        Epipolar distance after refinement above which an observation is dropped.
+    min_views : int
+        Minimum number of views per track.
+    min_tracks : int
+        Fewer final tracks raise :class:`DegenerateError`.
+    max_tracks : int or None
+        Keep at most this many tracks (the best spread over the reference image).
+    progress : None, True or callable ``(stage: str, done: int, total: int)``
+        Progress reports; ``True`` prints to stderr. Off by default.
+    rng : seed or Generator
+        For RANSAC.
+
+    Returns
+    -------
+    Tracks
+
+    Raises
+    ------
+    InputError
+        Fewer than 2 images, unreadable files, images of different sizes, bad options.
+    DegenerateError
+        Too few tracks survive: the message says what to change.
+    """
+    if method not in ("auto", "sift", "corners"):
+        raise InputError(f"track: method must be 'auto', 'sift' or 'corners', got {method!r}")
+    if min_views < 2:
+        raise InputError(f"track: min_views must be >= 2, got {min_views}")
+    rng = np.random.default_rng(rng)
+    report = _progress_fn(progress)
+    times = {}
+    grey, rgb, names = load_images(images)
+    n = len(grey)
+    h, w = grey[0].shape
+
+    t0 = time.perf_counter()
+    feats = _detect(grey, max_features, max_corners if method != "sift" else 0, corner_quality) \
+        if method != "sift" else _detect(grey, max_features, 1, corner_quality)
+    if method == "sift":
+        for f in feats:
+            f["corners"] = np.zeros((0, 2))
+    report("detect", n, n)
+    times["detect"] = time.perf_counter() - t0
+
+    # node numbering: per view, SIFT keypoints then corners
+    offsets, pos, kind = [], [], []
+    off = 0
+    for f in feats:
+        offsets.append(off)
+        pos.append(np.vstack([f["sift"], f["corners"]]))
+        kind.append(np.r_[np.zeros(len(f["sift"]), int), np.ones(len(f["corners"]), int)])
+        off += len(f["sift"]) + len(f["corners"])
+    n_nodes = off
+    node_view = np.concatenate([np.full(len(p), i) for i, p in enumerate(pos)]).astype(int)
+    node_pos = np.vstack(pos) if n_nodes else np.zeros((0, 2))
+
+    t0 = time.perf_counter()
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    raw = {}
+    for k, (i, j) in enumerate(pairs):
+        raw[(i, j)] = _match_pair(feats[i]["desc"], feats[j]["desc"], ratio)
+        report("match", k + 1, len(pairs))
+    times["match"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    epi = {}
+    edges = []
+    n_verified = {}
+    for k, (i, j) in enumerate(pairs):
+        m = raw[(i, j)]
+        xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
+        e, inl, _ = epipole_ransac(xi, xj, threshold_px=threshold_px, rng=rng)
+        if e is None or inl.sum() < 8:
+            if len(m) and np.median(np.linalg.norm(xj - xi, axis=1)) < 0.5:
+                edges.append(np.column_stack([offsets[i] + m[:, 0], offsets[j] + m[:, 1]]))
+            n_verified[(i, j)] = 0
+            continue
+        epi[(i, j)] = e
+        n_verified[(i, j)] = int(inl.sum())
+        mi = m[inl]
+        edges.append(np.column_stack([offsets[i] + mi[:, 0], offsets[j] + mi[:, 1]]))
+        if method != "sift":
+            cp = _guided_corners(feats[i]["corners"], feats[j]["corners"], e, xi[inl], xj[inl], threshold_px)
+            ns_i, ns_j = len(feats[i]["sift"]), len(feats[j]["sift"])
+            edges.append(np.column_stack([offsets[i] + ns_i + cp[:, 0], offsets[j] + ns_j + cp[:, 1]]))
+        report("verify", k + 1, len(pairs))
+    bad_pairs = _inconsistent_pairs(epi, n)
+    if bad_pairs:
+        log.info("dropping view pairs with inconsistent epipoles: %s", bad_pairs)
+    times["verify"] = time.perf_counter() - t0
+
+    # chain: union-find over verified matches
+    t0 = time.perf_counter()
+    E = np.vstack(edges) if edges else np.zeros((0, 2), int)
+    if bad_pairs and len(E):
+        vp = np.sort(np.column_stack([node_view[E[:, 0]], node_view[E[:, 1]]]), axis=1)
+        keep = ~np.array([tuple(v) in bad_pairs for v in vp], bool)
+        E = E[keep]
+        for bp in bad_pairs:
+            epi.pop(bp, None)
+    used = np.unique(E.ravel())
+    if len(used) == 0:
+        raise DegenerateError(_too_few_msg(0, n_verified))
+    G = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n_nodes, n_nodes))
+    _, label = connected_components(G, directed=False)
+    lab = label[used]
+    comp, comp_idx = np.unique(lab, return_inverse=True)
+    views = node_view[used]
+    # conflicts: a component with two features in one view drops that view's features
+    key = comp_idx * n + views
+    cnt = np.bincount(key, minlength=len(comp) * n)
+    ok = cnt[key] == 1
+    uv = np.full((n, len(comp), 2), np.nan)
+    is_corner = np.zeros(len(comp), bool)
+    uv[views[ok], comp_idx[ok]] = node_pos[used[ok]]
+    is_corner[comp_idx[ok & (np.concatenate(kind)[used] == 1)]] = True
+    nseen = np.isfinite(uv[..., 0]).sum(0)
+    uv = uv[:, nseen >= 2]
+    is_corner = is_corner[nseen >= 2]
+    n_conflicts = int((~ok).sum())
+    times["chain"] = time.perf_counter() - t0
+    report("chain", 1, 1)
+
+    # sub-pixel refinement against each track's reference (first) view
+    t0 = time.perf_counter()
+    if refine and uv.shape[1]:
+        uv = _refine(grey, uv, epi, window_radius, min_ncc, report)
+    times["refine"] = time.perf_counter() - t0
+
+    # final check with epipoles re-estimated from the refined points
+    t0 = time.perf_counter()
+    uv, epi_final = _final_check(uv, n, final_threshold_px if refine else threshold_px, rng)
+    uv = _dedupe(uv, w, h)
+    nseen = np.isfinite(uv[..., 0]).sum(0)
+    uv = uv[:, nseen >= min_views]
+    if max_tracks is not None and uv.shape[1] > max_tracks:
+        uv = _select_spread(uv, max_tracks, w, h)
+    times["final"] = time.perf_counter() - t0
+    n_pts = uv.shape[1]
+    if n_pts < min_tracks:
+        raise DegenerateError(_too_few_msg(n_pts, n_verified, min_tracks))
+    colors = _colors(rgb, uv)
+    info = {
+        "time_s": times,
+        "n_matches_raw": {f"{i}-{j}": int(len(v)) for (i, j), v in raw.items()},
+        "n_matches_verified": {f"{i}-{j}": v for (i, j), v in n_verified.items()},
+        "epipoles": {f"{i}-{j}": e.tolist() for (i, j), e in epi_final.items()},
+        "n_conflicts_dropped": n_conflicts,
+        "inconsistent_pairs": [f"{i}-{j}" for i, j in bad_pairs],
+    }
+    return Tracks(uv=uv, ids=np.arange(n_pts), colors=colors, view_names=names, info=info)
+
+
+def _too_few_msg(n_pts, n_verified, min_tracks=8):
+    per_pair = ", ".join(f"{i}-{j}: {v}" for (i, j), v in n_verified.items())
+    return (f"tracking found only {n_pts} usable tracks (need >= {min_tracks}); verified matches per view pair: "
+            f"{per_pair}. Use images of a well-textured scene (not blank walls), keep a large overlap between "
+            "views (translations of a few percent of the scene distance), avoid motion blur, or pass "
+            "target='squares' for a board of black squares")
+
+
+def _inconsistent_pairs(epi, n, tol=0.05):
+    """Pairs whose epipole disagrees with most triplets: ``e_ik`` must lie on the line
+    ``e_ij e_jk`` (``t_ik = t_ij + t_jk``)."""
+    votes = {}
+    for i in range(n):
+        for j in range(i + 1, n):
+            for k in range(j + 1, n):
+                if (i, j) in epi and (j, k) in epi and (i, k) in epi:
+                    d = abs(np.linalg.det(np.array([epi[(i, j)], epi[(j, k)], epi[(i, k)]])))
+                    for p in [(i, j), (j, k), (i, k)]:
+                        v = votes.setdefault(p, [0, 0])
+                        v[0] += d > tol
+                        v[1] += 1
+    return sorted(p for p, (bad, tot) in votes.items() if tot >= 2 and bad == tot)
+
+
+def _refine(grey, uv, epi, radius, min_ncc, report):
+    n = len(grey)
+    sm = [cv2.GaussianBlur(g, (0, 0), 1.0) for g in grey]
+    gx = [cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8) for g in sm]
+    gy = [cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8) for g in sm]
+    h, w = grey[0].shape
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    out = uv.copy()
+    margin = radius + 2
+    inside = ((uv[..., 0] >= margin) & (uv[..., 0] <= w - 1 - margin) & (uv[..., 1] >= margin)
+              & (uv[..., 1] <= h - 1 - margin))
+    steps = [(r, j) for r in range(n) for j in range(n) if j != r]
+    for k, (r, j) in enumerate(steps):
+        sel = np.flatnonzero((ref == r) & seen[j])
+        if len(sel) == 0:
+            continue
+        ok_in = inside[r, sel] & inside[j, sel]
+        p_ref = uv[r, sel]
+        p0 = uv[j, sel]
+        # initial scale from the epipole: dx'/dx ~ (1 + rho e3) I
+        e = epi.get((r, j)) if r < j else (-epi[(j, r)] if (j, r) in epi else None)
+        M0 = np.repeat(np.eye(2)[None], len(sel), axis=0)
+        if e is not None:
+            _, rho = _epi_residual(e, p_ref, p0)
+            s = 1.0 + np.nan_to_num(rho) * e[2]
+            s = np.clip(s, 0.5, 2.0)
+            M0 = M0 * s[:, None, None]
+        p, M, ncc, min_eig, conv = _lk_affine(sm[r], None, sm[j], gx[j], gy[j], p_ref, p0, M0, radius)
+        det = np.linalg.det(M)
+        good = (ok_in & conv & (ncc >= min_ncc) & (np.linalg.norm(p - p0, axis=1) < 4.0)
+                & (det > 0.25) & (det < 4.0) & (min_eig > 1.0))
+        out[j, sel] = np.where(good[:, None], p, np.nan)
+        out[r, sel[~ok_in]] = np.nan
+        report("refine", k + 1, len(steps))
+    return out
+
+
+def _final_check(uv, n, thr, rng):
+    """Re-estimate the epipoles from the refined tracks; drop observations off their line."""
+    epi = {}
+    out = uv.copy()
+    seen = np.isfinite(out[..., 0])
+    ref = np.argmax(seen, axis=0)
+    for i in range(n):
+        for j in range(i + 1, n):
+            both = seen[i] & seen[j]
+            if both.sum() < 8:
+                continue
+            e, inl, _ = epipole_ransac(uv[i, both], uv[j, both], threshold_px=thr, rng=rng)
+            if e is None:
+                continue
+            epi[(i, j)] = e
+            bad = np.flatnonzero(both)[~inl]
+            # drop the non-reference observation of a bad pair
+            drop_j = ref[bad] != j
+            out[j, bad[drop_j]] = np.nan
+            out[i, bad[~drop_j]] = np.nan
+    return out, epi
+
+
+def _dedupe(uv, w, h, tol=0.75):
+    """Drop tracks that coincide (within ``tol`` px in every shared view) with an earlier one."""
+    n_pts = uv.shape[1]
+    if n_pts < 2:
+        return uv
+    seen = np.isfinite(uv[..., 0])
+    keep = np.ones(n_pts, bool)
+    for v in range(uv.shape[0]):
+        idx = np.flatnonzero(seen[v] & keep)
+        if len(idx) < 2:
+            continue
+        tree = cKDTree(uv[v, idx])
+        for a, b in tree.query_pairs(tol, output_type="ndarray"):
+            pa, pb = idx[a], idx[b]
+            both = seen[:, pa] & seen[:, pb]
+            if np.all(np.linalg.norm(uv[both, pa] - uv[both, pb], axis=1) < tol):
+                # keep the track seen in more views
+                loser = pb if seen[:, pa].sum() >= seen[:, pb].sum() else pa
+                keep[loser] = False
+    return uv[:, keep]
+
+
+def _select_spread(uv, k, w, h):
+    """Keep ``k`` tracks: most views first, spread over a grid of the reference image."""
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    p = uv[ref, np.arange(uv.shape[1])]
+    g = 16
+    cell = (np.clip(p[:, 0] / w * g, 0, g - 1).astype(int) * g + np.clip(p[:, 1] / h * g, 0, g - 1).astype(int))
+    order = np.lexsort((-seen.sum(0), cell))
+    rank = np.empty(len(order), int)
+    cs = cell[order]
+    start = np.r_[0, np.flatnonzero(np.diff(cs)) + 1]
+    within = np.arange(len(order)) - np.repeat(start, np.diff(np.r_[start, len(order)]))
+    rank[order] = within
+    pick = np.argsort(rank * 10 - seen.sum(0), kind="stable")[:k]
+    return uv[:, np.sort(pick)]
+
+
+def _colors(rgb, uv):
+    if any(c is None for c in rgb) or uv.shape[1] == 0:
+        return None
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    p = uv[ref, np.arange(uv.shape[1])]
+    h, w = rgb[0].shape[:2]
+    x = np.clip(np.rint(p[:, 0]).astype(int), 0, w - 1)
+    y = np.clip(np.rint(p[:, 1]).astype(int), 0, h - 1)
+    stack = np.stack(rgb)
+    return stack[ref, y, x].astype(np.uint8)
