@@ -536,20 +536,23 @@ def _covariance(state, lay, data, obs_weight):
     """Unscaled covariances at the solution: ``S^-1 (p, p)``, ``diag`` of each point's ``(n, 3)``.
 
     Observations with ``obs_weight == 0`` are left out; so are the points left with fewer
-    than 2 observations (returned mask ``ok`` False; their variances are NaN).
+    than 2 observations or whose 3x3 block is (numerically) singular (returned mask ``ok``
+    False; their variances are NaN).
     """
     n_w = np.zeros(data.n_points, int)
     for i, pts in enumerate(data.pts):
         np.add.at(n_w, pts, obs_weight[i] > 0)
     ok = n_w >= 2
-    weights = [np.where(ok[pts], w, 0.0) for pts, w in zip(data.pts, obs_weight)]
-    U, W, V, _, _ = _normal_equations(state, lay, data, "linear", 1.0, obs_weight=weights)
-    for a in range(3):
-        V[a, a, ~ok] = 1.0  # excluded points: W is zero there, they do not enter S
-    S, _, Vinv, det = _schur(U, W, V, np.zeros(lay.size), np.zeros((3, data.n_points)))
-    if np.any(det[ok] <= 1e-14):
-        raise DegenerateError(f"{int(np.sum(det[ok] <= 1e-14))} points are not determined by their observations "
-                              "(rays nearly parallel); remove them or add views with larger translations")
+    for _ in range(2):  # a second pass only if some points turn out undetermined
+        weights = [np.where(ok[pts], w, 0.0) for pts, w in zip(data.pts, obs_weight)]
+        U, W, V, _, _ = _normal_equations(state, lay, data, "linear", 1.0, obs_weight=weights)
+        for a in range(3):
+            V[a, a, ~ok] = 1.0  # excluded points: W is zero there, they do not enter S
+        S, _, Vinv, det = _schur(U, W, V, np.zeros(lay.size), np.zeros((3, data.n_points)))
+        undetermined = ok & (det <= 1e-12)  # rays (nearly) parallel: X_j not determined
+        if not undetermined.any():
+            break
+        ok &= ~undetermined
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
     evals, evecs = np.linalg.eigh(S * d[:, None] * d[None, :])
     if evals[0] <= 1e-13 * evals[-1]:
@@ -678,10 +681,8 @@ def refine(
     else:
         t_sigma = np.broadcast_to(np.asarray(sigma_T, dtype=float), (n_views,)).copy()
     lay = _Layout(n_views, n_dist, bool(estimate_skew), bool(estimate_view_rotations), t_sigma > 0)
-    state = _State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy())
-
-    n_obs = int(seen[:, used_idx].sum())
     n_global_no_T = lay.size - 3 * len(lay.i_T)
+    n_obs = int(seen[:, used_idx].sum())
     dof = 2 * n_obs - n_global_no_T - 3 * len(used_idx)
     if dof < 0 or (dof == 0 and sigma_px is None):
         raise DegenerateError(f"too few observations: {2 * n_obs} residuals for {n_global_no_T + 3 * len(used_idx)} "
@@ -689,126 +690,102 @@ def refine(
                               "points, use more views, or a simpler distortion model.")
     c = float(loss_scale_px)
     thr = 3.0 * c if inlier_threshold_px is None else float(inlier_threshold_px)
+    state = _State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy())
+    fit = _Fitter(uv, T, lay, t_sigma, sigma_px, n_global_no_T, c, thr, max_iterations, tol, progress)
 
-    def run(state, tw, iters):
-        data = _build_data(uv, seen, used_idx, T, tw)
-        return (*_levenberg_marquardt(state, lay, data, loss, c, iters, tol, progress), data)
-
-    total_it = 0
-    if lay.i_T:
-        # errors in both images and robot: the prior weight needs the pixel noise
-        if sigma_px is None:  # estimate it: fixed-T fit first, then sigma^2 = |r|^2 / (dof - chi2_T)
-            lay_fixed = _Layout(n_views, n_dist, bool(estimate_skew), bool(estimate_view_rotations),
-                                np.zeros(n_views, bool))
-            data0 = _build_data(uv, seen, used_idx, T, np.zeros(n_views))
-            s0 = _State(state.intr, state.dist5, state.R, state.Q, state.T, state.X)
-            s0, _, it0, _ = _levenberg_marquardt(s0, lay_fixed, data0, loss, c, max_iterations, tol, progress)
-            total_it += it0
-            state = s0.copy()
-            sig = _sigma_from(s0, lay_fixed, data0, loss, c, thr, dof)
-            for _ in range(5):
-                tw = np.where(t_sigma > 0, sig / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
-                state, cost, it, reason, data = run(state, tw, max_iterations)
-                total_it += it
-                r2 = _sum_sq_inliers(state, lay, data, loss, c, thr)
-                dT = (state.T - T) / np.where(t_sigma > 0, t_sigma, 1.0)[:, None]
-                chi2_T = float(np.sum(dT[t_sigma > 0] ** 2))
-                new_sig = float(np.sqrt(r2 / max(dof - chi2_T, 0.5 * dof)))
-                if abs(new_sig - sig) <= 1e-3 * sig:
-                    sig = new_sig
-                    break
-                sig = new_sig
-            sigma_used = sig
-        else:
-            sigma_used = float(sigma_px)
-            tw = np.where(t_sigma > 0, sigma_used / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
-            state, cost, total_it, reason, data = run(state, tw, max_iterations)
-    else:
-        state, cost, total_it, reason, data = run(state, np.zeros(n_views), max_iterations)
-        sigma_used = None
-
-    # residuals, inliers
-    residuals = np.full((n_views, n_points, 2), np.nan)
-    obs_inlier = []
-    for i, pts in enumerate(data.pts):
-        if len(pts) == 0:
-            obs_inlier.append(np.zeros(0))
-            continue
-        r = _residual_view(state, lay, data, i)[0]
-        residuals[i, used_idx[pts]] = r.T
-        e = np.sqrt(r[0] ** 2 + r[1] ** 2)
-        obs_inlier.append((e <= thr).astype(float) if loss != "linear" else np.ones(len(pts)))
-    used_res = residuals[:, used_idx][seen[:, used_idx]]
-    rms = float(np.sqrt(np.mean(np.sum(used_res**2, axis=1))))
+    # 1. the (robust) fit on every observation of the used points
+    state, cost, reason, data, sigma_T_mode = fit(state, used_idx, seen, loss)
+    fit_idx, fit_mask, fit_state, fit_data = used_idx, seen, state, data
     inliers = None
     if loss != "linear":
+        # 2. inlier observations: residual norm <= thr; inlier points: all their observations.
+        #    Then a least-squares polish on the inlier observations (points keeping >= 2 of
+        #    them), so that estimate and covariance are those of the inliers alone.
+        previous = None
+        for _ in range(3):
+            res = _all_residuals(state, lay, uv, seen, used_idx, T)
+            obs_in = seen & (np.sum(res**2, axis=2) <= thr * thr)
+            if previous is not None and np.array_equal(obs_in, previous):
+                break
+            previous = obs_in
+            keep = obs_in[:, used_idx].sum(axis=0) >= 2
+            sub = _State(state.intr, state.dist5, state.R, state.Q, state.T, state.X[keep])
+            sub, cost, reason, fit_data, sigma_T_mode = fit(sub, used_idx[keep], obs_in, "linear")
+            state = state.copy()
+            state.intr, state.dist5, state.R, state.Q, state.T = sub.intr, sub.dist5, sub.R, sub.Q, sub.T
+            state.X[keep] = sub.X
+            fit_idx, fit_mask, fit_state = used_idx[keep], obs_in, sub
+        res = _all_residuals(state, lay, uv, seen, used_idx, T)
+        obs_in = seen & (np.sum(res**2, axis=2) <= thr * thr)
         inliers = np.zeros(n_points, bool)
-        bad = np.zeros(len(used_idx), bool)
-        for i, pts in enumerate(data.pts):
-            bad[pts[obs_inlier[i] == 0]] = True
-        inliers[used_idx[~bad]] = True
+        inliers[used_idx] = np.all(obs_in[:, used_idx] | ~seen[:, used_idx], axis=0)
 
-    # noise level and covariance
-    Sinv, var_X, ok = _covariance(state, lay, data, obs_inlier)
-    n_obs_in = int(sum(np.sum(w > 0) for w in obs_inlier))
-    dof_in = 2 * n_obs_in - n_global_no_T - 3 * int(ok.sum())
-    if sigma_px is not None:
+    # 3. covariance at the solution: sigma^2 S^-1 (the translation priors were weighted
+    #    with the same sigma, so this holds in both modes)
+    Sinv, var_X, ok = _covariance(fit_state, lay, fit_data, [np.ones(len(p)) for p in fit_data.pts])
+    n_obs_fit = int(fit_mask[:, fit_idx].sum())
+    dof_fit = 2 * n_obs_fit - n_global_no_T - 3 * len(fit_idx)
+    if sigma_T_mode is not None:
+        sigma = sigma_T_mode
+    elif sigma_px is not None:
         sigma = float(sigma_px)
-    elif sigma_used is not None:
-        sigma = sigma_used
     else:
-        if dof_in <= 0:
+        if dof_fit <= 0:
             raise DegenerateError("no residual degrees of freedom left among the inliers to estimate the pixel "
                                   "noise; pass sigma_px or track more points")
-        sigma = float(np.sqrt(_sum_sq_inliers(state, lay, data, loss, c, thr) / dof_in))
-    # the prior weights were built with sigma_used, so sigma^2 S^-1 is the covariance
-    cov = sigma**2 * Sinv
+        sigma = float(np.sqrt(_sum_sq(fit_state, lay, fit_data) / dof_fit))
     names = lay.names()
-    rot = lay.rotation_mask()
-    scale = np.where(rot, _RAD2DEG, 1.0)
-    cov = cov * scale[:, None] * scale[None, :]
+    scale = np.where(lay.rotation_mask(), _RAD2DEG, 1.0)  # rotations in degrees
+    cov = sigma**2 * Sinv * scale[:, None] * scale[None, :]
     std = {nm: float(np.sqrt(cov[k, k])) for k, nm in enumerate(names)}
     X_std = np.full((n_points, 3), np.nan)
-    X_std[used_idx[ok]] = sigma * np.sqrt(var_X[ok])
+    X_std[fit_idx[ok]] = sigma * np.sqrt(var_X[ok])
     X = np.full((n_points, 3), np.nan)
     X[used_idx] = state.X
+    residuals = np.full((n_views, n_points, 2), np.nan)
+    residuals[:, used_idx] = _all_residuals(state, lay, uv, seen, used_idx, T)
+    used_res = residuals[:, used_idx][seen[:, used_idx]]
+    rms = float(np.sqrt(np.mean(np.sum(used_res**2, axis=1))))
 
-    view_rot = np.zeros((n_views, 3))
-    view_rot_std = np.zeros((n_views, 3))
-    for i, s in lay.i_vrot.items():
-        view_rot[i] = _matrix_to_rotvec(state.Q[i]) * _RAD2DEG
-        view_rot_std[i] = np.sqrt(np.diag(cov)[s: s + 3])
-    K = K_from_params(*state.intr)
     info = {
         "stage": "refine",
-        "iterations": int(total_it),
+        "iterations": int(fit.iterations),
         "cost": float(cost),
         "stop_reason": reason,
         "converged": reason.startswith("converged"),
         "sigma_px": sigma,
         "sigma_px_estimated": sigma_px is None,
-        "dof": int(dof_in),
+        "dof": int(dof_fit),
         "n_observations": n_obs,
         "n_points_used": int(len(used_idx)),
         "n_points_excluded": int(n_points - len(used_idx)),
         "n_points_behind_camera": n_behind,
+        "n_points_undetermined": int(np.sum(~ok)),
         "distortion": distortion,
+        "estimate_skew": bool(estimate_skew),
         "loss": loss,
         "loss_scale_px": c,
         "inlier_threshold_px": thr if loss != "linear" else None,
         "time_s": time.perf_counter() - t_start,
     }
     if estimate_view_rotations:
+        view_rot = np.zeros((n_views, 3))
+        view_rot_std = np.zeros((n_views, 3))
+        for i, s in lay.i_vrot.items():
+            view_rot[i] = _matrix_to_rotvec(state.Q[i]) * _RAD2DEG
+            view_rot_std[i] = np.sqrt(np.diag(cov)[s: s + 3])
         info["view_rotations_deg"] = view_rot
         info["view_rotations_std_deg"] = view_rot_std
-        info["view_rotation_angles_deg"] = np.linalg.norm(view_rot, axis=1)
     if lay.i_T:
         info["sigma_T"] = t_sigma
+        info["T_std"] = np.zeros((n_views, 3))
+        for i, s in lay.i_T.items():
+            info["T_std"][i] = np.sqrt(np.diag(cov)[s: s + 3])
     return Calibration(
-        K=K,
+        K=K_from_params(*state.intr),
         R=state.R,
         X=X,
-        dist=state.dist5[:n_dist].copy() if n_dist != 2 else state.dist5[:2].copy(),
+        dist=state.dist5[:n_dist].copy(),
         dist_model=distortion,
         residuals_px=residuals,
         rms_px=rms,
@@ -824,8 +801,73 @@ def refine(
     )
 
 
-def _sum_sq_inliers(state, lay, data, loss, c, thr) -> float:
-    """Sum of squared pixel residuals over the inlier observations (all for a linear loss)."""
+class _Fitter:
+    """Runs LM on a subset of observations; handles the robot-noise (``sigma_T``) mode.
+
+    With ``sigma_T`` and unknown pixel noise the prior weight ``sigma_px / sigma_T`` needs
+    ``sigma_px``: it is estimated by a fit with fixed translations, then refined by the
+    fixed point ``sigma^2 = sum |r|^2 / (dof - chi2_T)`` (the whitened cost then equals its
+    expectation, the degrees of freedom).
+    """
+
+    def __init__(self, uv, T, lay, t_sigma, sigma_px, n_global_no_T, c, thr, max_iterations, tol, progress):
+        self.uv, self.T, self.lay, self.t_sigma, self.sigma_px = uv, T, lay, t_sigma, sigma_px
+        self.n_global_no_T, self.c, self.thr = n_global_no_T, c, thr
+        self.max_iterations, self.tol, self.progress = max_iterations, tol, progress
+        self.iterations = 0
+
+    def _lm(self, state, lay, data, loss):
+        state, cost, it, reason = _levenberg_marquardt(state, lay, data, loss, self.c, self.max_iterations,
+                                                       self.tol, self.progress)
+        self.iterations += it
+        return state, cost, reason
+
+    def _weights(self, sigma):
+        free = self.t_sigma > 0
+        return np.where(free, sigma / np.where(free, self.t_sigma, 1.0), 0.0)
+
+    def __call__(self, state, idx, mask, loss):
+        """Fit the points ``idx`` on the observations ``mask``; returns state, cost, reason,
+        data and the pixel sigma used for the translation priors (None without them)."""
+        lay, n_views = self.lay, len(self.T)
+        if not lay.i_T:
+            data = _build_data(self.uv, mask, idx, self.T, np.zeros(n_views))
+            return (*self._lm(state, lay, data, loss), data, None)
+        if self.sigma_px is not None:
+            data = _build_data(self.uv, mask, idx, self.T, self._weights(self.sigma_px))
+            return (*self._lm(state, lay, data, loss), data, float(self.sigma_px))
+        dof = 2 * int(mask[:, idx].sum()) - self.n_global_no_T - 3 * len(idx)
+        fixed = _Layout(n_views, lay.n_dist, lay.estimate_skew, lay.view_rotations, np.zeros(n_views, bool))
+        data = _build_data(self.uv, mask, idx, self.T, np.zeros(n_views))
+        state, _, _ = self._lm(state, fixed, data, loss)
+        sigma = np.sqrt(_sum_sq(state, fixed, data, loss, self.thr) / max(dof, 1))
+        for _ in range(5):
+            data = _build_data(self.uv, mask, idx, self.T, self._weights(sigma))
+            state, cost, reason = self._lm(state, lay, data, loss)
+            free = self.t_sigma > 0
+            chi2_T = float(np.sum(((state.T - self.T)[free] / self.t_sigma[free, None]) ** 2))
+            new = float(np.sqrt(_sum_sq(state, lay, data, loss, self.thr) / max(dof - chi2_T, 0.5 * dof)))
+            done = abs(new - sigma) <= 1e-3 * sigma
+            sigma = new
+            if done:
+                break
+        data = _build_data(self.uv, mask, idx, self.T, self._weights(sigma))
+        return state, _cost(state, lay, data, loss, self.c), reason, data, sigma
+
+
+def _all_residuals(state, lay, uv, seen, used_idx, T) -> np.ndarray:
+    """Residuals ``(n_views, n_used, 2)`` of the used points, NaN where unseen."""
+    data = _build_data(uv, seen, used_idx, T, np.zeros(len(T)))
+    out = np.full((len(T), len(used_idx), 2), np.nan)
+    for i, pts in enumerate(data.pts):
+        if len(pts):
+            out[i, pts] = _residual_view(state, lay, data, i)[0].T
+    return out
+
+
+def _sum_sq(state, lay, data, loss="linear", thr=np.inf) -> float:
+    """Sum of squared pixel residuals of ``data``, over the observations with norm <= ``thr``
+    for a robust loss (all for the linear loss)."""
     total = 0.0
     for i, pts in enumerate(data.pts):
         if len(pts) == 0:
@@ -834,10 +876,6 @@ def _sum_sq_inliers(state, lay, data, loss, c, thr) -> float:
         e2 = r[0] ** 2 + r[1] ** 2
         total += float(np.sum(e2 if loss == "linear" else e2[e2 <= thr * thr]))
     return total
-
-
-def _sigma_from(state, lay, data, loss, c, thr, dof) -> float:
-    return float(np.sqrt(_sum_sq_inliers(state, lay, data, loss, c, thr) / max(dof, 1)))
 
 
 def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False) -> dict:

@@ -1,0 +1,414 @@
+"""Tests of the maximum-likelihood refinement (refine.py): exactness, Jacobians, distortion,
+statistics against Monte-Carlo and the CRLB, robot noise, robust losses, view rotations."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from transcalib import simulate
+from transcalib.camera import project
+from transcalib.refine import (
+    _apply_step,
+    _Layout,
+    _predict_view,
+    _rotvec_to_matrix,
+    _State,
+    crlb,
+    refine,
+)
+from transcalib.types import Calibration, DegenerateError, InputError
+
+KEYS = ("fx", "fy", "cx", "cy")
+
+
+def _k4(K):
+    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+
+
+def perturbed_start(scene, rng, dK=0.02, drot_rad=0.01, dX=0.01, dist=()):
+    """A Calibration near the truth of ``scene`` (the linear estimate's stand-in)."""
+    rng = np.random.default_rng(rng)
+    K = scene.K.copy()
+    K[0, 0] *= 1 + dK * rng.normal()
+    K[1, 1] *= 1 + dK * rng.normal()
+    K[0, 2] += 5 * rng.normal()
+    K[1, 2] += 5 * rng.normal()
+    R = Rotation.from_rotvec(drot_rad * rng.normal(size=3)).as_matrix() @ scene.R
+    X = scene.X * (1 + dX * rng.normal(size=scene.X.shape))
+    return Calibration(K=K, R=R, X=X, dist=np.asarray(dist, float), residuals_px=np.zeros_like(scene.uv), rms_px=0.0)
+
+
+def linear_start(scene, uv=None):
+    """The linear estimate when linear.py is available, else a perturbed truth."""
+    try:
+        from transcalib.linear import estimate_linear
+    except ImportError:  # pragma: no cover - while linear.py is being written
+        return perturbed_start(scene, 0)
+    return estimate_linear(scene.uv if uv is None else uv, scene.T)
+
+
+def rel(a, b):
+    return float(np.nanmax(np.abs(np.asarray(a) - b)) / np.nanmax(np.abs(b)))
+
+
+# ---------------------------------------------------------------------------- exactness
+
+
+@pytest.mark.parametrize("case", ["paper", "random_missing", "random_planar"])
+def test_noise_free_exact(case):
+    scene = {
+        "paper": lambda: simulate.paper_scene(rng=0),
+        "random_missing": lambda: simulate.random_scene(80, 6, missing=0.25, rng=1),
+        "random_planar": lambda: simulate.random_scene(40, 4, planar=True, rng=2),
+    }[case]()
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 3), sigma_px=0.5)
+    assert cal.info["converged"], cal.info["stop_reason"]
+    assert rel(cal.K, scene.K) < 1e-9
+    assert np.abs(cal.R - scene.R).max() < 1e-9
+    assert rel(cal.X, scene.X) < 1e-9
+    assert cal.rms_px < 1e-8
+    assert np.isclose(np.linalg.det(cal.R), 1.0)
+    seen = np.isfinite(scene.uv[..., 0])
+    assert np.array_equal(np.isfinite(cal.residuals_px[..., 0]), seen)
+
+
+def test_noise_free_exact_with_skew_and_distortion():
+    scene = simulate.random_scene(150, 5, skew=3.0, dist=(-0.15, 0.05, 0.001, -0.002, 0.01), rng=4)
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 5), distortion="opencv5", estimate_skew=True,
+                 sigma_px=1.0)
+    assert rel(cal.K, scene.K) < 1e-9
+    assert np.abs(cal.dist - scene.dist).max() < 1e-9
+    assert cal.param_names == ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "rx", "ry", "rz")
+    assert cal.cov.shape == (13, 13)
+    assert set(cal.std) == set(cal.param_names)
+
+
+# ---------------------------------------------------------------------------- Jacobians
+
+
+@pytest.mark.parametrize("view", [0, 2])
+def test_jacobians_match_finite_differences(view):
+    scene = simulate.random_scene(30, 4, dist=(-0.2, 0.05, 0.002, -0.001, 0.02), skew=2.0, rng=6)
+    n_views = scene.n_views
+    rng = np.random.default_rng(7)
+    lay = _Layout(n_views, 5, True, True, np.array([False, True, True, True]))
+    K = scene.K
+    Q = np.stack([np.eye(3)] + [_rotvec_to_matrix(0.01 * rng.normal(size=3)) for _ in range(n_views - 1)])
+    state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), np.asarray(scene.dist, float),
+                   scene.R.copy(), Q, scene.T_true.copy(), scene.X.copy())
+    pts = np.arange(scene.n_points)
+    _, _, Jg, JX = _predict_view(state, lay, view, pts)
+    cols = lay.view_columns(view)
+    zero_X = np.zeros((3, len(pts)))
+    for local, k in enumerate(cols):
+        h = 1e-6 * max(1.0, abs(state.intr[k]) if k < 5 else 1.0)
+        dg = np.zeros(lay.size)
+        dg[k] = h
+        plus = _predict_view(_apply_step(state, lay, dg, zero_X), lay, view, pts, False)[0]
+        minus = _predict_view(_apply_step(state, lay, -dg, zero_X), lay, view, pts, False)[0]
+        fd = (plus - minus) / (2 * h)
+        scale = max(np.abs(fd).max(), 1e-3)
+        assert np.abs(Jg[local] - fd).max() / scale < 1e-6, lay.names()[k]
+    # parameters that do not belong to this view have no column
+    assert len(cols) == lay.n_common + 3 * (view > 0) + 3 * (view > 0)
+    for a in range(3):
+        h = 1e-4
+        dX = np.zeros((3, len(pts)))
+        dX[a] = h
+        plus = _predict_view(_apply_step(state, lay, np.zeros(lay.size), dX), lay, view, pts, False)[0]
+        minus = _predict_view(_apply_step(state, lay, np.zeros(lay.size), -dX), lay, view, pts, False)[0]
+        fd = (plus - minus) / (2 * h)
+        assert np.abs(JX[a] - fd).max() / np.abs(fd).max() < 1e-6
+
+
+# ---------------------------------------------------------------------------- distortion
+
+
+@pytest.mark.parametrize("model,dist", [("radial2", (-0.2, 0.1)), ("opencv5", (-0.2, 0.1, 0.001, -0.002, 0.02))])
+def test_distortion_recovered_from_linear_start(model, dist):
+    scene = simulate.random_scene(200, 5, dist=dist, rng=2)
+    cal = refine(scene.uv, scene.T, linear_start(scene), distortion=model, sigma_px=0.5)
+    assert cal.dist_model == model
+    assert np.abs(cal.dist - np.asarray(dist)).max() < 1e-8
+    assert rel(cal.K, scene.K) < 1e-9
+
+
+def test_distortion_recovered_with_noise_within_std():
+    dist = (-0.25, 0.08)
+    scene = simulate.random_scene(300, 5, dist=dist, noise_px=0.5, rng=8)
+    cal = refine(scene.uv, scene.T, linear_start(scene), distortion="radial2")
+    for name, true in zip(("k1", "k2"), dist):
+        k = cal.param_names.index(name)
+        assert abs(cal.dist[k - 4] - true) < 4 * cal.std[name]
+
+
+def test_distortion_matches_cv2_project_points():
+    """Coefficients are in OpenCV's convention: cv2.projectPoints reproduces our prediction."""
+    scene = simulate.random_scene(100, 4, dist=(-0.2, 0.1, 0.001, -0.002, 0.02), noise_px=0.3, rng=9)
+    cal = refine(scene.uv, scene.T, linear_start(scene), distortion="opencv5")
+    predicted = scene.uv - cal.residuals_px
+    rvec = cv2.Rodrigues(cal.R)[0]
+    for i in range(scene.n_views):
+        seen = np.isfinite(scene.uv[i, :, 0])
+        tvec = -cal.R @ cal.T[i]
+        uv_cv, _ = cv2.projectPoints(cal.X[seen].reshape(-1, 1, 3), rvec, tvec, cal.K, cal.dist)
+        assert np.abs(uv_cv.reshape(-1, 2) - predicted[i, seen]).max() < 1e-8
+    # and cv2.undistortPoints inverts it back to the pinhole projection
+    uv_pin = project(cal.K, cal.R, cal.X, cal.T)
+    und = cv2.undistortPoints(predicted[0, :, None, :].astype(np.float64), cal.K, cal.dist, P=cal.K)
+    seen = np.isfinite(scene.uv[0, :, 0])
+    assert np.abs(und.reshape(-1, 2)[seen] - uv_pin[0, seen]).max() < 1e-3
+
+
+# ---------------------------------------------------------------------------- statistics
+
+
+def test_paper_monte_carlo_refined_beats_linear_and_std_is_honest():
+    """Paper preset, 0.5 px: refined RMS error of fx, fy, cx, cy below the linear one's;
+    predicted std within 20 % of the empirical one and close to the CRLB."""
+    pytest.importorskip("transcalib.linear")
+    from transcalib.linear import estimate_linear
+
+    base = simulate.paper_scene()
+    truth = _k4(base.K)
+    lin, ref, pred = [], [], []
+    for k in range(200):
+        scene = simulate.observe(base, 0.5, rng=1000 + k)
+        est = estimate_linear(scene.uv, scene.T)
+        cal = refine(scene.uv, scene.T, est)
+        assert cal.info["converged"]
+        lin.append(_k4(est.K))
+        ref.append(_k4(cal.K))
+        pred.append([cal.std[n] for n in KEYS])
+    lin, ref, pred = np.array(lin), np.array(ref), np.array(pred)
+    rms_lin = np.sqrt(np.mean((lin - truth) ** 2, axis=0))
+    rms_ref = np.sqrt(np.mean((ref - truth) ** 2, axis=0))
+    assert np.all(rms_ref < rms_lin), (rms_ref, rms_lin)
+    empirical = ref.std(axis=0)
+    predicted = np.sqrt(np.mean(pred**2, axis=0))
+    # 200 trials: the sample std has ~5 % relative error
+    assert np.all(np.abs(predicted / empirical - 1) < 0.2), (predicted, empirical)
+    bound = np.array([crlb(simulate.observe(base, 0.5, rng=0))[n] for n in KEYS])
+    assert np.all(empirical < 1.25 * bound) and np.all(empirical > 0.8 * bound), (empirical, bound)
+
+
+def test_crlb_equals_predicted_std_at_truth():
+    scene = simulate.random_scene(60, 5, noise_px=0.7, dist=(-0.1, 0.02), rng=10)
+    exact = replace(scene, uv=np.where(np.isfinite(scene.uv), scene.uv_true, np.nan))
+    cal = refine(exact.uv, exact.T, perturbed_start(scene, 11), distortion="radial2", sigma_px=0.7)
+    bound = crlb(scene)
+    assert set(bound) == set(cal.std)
+    for name in bound:
+        assert np.isclose(bound[name], cal.std[name], rtol=1e-6), name
+
+
+def test_sigma_estimated_with_degrees_of_freedom():
+    scene = simulate.random_scene(2000, 4, noise_px=0.8, rng=12)
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 13, dK=0.005, dX=0.002))
+    assert cal.info["sigma_px_estimated"]
+    assert abs(cal.info["sigma_px"] / 0.8 - 1) < 0.03
+    n_obs = int(np.isfinite(scene.uv[..., 0]).sum())
+    assert cal.info["dof"] == 2 * n_obs - 7 - 3 * scene.n_points
+    # OpenCV's RMS: sum |r|^2 = sigma^2 dof, so sqrt(mean(du^2 + dv^2)) = sigma sqrt(dof / n_obs)
+    assert np.isclose(cal.rms_px, cal.info["sigma_px"] * np.sqrt(cal.info["dof"] / n_obs))
+
+
+def test_point_std_matches_monte_carlo():
+    base = simulate.paper_scene()
+    Xs, stds = [], []
+    for k in range(150):
+        scene = simulate.observe(base, 0.5, rng=2000 + k)
+        cal = refine(scene.uv, scene.T, perturbed_start(base, k))
+        Xs.append(cal.X)
+        stds.append(cal.X_std)
+    empirical = np.std(Xs, axis=0)
+    predicted = np.sqrt(np.mean(np.square(stds), axis=0))
+    ratio = predicted / empirical
+    assert 0.85 < np.median(ratio) < 1.15, np.median(ratio)
+
+
+# ---------------------------------------------------------------------------- robot noise
+
+
+def test_sigma_T_noise_free_is_exact_and_keeps_translations():
+    scene = simulate.paper_scene()
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 1), sigma_T=0.1, sigma_px=0.5)
+    assert rel(cal.K, scene.K) < 1e-9
+    assert np.abs(cal.T - scene.T_true).max() < 1e-9
+    assert "T1_x" in cal.std and np.isfinite(cal.std["T3_z"])
+
+
+def test_sigma_T_honest_std_and_better_translations():
+    """With 0.3 mm robot noise, fixed translations give overconfident error bars; modelling
+    them gives error bars that match the Monte-Carlo spread, and better translations."""
+    base = simulate.paper_scene()
+    sigma_T = np.array([0.0, 0.3, 0.3, 0.3])  # view 0 is exact in simulate.observe
+    fixed, modelled, pred_fixed, pred_mod, err_T, err_meas = [], [], [], [], [], []
+    for k in range(120):
+        scene = simulate.observe(base, 0.5, robot_noise=0.3, rng=3000 + k)
+        start = linear_start(scene)
+        a = refine(scene.uv, scene.T, start)
+        b = refine(scene.uv, scene.T, start, sigma_T=sigma_T)
+        fixed.append(_k4(a.K))
+        modelled.append(_k4(b.K))
+        pred_fixed.append([a.std[n] for n in KEYS])
+        pred_mod.append([b.std[n] for n in KEYS])
+        err_T.append(np.abs(b.T - scene.T_true)[1:].mean())
+        err_meas.append(np.abs(scene.T - scene.T_true)[1:].mean())
+    emp_mod = np.std(modelled, axis=0)
+    assert np.all(np.abs(np.mean(pred_mod, axis=0) / emp_mod - 1) < 0.25)
+    assert np.all(np.mean(pred_fixed, axis=0) < 0.6 * np.std(fixed, axis=0))  # overconfident
+    assert np.all(emp_mod < np.std(fixed, axis=0))
+    assert np.mean(err_T) < np.mean(err_meas)
+    bound = crlb(simulate.observe(base, 0.5, robot_noise=0.3, rng=0))
+    assert np.all(np.abs(emp_mod / np.array([bound[n] for n in KEYS]) - 1) < 0.25)
+
+
+# ---------------------------------------------------------------------------- robust losses
+
+
+def _with_outliers(scene, fraction, rng):
+    """Replace one view of a ``fraction`` of the points by a random pixel (>= 30 px off)."""
+    rng = np.random.default_rng(rng)
+    uv = scene.uv.copy()
+    w, h = scene.image_size
+    bad = rng.choice(scene.n_points, int(fraction * scene.n_points), replace=False)
+    for j in bad:  # test data construction, not a hot path
+        views = np.flatnonzero(np.isfinite(uv[:, j, 0]))
+        i = rng.choice(views)
+        while True:
+            p = rng.uniform([0, 0], [w, h])
+            if np.linalg.norm(p - scene.uv_true[i, j]) > 30:
+                break
+        uv[i, j] = p
+    return uv, np.sort(bad)
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_robust_loss_finds_planted_outliers(loss):
+    scene = simulate.random_scene(200, 5, noise_px=0.5, rng=14)
+    uv, bad = _with_outliers(scene, 0.15, rng=15)
+    start = linear_start(scene)  # from clean data: the robust module's RANSAC provides this
+    clean = refine(scene.uv, scene.T, start)
+    cal = refine(uv, scene.T, start, loss=loss, loss_scale_px=1.0)
+    assert cal.inliers is not None
+    assert np.array_equal(np.flatnonzero(~cal.inliers), bad)
+    for n in KEYS:
+        assert abs(_k4(cal.K)[KEYS.index(n)] - _k4(clean.K)[KEYS.index(n)]) < 0.5 * clean.std[n]
+    # with the linear loss the outliers ruin the estimate
+    plain = refine(uv, scene.T, start)
+    assert np.abs(_k4(plain.K) - _k4(scene.K)).max() > 5 * np.abs(_k4(cal.K) - _k4(scene.K)).max()
+    # the covariance comes from the inliers: close to the clean one
+    assert abs(cal.std["fx"] / clean.std["fx"] - 1) < 0.2
+    assert np.all(np.isnan(cal.X_std[bad[np.isin(bad, np.flatnonzero(np.isfinite(scene.uv[..., 0]).sum(0) == 2))]]))
+
+
+def test_linear_loss_has_no_inlier_mask():
+    scene = simulate.paper_scene(noise_px=0.5, rng=0)
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 0))
+    assert cal.inliers is None
+    assert cal.info["loss"] == "linear"
+
+
+# ---------------------------------------------------------------------------- view rotations
+
+
+def _rotated_view_uv(scene, view, rotvec_deg):
+    """Observations where the camera of ``view`` rotated by ``rotvec_deg`` (camera frame)."""
+    Q = _rotvec_to_matrix(np.radians(rotvec_deg))
+    uv = scene.uv_true.copy()
+    uv[view] = project(scene.K, Q @ scene.R, scene.X, scene.T_true[view: view + 1], scene.dist)[0]
+    return uv
+
+
+def test_view_rotation_noise_free_exact():
+    scene = simulate.random_scene(100, 5, rng=16)
+    uv = _rotated_view_uv(scene, 2, [0.2, -0.1, 0.05])
+    cal = refine(uv, scene.T, perturbed_start(scene, 17), estimate_view_rotations=True, sigma_px=0.5)
+    expected = np.zeros((5, 3))
+    expected[2] = [0.2, -0.1, 0.05]
+    assert np.abs(cal.info["view_rotations_deg"] - expected).max() < 1e-9
+    assert cal.info["view_rotations_std_deg"].shape == (5, 3)
+    assert np.all(cal.info["view_rotations_std_deg"][0] == 0)
+    assert rel(cal.K, scene.K) < 1e-9
+
+
+@pytest.mark.parametrize("preset", ["paper", "random"])
+def test_view_rotation_recovered_within_std(preset):
+    """One view rotated by 0.2 deg, 0.5 px noise: recovered within its std (Monte-Carlo z-scores)."""
+    base = simulate.paper_scene() if preset == "paper" else simulate.random_scene(100, 4, rng=18)
+    truth = np.zeros((base.n_views, 3))
+    truth[2] = [0.2, 0.0, 0.0]
+    z, angle_z = [], []
+    rng = np.random.default_rng(19)
+    for _ in range(60):
+        uv = _rotated_view_uv(base, 2, truth[2]) + rng.normal(0, 0.5, base.uv.shape)
+        cal = refine(uv, base.T, linear_start(base, uv), estimate_view_rotations=True)
+        est, std = cal.info["view_rotations_deg"], cal.info["view_rotations_std_deg"]
+        z.append((est[1:] - truth[1:]) / std[1:])
+    z = np.array(z)
+    assert np.all(np.abs(z.mean(axis=0)) < 0.6), z.mean(axis=0)
+    assert np.all((z.std(axis=0) > 0.7) & (z.std(axis=0) < 1.35)), z.std(axis=0)
+    if preset == "random":  # a 3-D scene: 0.2 deg is clearly significant
+        assert np.mean(np.abs(z[:, 1, 0] + 0.2 / std[2, 0]) > 3) > 0.9
+
+
+# ---------------------------------------------------------------------------- interface
+
+
+def test_accepts_linear_estimate_and_reports_info():
+    scene = simulate.paper_scene(noise_px=0.5, rng=1)
+    pytest.importorskip("transcalib.linear")
+    start = linear_start(scene)
+    steps = []
+    cal = refine(scene.uv, scene.T, start, progress=steps.append)
+    assert cal.linear is start
+    assert cal.info["iterations"] == len(steps) > 0
+    for key in ("iterations", "cost", "stop_reason", "converged", "sigma_px", "dof"):
+        assert key in cal.info
+    assert cal.diagnostics == []
+    assert cal.X_std.shape == (scene.n_points, 3)
+    assert np.allclose(cal.T, scene.T)
+    used = np.isfinite(cal.residuals_px[..., 0])
+    assert np.isclose(cal.rms_px, np.sqrt(np.mean(np.sum(cal.residuals_px[used] ** 2, axis=-1))))
+
+
+def test_unused_points_stay_out():
+    scene = simulate.random_scene(30, 4, noise_px=0.3, rng=20)
+    start = perturbed_start(scene, 21)
+    X = start.X.copy()
+    X[[3, 7]] = np.nan
+    cal = refine(scene.uv, scene.T, replace(start, X=X))
+    assert np.all(np.isnan(cal.X[[3, 7]])) and np.all(np.isnan(cal.residuals_px[:, [3, 7]]))
+    assert np.all(np.isnan(cal.X_std[[3, 7]]))
+    assert cal.info["n_points_used"] == 28
+
+
+def test_bad_inputs_raise():
+    scene = simulate.paper_scene(noise_px=0.5, rng=1)
+    start = perturbed_start(scene, 0)
+    with pytest.raises(InputError, match="uv must have shape"):
+        refine(scene.uv[..., 0], scene.T, start)
+    with pytest.raises(InputError, match="T must have shape"):
+        refine(scene.uv, scene.T[:3], start)
+    with pytest.raises(InputError, match="distortion"):
+        refine(scene.uv, scene.T, start, distortion="fisheye")
+    with pytest.raises(InputError, match="loss"):
+        refine(scene.uv, scene.T, start, loss="l1")
+    with pytest.raises(InputError, match="initial"):
+        refine(scene.uv, scene.T, {"K": scene.K})
+    with pytest.raises(InputError, match="sigma_T"):
+        refine(scene.uv, scene.T, start, sigma_T=-1.0)
+    with pytest.raises(InputError, match="loss_scale_px"):
+        refine(scene.uv, scene.T, start, loss="huber", loss_scale_px=0.0)
+    X = np.full_like(start.X, np.nan)
+    X[0] = start.X[0]
+    with pytest.raises(DegenerateError, match="usable points"):
+        refine(scene.uv, scene.T, replace(start, X=X))
+    with pytest.raises(InputError, match="noise"):
+        crlb(simulate.paper_scene())
