@@ -641,8 +641,8 @@ def render_scene(
         surfaces_c.append(sb)
         corners_c.append(cb)
         kinds += ["checker"] * len(cb)
-        cell2 = fov_w / 28
-        faces = box([-0.22 * fov_w, 0.18 * fov_h, 0.72 * D], tilt(25, 30) , [7 * cell2, 7 * cell2, 7 * cell2],
+        cell2 = fov_w / 30
+        faces = box([-0.25 * fov_w, 0.2 * fov_h, 0.8 * D], tilt(25, 30), [5 * cell2, 5 * cell2, 5 * cell2],
                     Checker(cell2), "cbox")
         surfaces_c += faces
     elif kind == "natural":

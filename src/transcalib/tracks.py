@@ -322,7 +322,9 @@ def _match_pair(d1, d2, ratio):
     """Mutual nearest neighbours passing the ratio test: index pairs ``(k, 2)``."""
     if len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), int)
-    bf = cv2.BFMatcher(cv2.NORM_L2)
+    bf = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
+    d1 = np.ascontiguousarray(d1, np.float32)
+    d2 = np.ascontiguousarray(d2, np.float32)
 
     def one_way(a, b):
         m = bf.knnMatch(a, b, k=2)
@@ -338,20 +340,64 @@ def _match_pair(d1, d2, ratio):
     return np.array(pairs, int).reshape(-1, 2)
 
 
+def _local_rho(seeds_x, seeds_rho, query, k=6):
+    """Median ``rho`` of the ``k`` nearest seeds of each query point (a seed at the
+    query's own position is skipped, so a point never votes for itself)."""
+    tree = cKDTree(seeds_x)
+    kk = min(k + 1, len(seeds_x))
+    dd, nn = tree.query(query, k=kk)
+    dd, nn = dd.reshape(len(query), kk), nn.reshape(len(query), kk)
+    r = np.where(dd > 1e-9, seeds_rho[np.minimum(nn, len(seeds_x) - 1)], np.nan)
+    # keep the k nearest non-self neighbours
+    r = np.where(np.cumsum(np.isfinite(r), axis=1) <= k, r, np.nan)
+    with np.errstate(all="ignore"):
+        return np.nanmedian(r, axis=1) if r.size else np.zeros(len(query))
+
+
 def _predict(e, seeds_x, seeds_rho, query, k=6):
     """Predict positions in the other view of ``query`` points from nearby seeds' rho."""
-    tree = cKDTree(seeds_x)
-    kk = min(k, len(seeds_x))
-    _, nn = tree.query(query, k=kk)
-    nn = nn.reshape(len(query), kk)
-    rho = np.median(seeds_rho[nn], axis=1)
-    return query + rho[:, None] * _direction(e, query)
+    rho = _local_rho(seeds_x, seeds_rho, query, k)
+    return query + np.nan_to_num(rho)[:, None] * _direction(e, query)
 
 
-def _guided_corners(ci, cj, e, xi, xj, threshold_px):
-    """Match corners ``ci`` (view i) to ``cj`` (view j) guided by epipole and seeds."""
+def _guided_corners(ci, cj, e, xi, xj, threshold_px, rounds=3):
+    """Match corners ``ci`` (view i) to ``cj`` (view j) guided by the epipole ``e``.
+
+    Seeds ``xi -> xj`` (verified descriptor matches) give ``rho`` (inverse depth) near
+    each corner; matched corners then become seeds themselves (``rounds`` times), and a
+    match whose ``rho`` disagrees with its neighbours' is dropped (depth smoothness),
+    which rejects the one-cell shifts that repetitive textures invite.
+    """
+    none = np.zeros((0, 2), int)
     if len(ci) == 0 or len(cj) == 0 or len(xi) < 3:
-        return np.zeros((0, 2), int)
+        return none
+    pairs = _guided_once(ci, cj, e, xi, xj, threshold_px)
+    sp = _spacing(cj)
+    for _ in range(rounds):
+        if len(pairs) == 0:
+            return pairs
+        si = np.vstack([xi, ci[pairs[:, 0]]])
+        sj = np.vstack([xj, cj[pairs[:, 1]]])
+        pairs = _guided_once(ci, cj, e, si, sj, threshold_px)
+        if len(pairs) == 0:
+            return pairs
+        # smoothness: rho of each match vs the median of its matched neighbours
+        mi, mj = ci[pairs[:, 0]], cj[pairs[:, 1]]
+        _, rho = _epi_residual(e, mi, mj)
+        _, rho_s = _epi_residual(e, xi, xj)
+        rho_nb = _local_rho(np.vstack([xi, mi]), np.r_[rho_s, rho], mi, k=6)
+        dev = np.abs(rho - rho_nb) * np.linalg.norm(_direction(e, mi), axis=1)
+        pairs = pairs[np.nan_to_num(dev, nan=np.inf) < 0.3 * sp]
+    return pairs
+
+
+def _spacing(c):
+    if len(c) < 2:
+        return 10.0
+    return float(np.median(cKDTree(c).query(c, k=2)[0][:, 1]))
+
+
+def _guided_once(ci, cj, e, xi, xj, threshold_px):
     _, rho_ij = _epi_residual(e, xi, xj)
     _, rho_ji = _epi_residual(-e, xj, xi)
     pred_j = _predict(e, xi, rho_ij, ci)
@@ -384,7 +430,7 @@ def _sample(img, x, y):
     return out
 
 
-def _lk_affine(ref_img, ref_gx, tgt, tgt_gx, tgt_gy, p_ref, p0, M0, radius, iterations=20):
+def _lk_affine(ref_img, ref_gx, tgt, tgt_gx, tgt_gy, p_ref, p0, M0, radius, iterations=15):
     """Batched Lucas-Kanade: align patches of ``tgt`` to template patches of ``ref_img``.
 
     Warp: ``x_tgt = p + M o`` for template offsets ``o`` around ``p_ref``; photometric
@@ -472,8 +518,8 @@ def track(
     images,
     *,
     method: str = "auto",
-    max_features: int = 4000,
-    max_corners: int = 3000,
+    max_features: int = 2500,
+    max_corners: int = 2500,
     corner_quality: float = 0.02,
     ratio: float = 0.8,
     threshold_px: float = 1.5,
@@ -481,9 +527,10 @@ def track(
     window_radius: int = 8,
     min_ncc: float = 0.9,
     final_threshold_px: float = 0.5,
+    smooth_px: float = 2.5,
     min_views: int = 2,
     min_tracks: int = 8,
-    max_tracks: int | None = 4000,
+    max_tracks: int | None = 2000,
     progress=None,
     rng=0,
 ) -> Tracks:
@@ -512,6 +559,9 @@ def track(
         Minimum normalised cross-correlation of a refined observation with its template.
     final_threshold_px : float
         Epipolar distance after refinement above which an observation is dropped.
+    smooth_px : float
+        A match whose displacement differs by more than this from the one its
+        neighbours' depths predict is dropped (catches repeated-texture mismatches).
     min_views : int
         Minimum number of views per track.
     min_tracks : int
@@ -630,6 +680,9 @@ def track(
     uv = uv[:, nseen >= 2]
     is_corner = is_corner[nseen >= 2]
     n_conflicts = int((~ok).sum())
+    if max_tracks is not None and uv.shape[1] > int(1.3 * max_tracks):
+        keep = _select_spread(uv, int(1.3 * max_tracks), w, h, return_index=True)
+        uv, is_corner = uv[:, keep], is_corner[keep]
     times["chain"] = time.perf_counter() - t0
     report("chain", 1, 1)
 
@@ -641,6 +694,7 @@ def track(
 
     # final check with epipoles re-estimated from the refined points
     t0 = time.perf_counter()
+    uv = _smoothness_check(uv, epi, smooth_px)
     uv, epi_final = _final_check(uv, n, final_threshold_px if refine else threshold_px, rng)
     uv = _dedupe(uv, w, h)
     nseen = np.isfinite(uv[..., 0]).sum(0)
@@ -725,6 +779,27 @@ def _refine(grey, uv, epi, radius, min_ncc, report):
     return out
 
 
+def _smoothness_check(uv, epi, thr_px, k=8):
+    """Drop observations whose inverse depth ``rho`` (w.r.t. the pair's epipole) differs
+    from the median of the ``k`` nearest tracks by more than ``thr_px`` in the image."""
+    out = uv.copy()
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    for (i, j), e in epi.items():
+        both = np.flatnonzero(seen[i] & seen[j])
+        if len(both) < k + 1:
+            continue
+        xi, xj = uv[i, both], uv[j, both]
+        _, rho = _epi_residual(e, xi, xj)
+        rho_nb = _local_rho(xi, rho, xi, k)
+        dev = np.abs(rho - rho_nb) * np.linalg.norm(_direction(e, xi), axis=1)
+        bad = both[~(np.nan_to_num(dev, nan=np.inf) <= thr_px)]
+        drop_j = ref[bad] != j
+        out[j, bad[drop_j]] = np.nan
+        out[i, bad[~drop_j]] = np.nan
+    return out
+
+
 def _final_check(uv, n, thr, rng):
     """Re-estimate the epipoles from the refined tracks; drop observations off their line."""
     epi = {}
@@ -770,7 +845,7 @@ def _dedupe(uv, w, h, tol=0.75):
     return uv[:, keep]
 
 
-def _select_spread(uv, k, w, h):
+def _select_spread(uv, k, w, h, return_index=False):
     """Keep ``k`` tracks: most views first, spread over a grid of the reference image."""
     seen = np.isfinite(uv[..., 0])
     ref = np.argmax(seen, axis=0)
@@ -783,8 +858,8 @@ def _select_spread(uv, k, w, h):
     start = np.r_[0, np.flatnonzero(np.diff(cs)) + 1]
     within = np.arange(len(order)) - np.repeat(start, np.diff(np.r_[start, len(order)]))
     rank[order] = within
-    pick = np.argsort(rank * 10 - seen.sum(0), kind="stable")[:k]
-    return uv[:, np.sort(pick)]
+    pick = np.sort(np.argsort(rank * 10 - seen.sum(0), kind="stable")[:k])
+    return pick if return_index else uv[:, pick]
 
 
 def _colors(rgb, uv):
