@@ -1,0 +1,418 @@
+"""The paper's linear estimator: total least squares on the stacked system ``C b = 0``.
+
+For point ``j`` with reference view ``r`` (its first visible view) and every other view
+``i`` where it is seen, subtracting eq. 2 of view ``i`` from view ``r`` eliminates
+``X_j`` (paper eq. 4)::
+
+    lam_rj u_rj - lam_ij u_ij - A (T_i - T_r) = 0            (3 equations)
+
+with ``u = [u, v, 1]``. The unknowns are ``b = (all lam, vec(A))``; ``b`` is the right
+singular vector of ``C`` for its smallest singular value (paper §2.2), computed after
+Hartley normalisation of the pixels and translations.
+
+Two ways to compute it, equal to rounding error:
+
+``method="dense"``
+    Builds ``C`` (``3 sum(k_j - 1)`` rows, ``sum(k_j) + 9`` columns) and takes its SVD:
+    O(n^3) time, O(n^2) memory; the reference.
+``method="fast"`` (default)
+    ``M = C^T C = [[D, B], [B^T, E]]`` is an arrowhead matrix: ``D`` is block diagonal
+    with one small arrowhead block ``D_j`` per point (its depths), ``E`` (9 x 9) belongs
+    to ``vec(A)``. Eliminating the depths, the smallest eigenvalue ``mu`` of ``M`` is the
+    root in ``[0, min eig D)`` of ::
+
+        f(mu) = lambda_min(S(mu)),   S(mu) = E - mu I - sum_j B_j^T (D_j - mu I)^-1 B_j
+
+    (``f`` is concave and decreasing there), ``vec(A)`` is the null vector of
+    ``S(mu)`` and the depths follow as ``lam_j = -(D_j - mu I)^-1 B_j vec(A)``. Each
+    evaluation of ``S`` costs O(n) with closed-form arrowhead inverses; Newton's method
+    needs a handful.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import rq_decompose
+from .triangulate import triangulate
+from .types import DegenerateError, InputError, LinearEstimate
+from .validate import as_uv_T, check_translations_span
+
+__all__ = ["estimate_linear", "solve_tls", "DENSE_MAX_POINTS"]
+
+#: Largest problem the dense reference accepts (its memory grows as n^2).
+DENSE_MAX_POINTS = 3000
+
+
+@dataclass(frozen=True)
+class _Normalised:
+    """Hartley-normalised data of the used points, and the maps that undo it."""
+
+    U: np.ndarray  # (n, V, 3) normalised homogeneous pixels, zero where unseen
+    seen: np.ndarray  # (n, V) bool
+    ref: np.ndarray  # (n,) reference view of each point
+    T: np.ndarray  # (V, 3) normalised translations
+    H: np.ndarray  # (3, 3) pixel similarity: u' = H u
+    t_scale: float  # T' = (T - T_mean) / t_scale
+
+
+def _normalise(uv: np.ndarray, T: np.ndarray) -> _Normalised:
+    """Pixels to zero mean and mean distance sqrt(2); translations to unit mean norm."""
+    seen = np.isfinite(uv[..., 0]).T  # (n, V)
+    pts = uv.transpose(1, 0, 2)[seen]  # (n_obs, 2)
+    centre = pts.mean(axis=0)
+    spread = np.linalg.norm(pts - centre, axis=1).mean()
+    scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
+    H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
+    U = np.zeros(seen.shape + (3,))
+    U[..., :2] = np.where(seen[..., None], (uv.transpose(1, 0, 2) - centre) * scale, 0.0)
+    U[..., 2] = seen
+    T_mean = T.mean(axis=0)
+    t_scale = float(np.linalg.norm(T - T_mean, axis=1).mean())
+    return _Normalised(U=U, seen=seen, ref=np.argmax(seen, axis=1), T=(T - T_mean) / t_scale, H=H, t_scale=t_scale)
+
+
+# --------------------------------------------------------------------------------------
+# Fast (O(n)) total least squares through the arrowhead structure of C^T C
+# --------------------------------------------------------------------------------------
+
+#: Points per chunk in the O(n) passes: keeps temporaries in cache.
+_CHUNK = 4096
+
+
+class _Arrowhead:
+    """The blocks of ``M = C^T C``, point by point, in a head-first layout.
+
+    For point ``j`` slot 0 holds its reference view ``r`` (the head) and slots
+    ``1..V-1`` the other views (the tail; zero where unseen). With ``z_0 = u_r``,
+    ``z_k = u_k`` and ``t_k = T_k - T_r``::
+
+        D_j[0, 0] = (k_j - 1) |u_r|^2,   D_j[k, k] = |u_k|^2,   D_j[0, k] = -u_r . u_k
+        B_j[i] = kron(z_i, tt_i)   with tt_0 = -sum_k t_k, tt_k = t_k
+        E = kron(I_3, sum_jk t_k t_k^T)
+
+    ``tt`` depends only on the reference view and which views see the point, so points
+    are sorted into such groups; then ``sum_j B_j^T W_j B_j`` for per-point matrices
+    ``W_j`` (V x V) is ``sum_ii' kron(sum_j W_j[i, i'] z_ji z_ji'^T, tt_i tt_i'^T)``: all
+    per-point work is on 3-vectors, and the sums over points are matrix products.
+
+    ``(D_j - mu I)^-1`` is applied in closed form: with ``delta_k = D_kk - mu``,
+    ``q_k = D_0k / delta_k`` and the head's Schur scalar ``s = D_00 - mu - sum_k D_0k q_k``::
+
+        y_0 = (b_0 - sum_k q_k b_k) / s,    y_k = (b_k - D_0k y_0) / delta_k
+    """
+
+    def __init__(self, nd: _Normalised):
+        seen, ref = nd.seen, nd.ref
+        n, V = seen.shape
+        rows = np.arange(n)
+        # tail slots: the views other than the reference, in view order
+        others = np.argsort(np.arange(V)[None, :] == ref[:, None], axis=1, kind="stable")[:, : V - 1]
+        tail = seen[rows[:, None], others]
+        key = ref * (1 << (V - 1)) + tail @ (1 << np.arange(V - 1))
+        order = np.argsort(key, kind="stable")
+        if not np.all(key[order] == key):  # only sort when there is more than one group
+            rows, others, tail, key = order, others[order], tail[order], key[order]
+        self.n, self.V = n, V
+        self.point = rows  # sorted position -> point index
+        self.ref, self.others = ref[rows], others
+        self.Z = np.concatenate([nd.U[rows, ref[rows]][:, None, :], nd.U[rows[:, None], others]], axis=1)
+        u_r = self.Z[:, 0]
+        self.D00 = (tail.sum(axis=1)) * np.einsum("na,na->n", u_r, u_r)
+        self.D0k = -np.einsum("nka,na->nk", self.Z[:, 1:], u_r)
+        self.Dkk = np.where(tail, np.einsum("nka,nka->nk", self.Z[:, 1:], self.Z[:, 1:]), 1.0)
+        self.tail = tail
+        # groups of equal key: (slice, tt (V, 3))
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        stops = np.r_[starts[1:], n]
+        self.groups = []
+        tt_sum = np.zeros((3, 3))
+        for a, b in zip(starts, stops):
+            t = np.where(tail[a][:, None], nd.T[others[a]] - nd.T[self.ref[a]], 0.0)
+            self.groups.append((a, b, np.vstack([-t.sum(axis=0), t])))
+            tt_sum += (b - a) * t.T @ t
+        self.E = np.kron(np.eye(3), tt_sum)
+
+    def _chunks(self):
+        """(group translations tt, slice) covering all points, at most _CHUNK long."""
+        for a, b, tt in self.groups:
+            for lo in range(a, b, _CHUNK):
+                yield tt, slice(lo, min(lo + _CHUNK, b))
+
+    def _inverse(self, c: slice, mu: float):
+        """Closed-form pieces of ``(D_j - mu I)^-1`` for the chunk: ``(q, 1/s, 1/delta)``,
+        or None if some ``D_j - mu I`` is not positive definite (``mu`` past a pole)."""
+        delta = self.Dkk[c] - mu
+        delta[~self.tail[c]] = 1.0
+        q = self.D0k[c] / delta
+        s = self.D00[c] - mu - np.einsum("nk,nk->n", self.D0k[c], q)
+        if np.any(delta <= 0) or np.any(s <= 0):
+            return None
+        return q, 1.0 / s, 1.0 / delta
+
+    def taylor(self, mu: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """First two Taylor coefficients of ``F(nu) = sum_j B_j^T (D_j - nu I)^-1 B_j`` at
+        ``mu``: ``G_1 = sum B^T W B`` and ``G_2 = sum B^T W^2 B``, ``W_j = (D_j - mu I)^-1``.
+
+        One O(n) pass; None if ``mu`` is past a pole. ``W = Delta + q^ q^T / s`` with
+        ``Delta = diag(0, 1/delta_k)`` and ``q^ = (1, -q_k)``; with the head row
+        ``w = q^T B`` (9 per point)::
+
+            G_1 = sum_k B_k B_k^T / delta_k + w w^T / s
+            G_2 = sum_k B_k B_k^T / delta_k^2 - sum_k q_k / (s delta_k) (B_k w^T + w B_k^T)
+                  + (1 + |q|^2) w w^T / s^2
+
+        and ``sum_j c_j B_jk B_jk^T = kron(sum_j c_j z_jk z_jk^T, tt_k tt_k^T)``: every sum
+        over points is a small matrix product.
+        """
+        G1, G2 = np.zeros((9, 9)), np.zeros((9, 9))
+        for tt, c in self._chunks():
+            parts = self._inverse(c, mu)
+            if parts is None:
+                return None
+            q, inv_s, inv_delta = parts
+            Z = self.Z[c]
+            n = Z.shape[0]
+            qhat = np.concatenate([np.ones((n, 1)), -q], axis=1)
+            # w_j = sum_i qhat_i kron(z_i, tt_i), as rows (n, 9)
+            w = ((qhat[:, :, None] * Z).transpose(0, 2, 1).reshape(3 * n, self.V) @ tt).reshape(n, 9)
+            head2 = (1.0 + np.einsum("nk,nk->n", q, q)) * inv_s**2
+            G1 += (w * inv_s[:, None]).T @ w
+            G2 += (w * head2[:, None]).T @ w
+            for k in range(1, self.V):
+                zk, t = Z[:, k], tt[k]
+                d1 = inv_delta[:, k - 1]
+                M1 = (zk * d1[:, None]).T @ zk
+                M2 = (zk * (d1 * d1)[:, None]).T @ zk
+                tt_outer = np.outer(t, t)
+                G1 += np.kron(M1, tt_outer)
+                G2 += np.kron(M2, tt_outer)
+                X = (zk * (q[:, k - 1] * inv_s * d1)[:, None]).T @ w  # (3, 9)
+                cross = np.einsum("am,b->abm", X, t).reshape(9, 9)
+                G2 -= cross + cross.T
+        return G1, G2
+
+    def depths(self, mu: float, a: np.ndarray) -> np.ndarray:
+        """Depths ``y_j = -(D_j - mu I)^-1 B_j a`` in view slots (n, V)."""
+        A = a.reshape(3, 3)
+        y = np.empty((self.n, self.V))
+        for tt, c in self._chunks():
+            b = np.einsum("nia,ia->ni", self.Z[c], tt @ A.T)  # B_j a = z_i^T A tt_i
+            q, inv_s, inv_delta = self._inverse(c, mu)
+            y0 = (b[:, 0] - np.einsum("nk,nk->n", q, b[:, 1:])) * inv_s
+            y[c, 0] = -y0
+            y[c, 1:] = -(b[:, 1:] - self.D0k[c] * y0[:, None]) * inv_delta
+        out = np.empty_like(y)
+        out[self.point, self.ref] = y[:, 0]
+        out[self.point[:, None], self.others] = y[:, 1:]
+        return out
+
+
+class _TaylorModel:
+    """``S(nu) = E - nu I - G_1 - (nu - mu0) G_2`` near ``mu0``; exact at ``mu0``."""
+
+    def __init__(self, E: np.ndarray, mu0: float, G: tuple[np.ndarray, np.ndarray]):
+        self.E, self.mu0, (self.G1, self.G2) = E, mu0, G
+
+    def S(self, nu: float) -> np.ndarray:
+        return self.E - nu * np.eye(9) - self.G1 - (nu - self.mu0) * self.G2
+
+    def truncation(self, nu: float) -> float:
+        """Estimated norm of the neglected terms, ``(nu - mu0)^2 |G_3|`` with
+        ``|G_3| ~ |G_2|^2 / |G_1|``."""
+        g1, g2 = np.linalg.norm(self.G1, 2), np.linalg.norm(self.G2, 2)
+        return (nu - self.mu0) ** 2 * g2 * g2 / g1 if g1 > 0 else 0.0
+
+    def root(self, lo: float, hi: float) -> float:
+        """Root of ``lambda_min(S(nu))`` in ``[lo, hi)`` (safeguarded Newton)."""
+        nu = lo
+        dS = -np.eye(9) - self.G2
+        for _ in range(100):
+            w, v = np.linalg.eigh(self.S(nu))
+            f, vec = w[0], v[:, 0]
+            if f > 0:
+                lo = nu
+            else:
+                hi = nu
+            slope = vec @ dS @ vec
+            step = nu - f / slope if slope < 0 else np.nan
+            if not lo <= step <= hi:
+                step = 0.5 * (lo + hi) if np.isfinite(hi) else 2 * lo + 1e-300
+            if abs(step - nu) <= 4 * np.finfo(float).eps * abs(nu) or step == nu:
+                return step
+            nu = step
+        return nu
+
+
+def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smallest right singular vector of ``C`` via the arrowhead structure, O(n).
+
+    Newton on a local model: one O(n) pass gives ``S`` and ``dS/dmu`` exactly at the
+    current ``mu``; the root of the linear model (a 9 x 9 problem) is the next ``mu``.
+    The smallest eigenvalue lies far below the poles for any sensible data, so two
+    passes from ``mu = 0`` leave a truncation error below rounding (noise-free data
+    need one).
+
+    Returns ``(a (9,), depths (n, V), reduced singular values (3,))``.
+    """
+    arrow = _Arrowhead(nd)
+    G = arrow.taylor(0.0)
+    if G is None:
+        raise DegenerateError(
+            "some points' images do not move between views (zero disparity), so their depths "
+            "are undetermined; remove points at infinity or use larger robot translations"
+        )
+    tol = 1e-15 * np.linalg.norm(arrow.E, 2)
+    good, hi = 0.0, np.inf
+    model = _TaylorModel(arrow.E, 0.0, G)
+    mu = model.root(0.0, hi)
+    for _ in range(50):
+        if model.truncation(mu) <= tol:
+            break
+        G = arrow.taylor(mu)
+        if G is None:  # past a pole: retreat halfway
+            hi, mu = mu, 0.5 * (good + mu)
+            continue
+        good = mu
+        model = _TaylorModel(arrow.E, mu, G)
+        mu = model.root(0.0, hi)
+    w, v = np.linalg.eigh(model.S(mu))
+    a = v[:, 0]
+    return a, arrow.depths(mu, a), np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
+
+
+# --------------------------------------------------------------------------------------
+# Dense reference
+# --------------------------------------------------------------------------------------
+
+
+def _tls_dense(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The paper's formulation: build ``C`` and take its SVD (reference, small n)."""
+    U, seen, ref, T = nd.U, nd.seen, nd.ref, nd.T
+    n, V = seen.shape
+    col = np.cumsum(seen.ravel()).reshape(n, V) - 1  # column of lam_jv
+    n_lam = int(seen.sum())
+    pairs = np.argwhere(seen & (np.arange(V)[None, :] != ref[:, None]))  # (j, v)
+    C = np.zeros((3 * len(pairs), n_lam + 9))
+    for p, (j, v) in enumerate(pairs):  # reference code: clarity over speed
+        r = ref[j]
+        rows = slice(3 * p, 3 * p + 3)
+        C[rows, col[j, r]] = U[j, r]
+        C[rows, col[j, v]] = -U[j, v]
+        C[rows, n_lam:] = -np.kron(np.eye(3), T[v] - T[r])
+    _, s, Vt = np.linalg.svd(C, full_matrices=False)
+    b = Vt[-1]
+    depths = np.zeros((n, V))
+    depths[seen] = b[:n_lam]
+    # reduced singular values: mu + eig_k(S(mu)), S the Schur complement of C^T C - mu I
+    mu = s[-1] ** 2
+    M = C.T @ C - mu * np.eye(C.shape[1])
+    S = M[n_lam:, n_lam:] - M[n_lam:, :n_lam] @ np.linalg.solve(M[:n_lam, :n_lam], M[:n_lam, n_lam:])
+    w = np.linalg.eigvalsh(S)
+    return b[n_lam:], depths, np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
+
+
+# --------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------
+
+
+def solve_tls(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Total-least-squares ``A`` and depths from validated data (no further checks).
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        Every point seen in at least 2 views.
+    T : (n_views, 3) float
+        Translations spanning 3-D.
+    method : {"fast", "dense"}
+
+    Returns
+    -------
+    A : (3, 3) float
+        ``K R`` in pixel and translation units, ``||A[2]|| = 1``, depths positive.
+    depth : (n_views, n_points) float
+        ``lam_ij`` (camera z), NaN where unseen.
+    singular_values : (3,) float
+        ``sigma_1`` the smallest singular value of the normalised ``C``, then the
+        reduced values ``sqrt(sigma_1^2 + eig_k(S))``, k = 2, 3, of the Schur complement
+        ``S`` over the depths: the residual of the best solution whose ``A`` is the k-th
+        alternative. ``sigma_1 / sigma_2`` near 1 means ``A`` is not determined.
+    """
+    nd = _normalise(uv, T)
+    a, depths, sv = (_tls_fast if method == "fast" else _tls_dense)(nd)
+    # undo normalisation: lam' H u = A' (X - T) / t_scale  =>  A ∝ H^-1 A' / t_scale
+    A = np.linalg.solve(nd.H, a.reshape(3, 3)) / nd.t_scale
+    c = 1.0 / np.linalg.norm(A[2])
+    depth = np.where(nd.seen, depths * c, np.nan).T
+    if np.nanmedian(depth) < 0:
+        c, depth = -c, -depth
+    return A * c, depth, sv
+
+
+def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
+    """Calibrate linearly from tracked points and known translations (paper §2).
+
+    Parameters
+    ----------
+    uv : array_like (n_views, n_points, 2)
+        Pixel coordinates (OpenCV convention: centre of the top-left pixel is (0, 0)),
+        NaN where a point is not seen. Points seen in fewer than 2 views are ignored.
+    T : array_like (n_views, 3)
+        Robot translations of the views, in the robot frame (any length unit; every
+        output length is in it). Need ``n_views >= 4`` spanning 3-D.
+    method : {"fast", "dense"}
+        ``"fast"``: exact O(n) solution through the block structure (default).
+        ``"dense"``: SVD of the full system, O(n^3); for reference and tests
+        (at most ``DENSE_MAX_POINTS`` points).
+
+    Returns
+    -------
+    LinearEstimate
+        ``K``, ``R``, ``A``, ``X`` (triangulated from all views), ``depth``,
+        ``singular_values``, ``n_used_points``, ``used``.
+
+    Raises
+    ------
+    InputError
+        Malformed input (shapes, non-finite translations, fewer than 4 views, ...).
+    DegenerateError
+        Translations not spanning 3-D, fewer than 2 usable points, degenerate depths.
+    MirroredError
+        ``det(K R) < 0``: a left-handed robot frame, swapped axes or flipped images.
+    """
+    if method not in ("fast", "dense"):
+        raise InputError(f"method must be 'fast' or 'dense', got {method!r}")
+    uv, T = as_uv_T(uv, T)
+    n_seen = np.isfinite(uv[..., 0]).sum(axis=0)
+    used = n_seen >= 2
+    if used.sum() < 2:
+        raise DegenerateError(
+            f"only {int(used.sum())} point(s) are seen in at least 2 views; the linear "
+            "estimate needs at least 2 points tracked through the views (more is better)"
+        )
+    active_views = np.isfinite(uv[:, used, 0]).any(axis=1)
+    if active_views.sum() < 4:
+        raise DegenerateError(
+            f"only {int(active_views.sum())} views observe tracked points; at least 4 are needed"
+        )
+    check_translations_span(T[active_views])
+    if method == "dense" and used.sum() > DENSE_MAX_POINTS:
+        raise InputError(
+            f"method='dense' is a reference for small problems (at most {DENSE_MAX_POINTS} points, "
+            f"got {int(used.sum())}); use method='fast', which gives the same result in O(n)"
+        )
+    uv_used = uv[:, used]
+    A, depth_used, sv = solve_tls(uv_used[active_views], T[active_views], method)
+    K, R = rq_decompose(A)
+    depth = np.full(uv.shape[:2], np.nan)
+    depth[np.ix_(active_views, used)] = depth_used
+    X = np.full((uv.shape[1], 3), np.nan)
+    X[used] = triangulate(A, uv_used, T, depth[:, used])
+    return LinearEstimate(
+        K=K, R=R, A=K @ R, X=X, depth=depth, singular_values=sv,
+        n_used_points=int(used.sum()), used=used, method=method,
+    )

@@ -1,0 +1,115 @@
+"""Scene points from a known camera (``A = K R``) and known translations.
+
+With the camera known, each view gives two linear equations in ``X_j`` (paper eq. 2)::
+
+    (A[0] - u_ij A[2]) (X_j - T_i) = 0,     (A[1] - v_ij A[2]) (X_j - T_i) = 0.
+
+Dividing each pair by the point's depth ``A[2] (X_j - T_i)`` (with ``||A[2]|| = 1``)
+turns the algebraic error into the pixel reprojection error to first order, so the
+weighted linear least-squares solution is close to the maximum-likelihood one. Two
+passes: the first uses the depths given (or 1), the second the depths of the first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import pixels_to_rays
+
+__all__ = ["triangulate", "solve_sym3"]
+
+
+def solve_sym3(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve many symmetric 3x3 systems ``M_n x_n = b_n`` by the adjugate (vectorised).
+
+    Parameters
+    ----------
+    M : (n, 3, 3) float, symmetric
+    b : (n, 3) float
+
+    Returns
+    -------
+    (n, 3) float
+        NaN rows where ``M_n`` is singular (relative determinant below 1e-14).
+    """
+    a, bb, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    d, e, f = M[:, 1, 1], M[:, 1, 2], M[:, 2, 2]
+    c00 = d * f - e * e
+    c01 = c * e - bb * f
+    c02 = bb * e - c * d
+    c11 = a * f - c * c
+    c12 = bb * c - a * e
+    c22 = a * d - bb * bb
+    det = a * c00 + bb * c01 + c * c02
+    scale = np.abs(a * d * f) + 1e-300
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_det = np.where(np.abs(det) > 1e-14 * scale, 1.0 / det, np.nan)
+    x0 = (c00 * b[:, 0] + c01 * b[:, 1] + c02 * b[:, 2]) * inv_det
+    x1 = (c01 * b[:, 0] + c11 * b[:, 1] + c12 * b[:, 2]) * inv_det
+    x2 = (c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2]) * inv_det
+    return np.stack([x0, x1, x2], axis=1)
+
+
+def triangulate(
+    A: np.ndarray,
+    uv: np.ndarray,
+    T: np.ndarray,
+    depth: np.ndarray | None = None,
+    *,
+    K: np.ndarray | None = None,
+    dist=(),
+    passes: int = 2,
+) -> np.ndarray:
+    """Triangulate every point from all views where it is seen.
+
+    Parameters
+    ----------
+    A : (3, 3) float
+        ``K R`` (any scale; it is rescaled so that ``||A[2]|| = 1``).
+    uv : (n_views, n_points, 2) float
+        Pixels, NaN where unseen.
+    T : (n_views, 3) float
+        Camera translations.
+    depth : (n_views, n_points) float, optional
+        Initial depth estimates for the weights (e.g. the TLS depths).
+    K : (3, 3) float, optional
+        Needed only with ``dist``: pixels are undistorted first and ``A`` is taken as
+        ``K R`` with ``R = K^-1 A``.
+    dist : (k,) float, optional
+        OpenCV distortion coefficients.
+    passes : int
+        Reweighting passes (2 is plenty).
+
+    Returns
+    -------
+    X : (n_points, 3) float
+        NaN for points seen in fewer than 2 views (or whose rays are parallel).
+    """
+    A = A / np.linalg.norm(A[2])
+    seen = np.isfinite(uv[..., 0])
+    if np.asarray(dist).size:
+        if K is None:
+            raise ValueError("triangulate: K is required together with dist")
+        rays = pixels_to_rays(K, np.where(seen[..., None], uv, 0.0), dist)  # K^-1 ũ, undistorted
+        A = np.linalg.inv(K) @ A  # then R: rays are in camera coordinates
+        A = A / np.linalg.norm(A[2])
+        pts = rays[..., :2] / rays[..., 2:3]
+    else:
+        pts = np.where(seen[..., None], uv, 0.0)
+    # rows a_u = A[0] - u A[2], a_v = A[1] - v A[2]: (n_views, n_points, 3)
+    a_u = A[0][None, None, :] - pts[..., 0:1] * A[2][None, None, :]
+    a_v = A[1][None, None, :] - pts[..., 1:2] * A[2][None, None, :]
+    w = np.ones(seen.shape) if depth is None else 1.0 / np.where(np.isfinite(depth) & (depth != 0), depth, 1.0) ** 2
+    w = np.where(seen, w, 0.0)
+    X = np.full((uv.shape[1], 3), np.nan)
+    for _ in range(max(1, passes)):
+        M = np.einsum("vn,vna,vnb->nab", w, a_u, a_u) + np.einsum("vn,vna,vnb->nab", w, a_v, a_v)
+        rhs_u = np.einsum("vna,va->vn", a_u, T)
+        rhs_v = np.einsum("vna,va->vn", a_v, T)
+        b = np.einsum("vn,vn,vna->na", w, rhs_u, a_u) + np.einsum("vn,vn,vna->na", w, rhs_v, a_v)
+        X = solve_sym3(M, b)
+        z = np.einsum("a,vna->vn", A[2], X[None, :, :] - T[:, None, :])
+        ok = np.isfinite(z) & (np.abs(z) > 0)
+        w = np.where(seen & ok, 1.0 / np.where(ok, z, 1.0) ** 2, np.where(seen, w, 0.0))
+    X[seen.sum(axis=0) < 2] = np.nan
+    return X
