@@ -44,6 +44,7 @@ LOSSES = ("linear", "huber", "cauchy")
 
 _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 _RAD2DEG = 180.0 / np.pi
+_MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
 
 
 # ----------------------------------------------------------------------------------------
@@ -409,6 +410,9 @@ def _levenberg_marquardt(state, lay, data, loss, c, max_iterations, tol, progres
     mu, nu = None, 2.0
     reason = f"max_iterations ({max_iterations}) reached"
     floor = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
+    # stop when a step moves the parameters by ~sqrt(2 tol) standard deviations or less:
+    # a step of k std decreases the cost by k^2 sigma^2 / 2, sigma^2 ~ 2 cost / dof
+    dof = max(2 * data.n_obs - (lay.size - 3 * len(lay.i_T)) - 3 * data.n_points, 1)
     it = 0
     while it < max_iterations:
         if cost <= floor:
@@ -419,7 +423,7 @@ def _levenberg_marquardt(state, lay, data, loss, c, max_iterations, tol, progres
         dV = np.stack([V[0, 0], V[1, 1], V[2, 2]])  # (3, n)
         dV_floor = np.maximum(dV, 1e-12 * dV.max(axis=0))
         if mu is None:
-            mu = 1e-3
+            mu = _MU0
         accepted = False
         while not accepted:
             eps = 1e-12 * max(dU.max(), 1e-300)
@@ -456,8 +460,8 @@ def _levenberg_marquardt(state, lay, data, loss, c, max_iterations, tol, progres
         state, cost = new, new_cost
         if progress is not None:
             progress({"iteration": it, "cost": cost, "damping": mu})
-        if decrease <= tol * cost:
-            reason = f"converged: relative cost decrease below tol={tol:g}"
+        if decrease <= tol * 2.0 * cost / dof:
+            reason = f"converged: cost decrease below tol={tol:g} x sigma^2"
             break
     return state, cost, it, reason
 
@@ -585,7 +589,7 @@ def refine(
     inlier_threshold_px: float | None = None,
     sigma_px: float | None = None,
     max_iterations: int = 100,
-    tol: float = 1e-10,
+    tol: float = 1e-6,
     estimate_view_rotations: bool = False,
     progress=None,
 ) -> Calibration:
@@ -630,7 +634,9 @@ def refine(
     max_iterations : int
         Maximum number of accepted LM steps.
     tol : float
-        Stop when an accepted step decreases the cost by less than ``tol * cost``.
+        Stop when an accepted step decreases the cost by less than ``tol * sigma^2`` with
+        ``sigma^2 = 2 cost / dof``, i.e. when the parameters moved by less than about
+        ``sqrt(2 tol)`` of their standard deviations (or the residuals are zero).
     estimate_view_rotations : bool
         Add a rotation ``Q_i = exp([w_i]x)`` per view ``i >= 1`` (camera rotation
         ``R_i = Q_i R``), to detect a robot that rotated; reported in
