@@ -493,8 +493,12 @@ class Rendered:
         """Exact pixels ``(n_views, n, 2)`` of world points ``X`` ``(n, 3)``."""
         return project(self.K, self.R, np.asarray(X, float).reshape(-1, 3), self.T, self.dist)
 
-    def backproject(self, view: int, uv: np.ndarray) -> np.ndarray:
-        """World points ``(n, 3)`` seen at pixels ``uv`` ``(n, 2)`` of ``view`` (NaN: background)."""
+    def backproject(self, view: int, uv: np.ndarray, return_surface: bool = False):
+        """World points ``(n, 3)`` seen at pixels ``uv`` ``(n, 2)`` of ``view`` (NaN: background).
+
+        With ``return_surface``, also the index ``(n,)`` into ``surfaces`` of the surface
+        hit (-1: none).
+        """
         uv = np.asarray(uv, float).reshape(-1, 2)
         fx, sk, cx, fy, cy = self.K[0, 0], self.K[0, 1], self.K[0, 2], self.K[1, 1], self.K[1, 2]
         y = (uv[:, 1] - cy) / fy
@@ -503,7 +507,8 @@ class Rendered:
         d = np.column_stack([xy, np.ones(len(uv))]) @ self.R
         C = self.T[view]
         best = np.full(len(uv), np.inf)
-        for sf in self.surfaces:
+        which = np.full(len(uv), -1)
+        for k, sf in enumerate(self.surfaces):
             n = sf.normal
             with np.errstate(divide="ignore", invalid="ignore"):
                 z = (n @ (sf.origin - C)) / (d @ n)
@@ -511,9 +516,23 @@ class Rendered:
             t = z * (d @ sf.axis_t) + (C - sf.origin) @ sf.axis_t
             hit = (z > 0) & (s >= 0) & (s <= sf.size[0]) & (t >= 0) & (t <= sf.size[1]) & (z < best)
             best[hit] = z[hit]
+            which[hit] = k
         X = C + best[:, None] * d
         X[~np.isfinite(best)] = np.nan
-        return X
+        return (X, which) if return_surface else X
+
+    def near_occlusion(self, view: int, uv: np.ndarray, radius_px: float = 10.0) -> np.ndarray:
+        """``(n,)`` bool: a different surface (or background) lies within ``radius_px`` of
+        pixels ``uv`` in ``view`` - features there may be occlusion ghosts (T-junctions),
+        which have no fixed 3-D point."""
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        if len(uv) == 0:
+            return np.zeros(0, bool)
+        ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        offs = np.concatenate([f * radius_px * np.column_stack([np.cos(ang), np.sin(ang)]) for f in (0.5, 1.0)])
+        _, s0 = self.backproject(view, uv, return_surface=True)
+        _, s = self.backproject(view, (uv[:, None, :] + offs[None]).reshape(-1, 2), return_surface=True)
+        return np.any(s.reshape(len(uv), -1) != s0[:, None], axis=1)
 
     def visible(self, X: np.ndarray, margin_px: float = 0.0, tol: float = 1e-6) -> np.ndarray:
         """``(n_views, n)`` bool: point inside the image (by ``margin_px``) and not occluded."""

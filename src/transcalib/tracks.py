@@ -696,6 +696,7 @@ def track(
     t0 = time.perf_counter()
     uv = _smoothness_check(uv, epi, smooth_px)
     uv, epi_final = _final_check(uv, n, final_threshold_px if refine else threshold_px, rng)
+    uv = _multiview_check(uv, epi_final, 3.0 * (final_threshold_px if refine else threshold_px))
     uv = _dedupe(uv, w, h)
     nseen = np.isfinite(uv[..., 0]).sum(0)
     uv = uv[:, nseen >= min_views]
@@ -797,6 +798,81 @@ def _smoothness_check(uv, epi, thr_px, k=8):
         drop_j = ref[bad] != j
         out[j, bad[drop_j]] = np.nan
         out[i, bad[~drop_j]] = np.nan
+    return out
+
+
+def _pair_epipole(epi, i, j):
+    """Epipole of pair ``(i, j)`` signed as ``A (T_j - T_i)``, from the ``i < j`` table."""
+    if (i, j) in epi:
+        return epi[(i, j)]
+    if (j, i) in epi:
+        return -epi[(j, i)]
+    return None
+
+
+def _multiview_check(uv, epi, thr_px, passes=3):
+    """Depth consistency of tracks seen in 3+ views.
+
+    With the reference view r and ``x_j = x_r + rho_j (e3 x_r - e_xy)`` for the pair's
+    unit epipole ``e`` (true epipole ``s_j e``), ``q_j = 1 / (1 / rho_j + e3) = s_j w``
+    exactly, where ``w`` is the point's inverse depth in view r. The scales ``s_j`` are
+    common to all points (robust medians of ratios), so ``w`` from some views predicts
+    the others; observations predicted worse than ``thr_px`` are dropped, worst first.
+    """
+    out = uv.copy()
+    n = uv.shape[0]
+    for _ in range(passes):
+        seen = np.isfinite(out[..., 0])
+        ref = np.argmax(seen, axis=0)
+        changed = False
+        for r in range(n):
+            sel = np.flatnonzero((ref == r) & (seen.sum(0) >= 3))
+            if len(sel) < 5:
+                continue
+            xr = out[r, sel]
+            q = np.full((n, len(sel)), np.nan)
+            E = {}
+            for j in range(n):
+                e = _pair_epipole(epi, r, j) if j != r else None
+                if e is None:
+                    continue
+                E[j] = e
+                _, rho = _epi_residual(e, xr, out[j, sel])
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    q[j] = 1.0 / (1.0 / rho + e[2])
+            cnt = np.isfinite(q).sum(1)
+            if cnt.max() < 5:
+                continue
+            j0 = int(np.argmax(cnt))
+            s = np.full(n, np.nan)
+            s[j0] = 1.0
+            for j in E:
+                both = np.isfinite(q[j]) & np.isfinite(q[j0]) & (np.abs(q[j0]) > 1e-12)
+                if j != j0 and both.sum() >= 5:
+                    s[j] = np.median(q[j, both] / q[j0, both])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                w_all = q / s[:, None]
+            res = np.zeros((n, len(sel)))
+            for j in E:
+                if not np.isfinite(s[j]):
+                    continue
+                # leave-one-out: w from the other views, so a bad view cannot hide
+                others = np.delete(w_all, j, axis=0)
+                with np.errstate(all="ignore"):
+                    w = np.nanmedian(others, axis=0) if others.size else np.full(len(sel), np.nan)
+                    qh = s[j] * w
+                    rho_h = 1.0 / (1.0 / qh - E[j][2])
+                pred = xr + rho_h[:, None] * _direction(E[j], xr)
+                res[j] = np.where(np.isfinite(q[j]), np.linalg.norm(pred - out[j, sel], axis=1), 0.0)
+            res = np.nan_to_num(res, nan=0.0)
+            worst = np.argmax(res, axis=0)
+            bad = res[worst, np.arange(len(sel))] > thr_px
+            if bad.any():
+                changed = True
+                wv, bk = worst[bad], sel[bad]
+                out[wv, bk] = np.nan
+        if not changed:
+            break
     return out
 
 

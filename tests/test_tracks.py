@@ -1,0 +1,134 @@
+"""Tracking on rendered scenes: accuracy against exact projections, robustness, errors."""
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+
+from transcalib import render, simulate, tracks
+from transcalib.camera import project
+from transcalib.types import DegenerateError, InputError
+
+
+def track_errors(r, tr):
+    """Pixel errors of every non-reference observation against the exact projection of
+    the 3-D point seen at the track's reference (first) observation.
+
+    Tracks within 10 px of an occlusion boundary in their reference view are left out:
+    a T-junction of two surfaces at different depths has no fixed 3-D point.
+    """
+    uv = tr.uv
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    X = np.full((uv.shape[1], 3), np.nan)
+    ghost = np.zeros(uv.shape[1], bool)
+    for v in range(uv.shape[0]):
+        X[ref == v] = r.backproject(v, uv[v, ref == v])
+        ghost[ref == v] = r.near_occlusion(v, uv[v, ref == v])
+    assert ghost.mean() < 0.3
+    err = np.linalg.norm(r.project(X) - uv, axis=-1)
+    other = seen & (np.arange(uv.shape[0])[:, None] != ref[None]) & ~ghost[None]
+    return err[other]
+
+
+def _check(e, med, p90, gross=0.01):
+    assert np.all(np.isfinite(e))
+    stats = (np.median(e), np.percentile(e, 90), np.mean(e > 1.0))
+    assert stats[0] <= med and stats[1] <= p90 and stats[2] <= gross, stats
+
+
+def test_natural_texture_large_motion_subpixel():
+    # 800 x 600, baseline ~ 14% of the distance: displacements of 100+ px
+    r = render.render_scene("natural", n_views=5, image_size=(800, 600), baseline=0.14, brightness=0.2, rng=3)
+    disp = np.abs(r.project(r.backproject(0, np.array([[400.0, 300.0]])))[:, 0] - [400.0, 300.0]).max()
+    assert disp > 100
+    tr = tracks.track(r.images)
+    assert tr.n_points >= 500
+    assert np.all(np.isfinite(tr.uv[..., 0]).sum(0) >= 2)
+    _check(track_errors(r, tr), 0.1, 0.2)
+    assert set(tr.info["time_s"]) >= {"detect", "match", "verify", "refine"}
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_checkerboard_repetitive_texture(seed):
+    r = render.render_scene("checker", n_views=4, image_size=(640, 480), brightness=0.2, rng=seed)
+    tr = tracks.track(r.images)
+    assert tr.n_points >= 40
+    _check(track_errors(r, tr), 0.1, 0.3)
+    # checker corners themselves are tracked (not only the board's outline)
+    P = r.project(r.corners)
+    d = np.linalg.norm(tr.uv[0][:, None] - P[0][None], axis=-1)
+    assert np.sum(np.nanmin(d, axis=0) < 0.5) >= 10
+
+
+def test_mixed_scene_six_views_with_noise_and_blur():
+    r = render.render_scene("mixed", n_views=6, image_size=(560, 420), noise_std=2.0, blur_sigma=0.7, rng=7)
+    tr = tracks.track(r.images, progress=lambda *a: None)
+    _check(track_errors(r, tr), 0.12, 0.25)
+
+
+def test_epipole_ransac_recovers_translation_epipole():
+    sc = simulate.random_scene(200, 4, rng=1, noise_px=0.2)
+    x, y = sc.uv[0], sc.uv[1]
+    ok = np.isfinite(x[:, 0]) & np.isfinite(y[:, 0])
+    x, y = x[ok].copy(), y[ok].copy()
+    rng = np.random.default_rng(0)
+    bad = rng.choice(len(x), 30, replace=False)
+    y[bad] += rng.uniform(-40, 40, (30, 2))
+    e, inl, rho = tracks.epipole_ransac(x, y, threshold_px=1.0, rng=0)
+    e_true = sc.K @ sc.R @ (sc.T_true[1] - sc.T_true[0])
+    e_true /= np.linalg.norm(e_true)
+    assert np.dot(e, e_true) > 0.999  # sign too: rho > 0 means e ~ +A (T_j - T_i)
+    assert inl[np.setdiff1d(np.arange(len(x)), bad)].mean() > 0.97
+    assert inl[bad].mean() < 0.15
+
+
+def test_to_csv_roundtrip(tmp_path):
+    uv = np.array([[[1.5, 2.25], [np.nan, np.nan]], [[3.0, 4.0], [5.0, 6.0]]])
+    tr = tracks.Tracks(uv=uv, ids=np.array([10, 11]))
+    p = tmp_path / "tracks.csv"
+    tr.to_csv(p)
+    rows = list(csv.DictReader(open(p)))
+    assert list(rows[0]) == ["view", "point", "u", "v"]
+    got = {(int(r["view"]), int(r["point"])): (float(r["u"]), float(r["v"])) for r in rows}
+    assert got == {(0, 10): (1.5, 2.25), (1, 10): (3.0, 4.0), (1, 11): (5.0, 6.0)}
+    assert [q.name for q in tmp_path.iterdir()] == ["tracks.csv"]  # no temporary left
+
+
+def test_reads_image_files(tmp_path):
+    r = render.render_scene("natural", n_views=4, image_size=(320, 240), rng=2)
+    paths = []
+    for i, im in enumerate(r.images):
+        p = tmp_path / f"view{i}.png"
+        cv2.imwrite(str(p), cv2.cvtColor(im, cv2.COLOR_GRAY2BGR))
+        paths.append(p)
+    tr = tracks.track(paths)
+    assert tr.view_names == ("view0", "view1", "view2", "view3")
+    assert tr.colors is not None and tr.colors.shape == (tr.n_points, 3)
+    _check(track_errors(r, tr), 0.1, 0.2)
+
+
+def test_bad_inputs():
+    img = np.zeros((60, 80), np.uint8)
+    with pytest.raises(InputError, match="at least 2"):
+        tracks.track([img])
+    with pytest.raises(InputError, match="same size"):
+        tracks.track([img, np.zeros((61, 80), np.uint8)])
+    with pytest.raises(InputError, match="does not exist"):
+        tracks.track(["/nonexistent/a.png", "/nonexistent/b.png"])
+    with pytest.raises(InputError, match="method"):
+        tracks.track([img, img], method="orb")
+
+
+def test_unreadable_file(tmp_path):
+    p = tmp_path / "a.png"
+    p.write_text("not an image")
+    with pytest.raises(InputError, match="cannot read"):
+        tracks.track([p, p])
+
+
+def test_blank_images_are_degenerate():
+    imgs = [np.full((120, 160), 100, np.uint8) for _ in range(4)]
+    with pytest.raises(DegenerateError, match="textured"):
+        tracks.track(imgs)
