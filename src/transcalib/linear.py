@@ -60,15 +60,18 @@ class _Normalised:
 
 def _normalise(uv: np.ndarray, T: np.ndarray) -> _Normalised:
     """Pixels to zero mean and mean distance sqrt(2); translations to unit mean norm."""
-    seen = np.isfinite(uv[..., 0]).T  # (n, V)
-    pts = uv.transpose(1, 0, 2)[seen]  # (n_obs, 2)
-    centre = pts.mean(axis=0)
-    spread = np.linalg.norm(pts - centre, axis=1).mean()
+    seen_vn = np.isfinite(uv[..., 0])  # (V, n)
+    centre = np.nanmean(uv, axis=(0, 1))
+    spread = np.nanmean(np.hypot(uv[..., 0] - centre[0], uv[..., 1] - centre[1]))
     scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
     H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
-    U = np.zeros(seen.shape + (3,))
-    U[..., :2] = np.where(seen[..., None], (uv.transpose(1, 0, 2) - centre) * scale, 0.0)
-    U[..., 2] = seen
+    U = np.empty((uv.shape[1], uv.shape[0], 3))  # (n, V, 3)
+    U[..., :2] = uv.transpose(1, 0, 2)
+    U[..., :2] -= centre
+    U[..., :2] *= scale
+    U[..., 2] = 1.0
+    seen = seen_vn.T
+    U[~seen] = 0.0
     T_mean = T.mean(axis=0)
     t_scale = float(np.linalg.norm(T - T_mean, axis=1).mean())
     return _Normalised(U=U, seen=seen, ref=np.argmax(seen, axis=1), T=(T - T_mean) / t_scale, H=H, t_scale=t_scale)
@@ -107,22 +110,31 @@ class _Arrowhead:
     def __init__(self, nd: _Normalised):
         seen, ref = nd.seen, nd.ref
         n, V = seen.shape
-        rows = np.arange(n)
-        # tail slots: the views other than the reference, in view order
-        others = np.argsort(np.arange(V)[None, :] == ref[:, None], axis=1, kind="stable")[:, : V - 1]
-        tail = seen[rows[:, None], others]
-        key = ref * (1 << (V - 1)) + tail @ (1 << np.arange(V - 1))
-        order = np.argsort(key, kind="stable")
-        if not np.all(key[order] == key):  # only sort when there is more than one group
-            rows, others, tail, key = order, others[order], tail[order], key[order]
+        if seen.all():  # the common case: one group, reference view 0, no reordering
+            rows = slice(None)
+            others = np.broadcast_to(np.arange(1, V), (n, V - 1))
+            tail = seen[:, 1:]
+            key = np.zeros(n, dtype=int)
+            self.Z = nd.U
+        else:
+            # tail slots: the views other than the reference, in view order
+            others = np.arange(V - 1)[None, :] + (np.arange(V - 1)[None, :] >= ref[:, None])
+            tail = np.take_along_axis(seen, others, axis=1)
+            key = ref * (1 << (V - 1)) + tail @ (1 << np.arange(V - 1))
+            rows = np.argsort(key, kind="stable")  # group points of equal key
+            others, tail, key = others[rows], tail[rows], key[rows]
+            U = nd.U[rows]
+            self.Z = np.concatenate(
+                [np.take_along_axis(U, ref[rows][:, None, None], axis=1), np.take_along_axis(U, others[..., None], axis=1)],
+                axis=1,
+            )
         self.n, self.V = n, V
-        self.point = rows  # sorted position -> point index
+        self.point = np.arange(n)[rows]  # sorted position -> point index
         self.ref, self.others = ref[rows], others
-        self.Z = np.concatenate([nd.U[rows, ref[rows]][:, None, :], nd.U[rows[:, None], others]], axis=1)
-        u_r = self.Z[:, 0]
-        self.D00 = (tail.sum(axis=1)) * np.einsum("na,na->n", u_r, u_r)
-        self.D0k = -np.einsum("nka,na->nk", self.Z[:, 1:], u_r)
-        self.Dkk = np.where(tail, np.einsum("nka,nka->nk", self.Z[:, 1:], self.Z[:, 1:]), 1.0)
+        u_r, Zt = self.Z[:, 0], self.Z[:, 1:]
+        self.D00 = tail.sum(axis=1) * np.einsum("na,na->n", u_r, u_r)
+        self.D0k = -np.einsum("nka,na->nk", Zt, u_r)
+        self.Dkk = np.where(tail, np.einsum("nka,nka->nk", Zt, Zt), 1.0)
         self.tail = tail
         # groups of equal key: (slice, tt (V, 3))
         starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
@@ -347,7 +359,9 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> tuple[np.n
     # undo normalisation: lam' H u = A' (X - T) / t_scale  =>  A ∝ H^-1 A' / t_scale
     A = np.linalg.solve(nd.H, a.reshape(3, 3)) / nd.t_scale
     c = 1.0 / np.linalg.norm(A[2])
-    depth = np.where(nd.seen, depths * c, np.nan).T
+    depths *= c
+    depths[~nd.seen] = np.nan
+    depth = depths.T
     if np.nanmedian(depth) < 0:
         c, depth = -c, -depth
     return A * c, depth, sv
@@ -405,13 +419,18 @@ def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
             f"method='dense' is a reference for small problems (at most {DENSE_MAX_POINTS} points, "
             f"got {int(used.sum())}); use method='fast', which gives the same result in O(n)"
         )
-    uv_used = uv[:, used]
-    A, depth_used, sv = solve_tls(uv_used[active_views], T[active_views], method)
+    everything = used.all() and active_views.all()
+    uv_used = uv if everything else uv[np.ix_(active_views, used)]
+    A, depth_used, sv = solve_tls(uv_used, T[active_views], method)
     K, R = rq_decompose(A)
-    depth = np.full(uv.shape[:2], np.nan)
-    depth[np.ix_(active_views, used)] = depth_used
-    X = np.full((uv.shape[1], 3), np.nan)
-    X[used] = triangulate(A, uv_used, T, depth[:, used])
+    if everything:
+        depth = depth_used
+        X = triangulate(A, uv, T, depth, passes=1)
+    else:
+        depth = np.full(uv.shape[:2], np.nan)
+        depth[np.ix_(active_views, used)] = depth_used
+        X = np.full((uv.shape[1], 3), np.nan)
+        X[used] = triangulate(A, uv[:, used], T, depth[:, used], passes=1)
     return LinearEstimate(
         K=K, R=R, A=K @ R, X=X, depth=depth, singular_values=sv,
         n_used_points=int(used.sum()), used=used, method=method,

@@ -86,30 +86,38 @@ def triangulate(
         NaN for points seen in fewer than 2 views (or whose rays are parallel).
     """
     A = A / np.linalg.norm(A[2])
-    seen = np.isfinite(uv[..., 0])
     if np.asarray(dist).size:
         if K is None:
             raise ValueError("triangulate: K is required together with dist")
-        rays = pixels_to_rays(K, np.where(seen[..., None], uv, 0.0), dist)  # K^-1 ũ, undistorted
-        A = np.linalg.inv(K) @ A  # then R: rays are in camera coordinates
+        A = np.linalg.inv(K) @ A  # = R up to scale: work in undistorted normalised coordinates
         A = A / np.linalg.norm(A[2])
+    seen = np.isfinite(uv[..., 0])  # (V, n)
+    pts = np.where(seen[..., None], uv, 0.0)
+    if np.asarray(dist).size:
+        rays = pixels_to_rays(K, pts, dist)
         pts = rays[..., :2] / rays[..., 2:3]
+    u, v = pts[..., 0], pts[..., 1]
+    r2 = u * u + v * v
+    # M = sum_v w (a_u a_u^T + a_v a_v^T) with a_u = A0 - u A2, a_v = A1 - v A2 expands
+    # into four fixed 3x3 matrices weighted by per-point sums of w, w u, w v, w (u^2 + v^2);
+    # b = sum_v w (a_u a_u^T + a_v a_v^T) T_v likewise with per-view vectors.
+    A0, A1, A2 = A
+    sym = lambda x, y: np.outer(x, y) + np.outer(y, x)  # noqa: E731
+    basis = np.stack([np.outer(A0, A0) + np.outer(A1, A1), -sym(A0, A2), -sym(A1, A2), np.outer(A2, A2)])
+    per_view = np.einsum("kab,vb->kva", basis, T)  # (4, V, 3): basis_k T_v
+    if depth is None:
+        w = seen.astype(float)
     else:
-        pts = np.where(seen[..., None], uv, 0.0)
-    # rows a_u = A[0] - u A[2], a_v = A[1] - v A[2]: (n_views, n_points, 3)
-    a_u = A[0][None, None, :] - pts[..., 0:1] * A[2][None, None, :]
-    a_v = A[1][None, None, :] - pts[..., 1:2] * A[2][None, None, :]
-    w = np.ones(seen.shape) if depth is None else 1.0 / np.where(np.isfinite(depth) & (depth != 0), depth, 1.0) ** 2
-    w = np.where(seen, w, 0.0)
-    X = np.full((uv.shape[1], 3), np.nan)
+        ok = seen & np.isfinite(depth) & (depth != 0)
+        w = np.where(ok, 1.0 / np.where(ok, depth, 1.0) ** 2, seen.astype(float))
+    X = None
     for _ in range(max(1, passes)):
-        M = np.einsum("vn,vna,vnb->nab", w, a_u, a_u) + np.einsum("vn,vna,vnb->nab", w, a_v, a_v)
-        rhs_u = np.einsum("vna,va->vn", a_u, T)
-        rhs_v = np.einsum("vna,va->vn", a_v, T)
-        b = np.einsum("vn,vn,vna->na", w, rhs_u, a_u) + np.einsum("vn,vn,vna->na", w, rhs_v, a_v)
+        coef = np.stack([w, w * u, w * v, w * r2])  # (4, V, n)
+        M = np.einsum("kn,kab->nab", coef.sum(axis=1), basis)
+        b = np.einsum("kvn,kva->na", coef, per_view)
         X = solve_sym3(M, b)
-        z = np.einsum("a,vna->vn", A[2], X[None, :, :] - T[:, None, :])
-        ok = np.isfinite(z) & (np.abs(z) > 0)
-        w = np.where(seen & ok, 1.0 / np.where(ok, z, 1.0) ** 2, np.where(seen, w, 0.0))
+        z = X @ A2 - (T @ A2)[:, None]  # depths (V, n)
+        ok = seen & np.isfinite(z) & (z != 0)
+        w = np.where(ok, 1.0 / np.where(ok, z, 1.0) ** 2, np.where(seen, w, 0.0))
     X[seen.sum(axis=0) < 2] = np.nan
     return X
