@@ -412,3 +412,23 @@ def test_bad_inputs_raise():
         refine(scene.uv, scene.T, replace(start, X=X))
     with pytest.raises(InputError, match="noise"):
         crlb(simulate.paper_scene())
+
+
+# ---------------------------------------------------------------------------- property
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10_000), n_views=st.integers(4, 7), planar=st.booleans(),
+       missing=st.sampled_from([0.0, 0.2]), model=st.sampled_from(["none", "radial2", "opencv5"]))
+def test_property_noise_free_exact_from_linear_start(seed, n_views, planar, missing, model):
+    rng = np.random.default_rng(seed)
+    dist = {"none": (), "radial2": (rng.uniform(-0.3, 0.1), rng.uniform(-0.05, 0.1)),
+            "opencv5": (rng.uniform(-0.3, 0.1), 0.05, 0.001, -0.001, 0.0)}[model]
+    scene = simulate.random_scene(60, n_views, planar=planar, missing=missing, dist=dist, rng=seed)
+    cal = refine(scene.uv, scene.T, linear_start(scene), distortion=model, sigma_px=1.0)
+    assert rel(cal.K, scene.K) < 1e-8
+    assert np.abs(cal.R - scene.R).max() < 1e-8
+    assert np.all(np.abs(cal.dist - np.asarray(dist, float)) < 1e-7)
