@@ -335,6 +335,8 @@ def test_view_rotation_noise_free_exact():
     assert np.abs(cal.info["view_rotations_deg"] - expected).max() < 1e-9
     assert cal.info["view_rotations_std_deg"].shape == (5, 3)
     assert np.all(cal.info["view_rotations_std_deg"][0] == 0)
+    chi2 = cal.info["view_rotations_chi2"]
+    assert chi2[2] > 30 and chi2[0] == 0 and np.all(chi2[[1, 3, 4]] < 1e-6)
     assert rel(cal.K, scene.K) < 1e-9
 
 
@@ -352,6 +354,8 @@ def test_view_rotation_recovered_within_std(preset):
         est, std = cal.info["view_rotations_deg"], cal.info["view_rotations_std_deg"]
         z.append((est[1:] - truth[1:]) / std[1:])
     z = np.array(z)
+    bound = crlb(replace(base, noise_px=0.5), estimate_view_rotations=True)
+    assert np.allclose([bound[f"view2_r{a}"] for a in "xyz"], std[2], rtol=0.2)
     assert np.all(np.abs(z.mean(axis=0)) < 0.6), z.mean(axis=0)
     assert np.all((z.std(axis=0) > 0.7) & (z.std(axis=0) < 1.35)), z.std(axis=0)
     if preset == "random":  # a 3-D scene: 0.2 deg is clearly significant

@@ -640,7 +640,10 @@ def refine(
     estimate_view_rotations : bool
         Add a rotation ``Q_i = exp([w_i]x)`` per view ``i >= 1`` (camera rotation
         ``R_i = Q_i R``), to detect a robot that rotated; reported in
-        ``info["view_rotations_deg"]`` and ``info["view_rotations_std_deg"]``.
+        ``info["view_rotations_deg"]`` (n_views, 3) (rotation vectors in the camera frame,
+        row 0 zero), ``info["view_rotations_std_deg"]`` (n_views, 3) and
+        ``info["view_rotations_chi2"]`` (n_views,): ``w_i^T cov(w_i)^-1 w_i``, chi-square
+        with 3 degrees of freedom when view i did not rotate (e.g. > 11.34: p < 0.01).
     progress : callable, optional
         Called after each accepted step with a dict ``{iteration, cost, damping}``.
 
@@ -780,8 +783,12 @@ def refine(
         for i, s in lay.i_vrot.items():
             view_rot[i] = _matrix_to_rotvec(state.Q[i]) * _RAD2DEG
             view_rot_std[i] = np.sqrt(np.diag(cov)[s: s + 3])
+        chi2 = np.zeros(n_views)
+        for i, s in lay.i_vrot.items():  # Wald statistic w_i^T cov_i^-1 w_i, ~ chi^2(3) if no rotation
+            chi2[i] = view_rot[i] @ np.linalg.solve(cov[s: s + 3, s: s + 3], view_rot[i])
         info["view_rotations_deg"] = view_rot
         info["view_rotations_std_deg"] = view_rot_std
+        info["view_rotations_chi2"] = chi2
     if lay.i_T:
         info["sigma_T"] = t_sigma
         info["T_std"] = np.zeros((n_views, 3))
@@ -884,7 +891,8 @@ def _sum_sq(state, lay, data, loss="linear", thr=np.inf) -> float:
     return total
 
 
-def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False) -> dict:
+def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False,
+         estimate_view_rotations: bool = False) -> dict:
     """Cramér-Rao lower bound on the parameter standard deviations of a simulated scene.
 
     The Fisher information ``J^T J / noise_px^2`` (plus ``1 / robot_noise^2`` on the
@@ -901,6 +909,9 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False) -
         Model whose parameters are bounded; default from the number of true coefficients.
     estimate_skew : bool
         Include the skew as a parameter.
+    estimate_view_rotations : bool
+        Include a rotation per view ``i >= 1`` (as :func:`refine`), at zero: the bound on
+        how well a robot rotation could be detected (``view{i}_rx`` ..., degrees).
 
     Returns
     -------
@@ -921,7 +932,7 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False) -
     t_sigma = np.zeros(n_views)
     if scene.robot_noise > 0:
         t_sigma[1:] = scene.robot_noise
-    lay = _Layout(n_views, DIST_MODELS[distortion], bool(estimate_skew), False, t_sigma > 0)
+    lay = _Layout(n_views, DIST_MODELS[distortion], bool(estimate_skew), bool(estimate_view_rotations), t_sigma > 0)
     K = scene.K
     state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]),
                    _initial_dist(scene, DIST_MODELS[distortion]), scene.R.copy(),
