@@ -622,12 +622,16 @@ def refine(
     loss : {"linear", "huber", "cauchy"}
         Loss of the residual norm ``e = |r_ij|``, with scale ``c = loss_scale_px``:
         linear ``e^2``; Huber ``e^2`` (e <= c), ``2 c e - c^2``; Cauchy
-        ``c^2 log(1 + e^2/c^2)``. Robust losses are minimised by IRLS inside LM.
+        ``c^2 log(1 + e^2/c^2)``. Robust losses are minimised by IRLS inside LM; then
+        the observations with ``e <= inlier_threshold_px`` are refitted by least squares
+        (points keeping >= 2 of them; repeated until the inlier set is stable, at most 3
+        times), so that the estimate and its covariance are those of the inliers alone.
     loss_scale_px : float
         Scale ``c`` of the robust loss (pixels); about twice the pixel noise is a good value.
     inlier_threshold_px : float, optional
-        A point is an inlier when its residual norm is at most this in **every** view
-        that sees it (default ``3 * loss_scale_px``). Only used with a robust loss.
+        An observation is an inlier when its residual norm is at most this; a point is an
+        inlier (``Calibration.inliers``) when **all** its observations are (default
+        ``3 * loss_scale_px``). Only used with a robust loss.
     sigma_px : float, optional
         Known pixel noise (per coordinate). By default estimated from the residuals as
         ``sqrt(sum |r|^2 / dof)``, ``dof = 2 n_obs - n_global - 3 n_points``.
@@ -652,9 +656,17 @@ def refine(
     Calibration
         ``K``, ``R``, ``X``, ``dist``, ``residuals_px``, ``rms_px``, ``T`` (refined when
         ``sigma_T`` is given), ``cov`` / ``std`` / ``param_names`` (rotations in
-        **degrees**, translations in user units), ``X_std``, ``inliers`` (robust loss only,
-        else None), ``info`` (iterations, cost, stop_reason, sigma_px, dof, ...),
-        ``linear`` (when ``initial`` is a LinearEstimate). ``diagnostics`` is empty.
+        **degrees**, translations in user units; ``cov`` in the same units),
+        ``X_std`` (NaN for unused points and points with fewer than 2 inlier
+        observations), ``inliers`` (robust loss only, else None), ``linear`` (when
+        ``initial`` is a LinearEstimate), ``diagnostics`` empty, and ``info``:
+        ``iterations`` (accepted LM steps, all stages), ``cost`` (final
+        ``0.5 sum |r|^2 [+ prior]`` of the last least-squares stage), ``stop_reason``,
+        ``converged``, ``sigma_px`` (used for ``cov``), ``sigma_px_estimated``, ``dof``,
+        ``n_observations``, ``n_points_used`` / ``_excluded`` / ``_behind_camera`` /
+        ``_undetermined``, ``distortion``, ``loss``, ``loss_scale_px``,
+        ``inlier_threshold_px``, ``time_s``; with ``sigma_T``: ``sigma_T``, ``T_std``
+        (n_views, 3); with view rotations: see ``estimate_view_rotations``.
 
     Raises
     ------
