@@ -410,6 +410,10 @@ def test_bad_inputs_raise():
         refine(scene.uv, scene.T, start, sigma_T=-1.0)
     with pytest.raises(InputError, match="loss_scale_px"):
         refine(scene.uv, scene.T, start, loss="huber", loss_scale_px=0.0)
+    with pytest.raises(InputError, match="rotation"):
+        refine(scene.uv, scene.T, replace(start, R=-start.R))
+    with pytest.raises(InputError, match="initial.X"):
+        refine(scene.uv, scene.T, replace(start, X=start.X[:5]))
     X = np.full_like(start.X, np.nan)
     X[0] = start.X[0]
     with pytest.raises(DegenerateError, match="usable points"):
@@ -436,3 +440,15 @@ def test_property_noise_free_exact_from_linear_start(seed, n_views, planar, miss
     assert rel(cal.K, scene.K) < 1e-8
     assert np.abs(cal.R - scene.R).max() < 1e-8
     assert np.all(np.abs(cal.dist - np.asarray(dist, float)) < 1e-7)
+
+
+def test_sigma_T_forms_and_skew_from_linear_start():
+    scene = simulate.random_scene(80, 5, noise_px=0.3, robot_noise=0.5, skew=2.0, rng=22)
+    start = linear_start(scene)
+    a = refine(scene.uv, scene.T, start, sigma_T=0.5, estimate_skew=True)
+    b = refine(scene.uv, scene.T, start, sigma_T=np.full(5, 0.5), estimate_skew=True)
+    assert np.allclose(a.K, b.K) and "T0_x" in a.std
+    assert a.info["T_std"].shape == (5, 3)
+    assert abs(a.K[0, 1] - 2.0) < 4 * a.std["skew"]
+    c = refine(scene.uv, scene.T, start, sigma_T=np.array([0.0, 0.5, 0.5, 0.5, 0.5]))
+    assert "T0_x" not in c.std and np.array_equal(c.T[0], scene.T[0])

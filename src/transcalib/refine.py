@@ -493,6 +493,11 @@ def _check_inputs(uv, T, initial, distortion, loss, loss_scale_px, sigma_px, sig
     K0 = np.asarray(initial.K, dtype=float)
     if K0.shape != (3, 3) or not np.all(np.isfinite(K0)) or K0[0, 0] <= 0 or K0[1, 1] <= 0:
         raise InputError(f"initial.K must be a finite 3x3 matrix with fx, fy > 0, got {K0.tolist()}")
+    R0 = np.asarray(initial.R, dtype=float)
+    if R0.shape != (3, 3) or not np.all(np.isfinite(R0)) or not np.allclose(R0 @ R0.T, np.eye(3), atol=1e-6) \
+            or np.linalg.det(R0) < 0:
+        raise InputError("initial.R must be a 3x3 rotation matrix (orthonormal, det +1), got "
+                         f"{np.array2string(R0, precision=4)}")
     if distortion not in DIST_MODELS:
         raise InputError(f"distortion must be one of {sorted(DIST_MODELS)}, got {distortion!r}")
     if loss not in LOSSES:
