@@ -354,6 +354,34 @@ def _local_rho(seeds_x, seeds_rho, query, k=6):
         return np.nanmedian(r, axis=1) if r.size else np.zeros(len(query))
 
 
+def _local_rho_linear(seeds_x, seeds_rho, query, k=10, keep=0.7):
+    """``rho`` at each query from a trimmed local linear fit ``rho = a + b du + c dv`` to
+    its ``k`` nearest seeds (itself excluded): inverse depth is affine in the image on a
+    plane, so this is exact for planar surfaces and robust to a few mismatches."""
+    m = len(seeds_x)
+    if m < 4:
+        return _local_rho(seeds_x, seeds_rho, query, k)
+    kk = min(k + 1, m)
+    dd, nn = cKDTree(seeds_x).query(query, k=kk)
+    dd, nn = dd.reshape(len(query), kk), nn.reshape(len(query), kk)
+    w = (dd > 1e-9).astype(float)
+    w *= np.cumsum(w, axis=1) <= k
+    nn = np.minimum(nn, m - 1)
+    d = seeds_x[nn] - query[:, None, :]
+    scale = np.maximum(np.sqrt((w * (d**2).sum(-1)).sum(1) / np.maximum(w.sum(1), 1)), 1e-6)[:, None, None]
+    A = np.concatenate([np.ones(d.shape[:2] + (1,)), d / scale], axis=-1)
+    y = seeds_rho[nn]
+    reg = 1e-6 * np.eye(3)
+    for _ in range(2):
+        Aw = A * w[..., None]
+        coef = np.linalg.solve(np.einsum("nka,nkb->nab", Aw, A) + reg, np.einsum("nka,nk->na", Aw, y)[..., None])[..., 0]
+        r = np.abs(np.einsum("nka,na->nk", A, coef) - y)
+        r = np.where(w > 0, r, np.inf)
+        cut = np.sort(r, axis=1)[:, max(2, int(keep * k)) - 1][:, None]
+        w = w * (r <= cut)
+    return coef[:, 0]
+
+
 def _predict(e, seeds_x, seeds_rho, query, k=6):
     """Predict positions in the other view of ``query`` points from nearby seeds' rho."""
     rho = _local_rho(seeds_x, seeds_rho, query, k)
@@ -403,14 +431,21 @@ def _guided_once(ci, cj, e, xi, xj, threshold_px):
     pred_j = _predict(e, xi, rho_ij, ci)
     pred_i = _predict(-e, xj, rho_ji, cj)
     tj, ti = cKDTree(cj), cKDTree(ci)
-    # search radius: well below the corner spacing, so a repeated neighbour is never taken
-    sp_j = np.median(tj.query(cj, k=2)[0][:, 1]) if len(cj) > 1 else 10.0
-    sp_i = np.median(ti.query(ci, k=2)[0][:, 1]) if len(ci) > 1 else 10.0
-    r = float(np.clip(0.4 * min(sp_i, sp_j), 1.0, 6.0))
-    dj, nj = tj.query(pred_j, k=1)
-    di, ni = ti.query(pred_i, k=1)
+    # accept the nearest corner only if it is much nearer than the second nearest (so a
+    # repeated neighbour is never taken) and within ``max_radius`` px; both ways
+    max_radius = 40.0
+
+    def nearest(tree, pts, n_tree):
+        d, nn = tree.query(pts, k=min(2, n_tree))
+        d, nn = d.reshape(len(pts), -1), nn.reshape(len(pts), -1)
+        d2 = d[:, 1] if d.shape[1] > 1 else np.full(len(pts), np.inf)
+        return nn[:, 0], (d[:, 0] < max_radius) & (d[:, 0] < 0.5 * d2)
+
+    nj, okj = nearest(tj, pred_j, len(cj))
+    ni, oki = nearest(ti, pred_i, len(ci))
     a = np.arange(len(ci))
-    ok = (dj < r) & (ni[np.minimum(nj, len(cj) - 1)] == a) & (di[np.minimum(nj, len(cj) - 1)] < r)
+    njc = np.minimum(nj, len(cj) - 1)
+    ok = okj & oki[njc] & (ni[njc] == a)
     pairs = np.column_stack([a[ok], nj[ok]])
     if len(pairs):
         dist, rho = _epi_residual(e, ci[pairs[:, 0]], cj[pairs[:, 1]])
@@ -449,6 +484,7 @@ def _lk_affine(ref_img, ref_gx, tgt, tgt_gx, tgt_gy, p_ref, p0, M0, radius, iter
     b = np.zeros(m)
     conv = np.zeros(m, bool)
     active = np.ones(m, bool)
+    last_step = np.full(m, np.inf)
     for _ in range(iterations):
         ia = np.flatnonzero(active)
         if len(ia) == 0:
@@ -478,9 +514,11 @@ def _lk_affine(ref_img, ref_gx, tgt, tgt_gx, tgt_gy, p_ref, p0, M0, radius, iter
         M[ia] += delta[:, 2:6].reshape(-1, 2, 2)
         a[ia] += delta[:, 6]
         b[ia] += delta[:, 7]
+        last_step[ia] = step
         done = step < 2e-3
         conv[ia[done]] = True
         active[ia[done]] = False
+    conv |= last_step < 0.01  # still creeping by < 0.01 px: good enough
     # final quality: weighted NCC and the translation block's smallest eigenvalue
     wx = p[:, :1] + M[:, 0, :1] * ox[None] + M[:, 0, 1:2] * oy[None]
     wy = p[:, 1:2] + M[:, 1, :1] * ox[None] + M[:, 1, 1:2] * oy[None]
@@ -625,61 +663,74 @@ def track(
     times["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    epi = {}
-    edges = []
+    edges, scores = [], []
     n_verified = {}
+    found = {}
     for k, (i, j) in enumerate(pairs):
         m = raw[(i, j)]
         xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
         e, inl, _ = epipole_ransac(xi, xj, threshold_px=threshold_px, rng=rng)
-        if e is None or inl.sum() < 8:
-            if len(m) and np.median(np.linalg.norm(xj - xi, axis=1)) < 0.5:
-                edges.append(np.column_stack([offsets[i] + m[:, 0], offsets[j] + m[:, 1]]))
+        found[(i, j)] = (e, inl)
+        if e is None and len(m) and np.median(np.linalg.norm(xj - xi, axis=1)) < 0.5:
+            edges.append(np.column_stack([offsets[i] + m[:, 0], offsets[j] + m[:, 1]]))  # no motion
+            scores.append(np.linalg.norm(xj - xi, axis=1))
+        report("verify", k + 1, len(pairs))
+    epi = {p: e for p, (e, inl) in found.items() if e is not None and inl.sum() >= 8}
+    # all epipoles must be consistent: e_ik on the line e_ij e_jk; repair the odd ones
+    # (repetitive textures can make a wrong epipole win a pair's RANSAC)
+    bad_pairs = _inconsistent_pairs(epi, n)
+    good = {p: e for p, e in epi.items() if p not in bad_pairs}
+    repaired = []
+    for (i, j) in pairs:
+        if (i, j) in good:
+            continue
+        m = raw[(i, j)]
+        xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
+        e, inl = _repair_pair(i, j, good, xi, xj, threshold_px)
+        epi.pop((i, j), None)
+        if e is not None and inl.sum() >= 4:
+            epi[(i, j)] = e
+            found[(i, j)] = (e, inl)
+            repaired.append((i, j))
+    if bad_pairs:
+        log.info("view pairs with inconsistent epipoles: %s; repaired: %s", bad_pairs, repaired)
+    for (i, j) in pairs:
+        if (i, j) not in epi:
             n_verified[(i, j)] = 0
             continue
-        epi[(i, j)] = e
+        e, inl = found[(i, j)]
+        m = raw[(i, j)]
+        xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
         n_verified[(i, j)] = int(inl.sum())
         mi = m[inl]
         edges.append(np.column_stack([offsets[i] + mi[:, 0], offsets[j] + mi[:, 1]]))
+        scores.append(_epi_residual(e, xi[inl], xj[inl])[0])
         if method != "sift":
             cp = _guided_corners(feats[i]["corners"], feats[j]["corners"], e, xi[inl], xj[inl], threshold_px)
             ns_i, ns_j = len(feats[i]["sift"]), len(feats[j]["sift"])
             edges.append(np.column_stack([offsets[i] + ns_i + cp[:, 0], offsets[j] + ns_j + cp[:, 1]]))
-        report("verify", k + 1, len(pairs))
-    bad_pairs = _inconsistent_pairs(epi, n)
-    if bad_pairs:
-        log.info("dropping view pairs with inconsistent epipoles: %s", bad_pairs)
+            scores.append(_epi_residual(e, feats[i]["corners"][cp[:, 0]], feats[j]["corners"][cp[:, 1]])[0])
+    bad_pairs = [p for p in pairs if p not in epi and found[p][0] is not None]
     times["verify"] = time.perf_counter() - t0
 
     # chain: union-find over verified matches
     t0 = time.perf_counter()
     E = np.vstack(edges) if edges else np.zeros((0, 2), int)
-    if bad_pairs and len(E):
-        vp = np.sort(np.column_stack([node_view[E[:, 0]], node_view[E[:, 1]]]), axis=1)
-        keep = ~np.array([tuple(v) in bad_pairs for v in vp], bool)
-        E = E[keep]
-        for bp in bad_pairs:
-            epi.pop(bp, None)
-    used = np.unique(E.ravel())
-    if len(used) == 0:
+    score = np.concatenate(scores) if scores else np.zeros(0)
+    if len(E) == 0:
         raise DegenerateError(_too_few_msg(0, n_verified))
-    G = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n_nodes, n_nodes))
-    _, label = connected_components(G, directed=False)
-    lab = label[used]
-    comp, comp_idx = np.unique(lab, return_inverse=True)
+    label, n_conflicts = _union_find(E[np.argsort(score, kind="stable")], node_view, n_nodes)
+    used = np.flatnonzero(label >= 0)
+    comp, comp_idx = np.unique(label[used], return_inverse=True)
     views = node_view[used]
-    # conflicts: a component with two features in one view drops that view's features
-    key = comp_idx * n + views
-    cnt = np.bincount(key, minlength=len(comp) * n)
-    ok = cnt[key] == 1
     uv = np.full((n, len(comp), 2), np.nan)
     is_corner = np.zeros(len(comp), bool)
-    uv[views[ok], comp_idx[ok]] = node_pos[used[ok]]
-    is_corner[comp_idx[ok & (np.concatenate(kind)[used] == 1)]] = True
+    uv[views, comp_idx] = node_pos[used]
+    is_corner[comp_idx[np.concatenate(kind)[used] == 1]] = True
     nseen = np.isfinite(uv[..., 0]).sum(0)
     uv = uv[:, nseen >= 2]
     is_corner = is_corner[nseen >= 2]
-    n_conflicts = int((~ok).sum())
+    counts = {"chained": _n_obs(uv)}
     if max_tracks is not None and uv.shape[1] > int(1.3 * max_tracks):
         keep = _select_spread(uv, int(1.3 * max_tracks), w, h, return_index=True)
         uv, is_corner = uv[:, keep], is_corner[keep]
@@ -694,9 +745,13 @@ def track(
 
     # final check with epipoles re-estimated from the refined points
     t0 = time.perf_counter()
+    counts["refined"] = _n_obs(uv)
     uv = _smoothness_check(uv, epi, smooth_px)
+    counts["smooth"] = _n_obs(uv)
     uv, epi_final = _final_check(uv, n, final_threshold_px if refine else threshold_px, rng)
+    counts["epipolar"] = _n_obs(uv)
     uv = _multiview_check(uv, epi_final, 3.0 * (final_threshold_px if refine else threshold_px))
+    counts["multiview"] = _n_obs(uv)
     uv = _dedupe(uv, w, h)
     nseen = np.isfinite(uv[..., 0]).sum(0)
     uv = uv[:, nseen >= min_views]
@@ -713,9 +768,53 @@ def track(
         "n_matches_verified": {f"{i}-{j}": v for (i, j), v in n_verified.items()},
         "epipoles": {f"{i}-{j}": e.tolist() for (i, j), e in epi_final.items()},
         "n_conflicts_dropped": n_conflicts,
+        "n_observations": counts,
         "inconsistent_pairs": [f"{i}-{j}" for i, j in bad_pairs],
+        "repaired_pairs": [f"{i}-{j}" for i, j in repaired],
     }
     return Tracks(uv=uv, ids=np.arange(n_pts), colors=colors, view_names=names, info=info)
+
+
+def _union_find(E, node_view, n_nodes):
+    """Chain matches into tracks: union-find over edges ``E`` ``(m, 2)`` (best first).
+
+    An edge that would put two features of one view into a track is skipped (a
+    conflict), so mismatches cannot glue tracks together. Returns the track label of
+    every node (-1 for nodes in no edge) and the number of skipped edges.
+    """
+    parent = np.arange(n_nodes)
+    mask = {}  # root -> bitmask of views in its track
+    conflicts = 0
+    par = parent.tolist()
+    nv = node_view.tolist()
+
+    def find(a):
+        while par[a] != a:
+            par[a] = par[par[a]]
+            a = par[a]
+        return a
+
+    for a, b in E.tolist():  # one pass over the edges; near-constant time per edge
+        ra, rb = find(a), find(b)
+        if ra == rb:
+            continue
+        ma = mask.get(ra, 1 << nv[a])
+        mb = mask.get(rb, 1 << nv[b])
+        if ma & mb:
+            conflicts += 1
+            continue
+        par[rb] = ra
+        mask[ra] = ma | mb
+    roots = np.array([find(a) for a in range(n_nodes)])
+    in_edge = np.zeros(n_nodes, bool)
+    in_edge[E.ravel()] = True
+    return np.where(in_edge, roots, -1), conflicts
+
+
+def _n_obs(uv):
+    """Number of observations in tracks seen at least twice."""
+    s = np.isfinite(uv[..., 0])
+    return int(s[:, s.sum(0) >= 2].sum())
 
 
 def _too_few_msg(n_pts, n_verified, min_tracks=8):
@@ -726,7 +825,48 @@ def _too_few_msg(n_pts, n_verified, min_tracks=8):
             "target='squares' for a board of black squares")
 
 
-def _inconsistent_pairs(epi, n, tol=0.05):
+def _repair_pair(i, k, good, x, y, thr):
+    """Epipole of pair ``(i, k)`` constrained by consistent pairs: for any view j with
+    ``e_ij`` and ``e_jk`` known, ``e_ik = a e_ij + b e_jk``; one match fixes ``(a, b)``,
+    so a 1-point RANSAC over all matches and all such j picks it."""
+    n_match = len(x)
+    if n_match < 3:
+        return None, np.zeros(n_match, bool)
+    views = {a for p in good for a in p}
+    L = _normalised_lines(x, y)
+    moving = np.linalg.norm(y - x, axis=1) >= 0.5
+    best = (-1, None)
+    for j in sorted(views - {i, k}):
+        p = _pair_epipole(good, i, j)
+        q = _pair_epipole(good, j, k)
+        if p is None or q is None:
+            continue
+        ab = np.column_stack([L @ q, -(L @ p)])[moving]
+        E = ab[:, :1] * p + ab[:, 1:] * q
+        nE = np.linalg.norm(E, axis=1)
+        E = E[nE > 1e-12] / nE[nE > 1e-12, None]
+        if len(E) == 0:
+            continue
+        d = E[:, None, 2:3] * x[None] - E[:, None, :2]
+        nd = np.linalg.norm(d, axis=-1)
+        dv = (y - x)[None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dist = np.abs(d[..., 0] * dv[..., 1] - d[..., 1] * dv[..., 0]) / nd
+            rho = (dv * d).sum(-1)
+        ok = dist < thr
+        pos, neg = (ok & (rho > 0)).sum(1), (ok & (rho < 0)).sum(1)
+        score = np.maximum(pos, neg)
+        b = int(np.argmax(score))
+        if score[b] > best[0]:
+            best = (score[b], E[b] * (1.0 if pos[b] >= neg[b] else -1.0))
+    e = best[1]
+    if e is None:
+        return None, np.zeros(n_match, bool)
+    dist, rho = _epi_residual(e, x, y)
+    return e, (dist < thr) & ((rho > 0) | ~moving)
+
+
+def _inconsistent_pairs(epi, n, tol=2e-3):
     """Pairs whose epipole disagrees with most triplets: ``e_ik`` must lie on the line
     ``e_ij e_jk`` (``t_ik = t_ij + t_jk``)."""
     votes = {}
@@ -792,7 +932,7 @@ def _smoothness_check(uv, epi, thr_px, k=8):
             continue
         xi, xj = uv[i, both], uv[j, both]
         _, rho = _epi_residual(e, xi, xj)
-        rho_nb = _local_rho(xi, rho, xi, k)
+        rho_nb = _local_rho_linear(xi, rho, xi, k=10)
         dev = np.abs(rho - rho_nb) * np.linalg.norm(_direction(e, xi), axis=1)
         bad = both[~(np.nan_to_num(dev, nan=np.inf) <= thr_px)]
         drop_j = ref[bad] != j
