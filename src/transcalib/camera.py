@@ -206,6 +206,8 @@ def rq_decompose(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle in degrees of rotation matrix ``R`` (3, 3)."""
-    c = (np.trace(R) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    """Angle in degrees of rotation matrix ``R`` (3, 3), accurate for tiny angles too:
+    ``atan2(sin, cos)`` with ``sin`` from the skew part and ``cos = (tr R - 1) / 2``."""
+    sin = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    cos = (np.trace(R) - 1.0) / 2.0
+    return float(np.degrees(np.arctan2(sin, cos)))

@@ -261,13 +261,13 @@ class _TaylorModel:
 def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smallest right singular vector of ``C`` via the arrowhead structure, O(n).
 
+    Returns ``(a (9,), depths (n, V), mu, eigenvalues of S(mu) (9,))``.
+
     Newton on a local model: one O(n) pass gives ``S`` and ``dS/dmu`` exactly at the
     current ``mu``; the root of the linear model (a 9 x 9 problem) is the next ``mu``.
     The smallest eigenvalue lies far below the poles for any sensible data, so two
     passes from ``mu = 0`` leave a truncation error below rounding (noise-free data
     need one).
-
-    Returns ``(a (9,), depths (n, V), reduced singular values (3,))``.
     """
     arrow = _Arrowhead(nd)
     G = arrow.taylor(0.0)
@@ -292,7 +292,7 @@ def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         mu = model.root(0.0, hi)
     w, v = np.linalg.eigh(model.S(mu))
     a = v[:, 0]
-    return a, arrow.depths(mu, a), np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
+    return a, arrow.depths(mu, a), mu, w
 
 
 # --------------------------------------------------------------------------------------
@@ -301,7 +301,10 @@ def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _tls_dense(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The paper's formulation: build ``C`` and take its SVD (reference, small n)."""
+    """The paper's formulation: build ``C`` and take its SVD (reference, small n).
+
+    Returns ``(a (9,), depths (n, V), mu = sigma_min^2, eigenvalues of S(mu) (9,))``.
+    """
     U, seen, ref, T = nd.U, nd.seen, nd.ref, nd.T
     n, V = seen.shape
     col = np.cumsum(seen.ravel()).reshape(n, V) - 1  # column of lam_jv
@@ -318,12 +321,11 @@ def _tls_dense(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     b = Vt[-1]
     depths = np.zeros((n, V))
     depths[seen] = b[:n_lam]
-    # reduced singular values: mu + eig_k(S(mu)), S the Schur complement of C^T C - mu I
+    # S(mu): the Schur complement of C^T C - mu I over the depths
     mu = s[-1] ** 2
     M = C.T @ C - mu * np.eye(C.shape[1])
     S = M[n_lam:, n_lam:] - M[n_lam:, :n_lam] @ np.linalg.solve(M[:n_lam, :n_lam], M[:n_lam, n_lam:])
-    w = np.linalg.eigvalsh(S)
-    return b[n_lam:], depths, np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
+    return b[n_lam:], depths, mu, np.linalg.eigvalsh(S)
 
 
 # --------------------------------------------------------------------------------------
@@ -355,7 +357,16 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> tuple[np.n
         alternative. ``sigma_1 / sigma_2`` near 1 means ``A`` is not determined.
     """
     nd = _normalise(uv, T)
-    a, depths, sv = (_tls_fast if method == "fast" else _tls_dense)(nd)
+    a, depths, mu, w = (_tls_fast if method == "fast" else _tls_dense)(nd)
+    # reduced singular values sqrt(mu + eig_k(S(mu))): sigma_1, then the best residuals
+    # of the second and third alternative A
+    sv = np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
+    if mu + w[1] <= 1e-12 * w[-1]:
+        raise DegenerateError(
+            "the data do not determine the camera: the linear system has a (numerically) "
+            f"two-dimensional null space (sigma_2 / sigma_max = {np.sqrt(max(mu + w[1], 0) / w[-1]):.1e}). "
+            "Track more points, over more views, spread over the image and over depth."
+        )
     # undo normalisation: lam' H u = A' (X - T) / t_scale  =>  A ∝ H^-1 A' / t_scale
     A = np.linalg.solve(nd.H, a.reshape(3, 3)) / nd.t_scale
     c = 1.0 / np.linalg.norm(A[2])

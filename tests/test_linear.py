@@ -1,0 +1,224 @@
+"""The linear estimator against ground truth, and the O(n) path against the dense SVD."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from transcalib import simulate
+from transcalib.camera import project, rotation_angle_deg
+from transcalib.linear import estimate_linear, solve_tls
+from transcalib.types import DegenerateError, InputError, MirroredError
+
+
+def rel_err_K(K, K_true):
+    """Largest error of fx, fy, cx, cy, skew relative to the focal length."""
+    return np.max(np.abs(K - K_true)) / K_true[0, 0]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_views=st.integers(4, 8),
+    n_points=st.integers(6, 60),
+    planar=st.booleans(),
+    missing=st.sampled_from([0.0, 0.15, 0.35]),
+    skew=st.sampled_from([0.0, 3.0]),
+)
+def test_noise_free_exact(seed, n_views, n_points, planar, missing, skew):
+    """Random cameras, orientations, 4-8 views, planar or not, missing data: exact."""
+    scene = simulate.random_scene(n_points, n_views, planar=planar, missing=missing, skew=skew, rng=seed)
+    k = np.isfinite(scene.uv[..., 0]).sum(axis=0)
+    assume(np.sum(np.maximum(2 * k - 3, 0)) >= 16)  # twice the 8 equations A needs (net of depths)
+    est = estimate_linear(scene.uv, scene.T)
+    assert rel_err_K(est.K, scene.K) < 1e-9
+    assert rotation_angle_deg(est.R @ scene.R.T) < 1e-7
+    assert np.linalg.det(est.R) == pytest.approx(1.0, abs=1e-12)
+    used = est.used
+    assert np.nanmax(np.abs(est.X[used] - scene.X[used])) < 1e-7 * np.abs(scene.X).max()
+    depth_true = np.einsum("a,vna->vn", scene.R[2], scene.X[None] - scene.T[:, None])
+    seen = np.isfinite(scene.uv[..., 0]) & used[None]
+    np.testing.assert_allclose(est.depth[seen], depth_true[seen], rtol=1e-8)
+    assert np.all(np.isnan(est.depth[~np.isfinite(scene.uv[..., 0])]))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_views=st.integers(4, 7), missing=st.sampled_from([0.0, 0.3]),
+       noise=st.sampled_from([0.3, 1.0, 3.0]))
+def test_fast_equals_dense(seed, n_views, missing, noise):
+    """The O(n) solution is the dense SVD's (paper §2.2) to rounding, on noisy data."""
+    scene = simulate.random_scene(40, n_views, noise_px=noise, robot_noise=0.5, missing=missing, rng=seed)
+    fast = estimate_linear(scene.uv, scene.T)
+    dense = estimate_linear(scene.uv, scene.T, method="dense")
+    assert rel_err_K(fast.K, dense.K) < 1e-9
+    np.testing.assert_allclose(fast.R, dense.R, atol=1e-9)
+    np.testing.assert_allclose(fast.depth, dense.depth, rtol=1e-8)
+    np.testing.assert_allclose(fast.singular_values, dense.singular_values, rtol=1e-6, atol=1e-12)
+
+
+def test_paper_preset_noise_free_and_noisy():
+    scene = simulate.paper_scene()
+    est = estimate_linear(scene.uv, scene.T)
+    assert rel_err_K(est.K, scene.K) < 1e-9
+    # 0.5 px noise: the linear estimate is within a few percent (paper §3)
+    noisy = simulate.paper_scene(noise_px=0.5, robot_noise=0.1, rng=3)
+    est = estimate_linear(noisy.uv, noisy.T)
+    assert abs(est.K[0, 0] / scene.K[0, 0] - 1) < 0.05
+    assert est.singular_values[0] < 0.1 * est.singular_values[1]
+
+
+def test_noisy_error_shrinks_with_points():
+    """More points, smaller error: consistent estimator (statistical, fixed seeds)."""
+    errs = []
+    for n in (30, 3000):
+        e = [rel_err_K(estimate_linear(s.uv, s.T).K, s.K)
+             for s in (simulate.random_scene(n, 5, noise_px=0.5, rng=k) for k in range(5))]
+        errs.append(np.median(e))
+    assert errs[1] < errs[0] / 3
+
+
+def test_points_in_two_views_only_and_unused_points():
+    scene = simulate.random_scene(20, 5, rng=7)
+    uv = scene.uv.copy()
+    uv[2:, 0] = np.nan  # point 0 in views 0, 1 only
+    uv[1:, 1] = np.nan  # point 1 in one view: unused
+    est = estimate_linear(uv, scene.T)
+    assert not est.used[1] and est.used[0]
+    assert np.all(np.isnan(est.X[1]))
+    assert est.n_used_points == 19
+    np.testing.assert_allclose(est.X[0], scene.X[0], rtol=1e-8)
+
+
+def test_translation_origin_irrelevant():
+    scene = simulate.random_scene(30, 5, noise_px=0.5, rng=2)
+    a = estimate_linear(scene.uv, scene.T)
+    b = estimate_linear(scene.uv, scene.T + [1000.0, -50.0, 7.0])
+    np.testing.assert_allclose(a.K, b.K, rtol=1e-8)
+    np.testing.assert_allclose(b.X, a.X + [1000.0, -50.0, 7.0], rtol=1e-8)
+
+
+def test_units_scale_points_not_camera():
+    scene = simulate.random_scene(30, 4, noise_px=0.3, rng=4)
+    mm = estimate_linear(scene.uv, scene.T)
+    m = estimate_linear(scene.uv, scene.T / 1000.0)
+    np.testing.assert_allclose(mm.K, m.K, rtol=1e-9)
+    np.testing.assert_allclose(mm.X / 1000.0, m.X, rtol=1e-8)
+
+
+# ---------------------------------------------------------------------------------- errors
+
+
+@pytest.fixture
+def scene():
+    return simulate.paper_scene()  # 24 points, all seen in the 4 views
+
+
+def test_wrong_shapes(scene):
+    with pytest.raises(InputError, match=r"\(n_views, n_points, 2\)"):
+        estimate_linear(scene.uv[..., 0], scene.T)
+    with pytest.raises(InputError, match=r"\(n_views, 3\)"):
+        estimate_linear(scene.uv, scene.T[:, :2])
+    with pytest.raises(InputError, match="4 views but T has 5 translations"):
+        estimate_linear(scene.uv, np.vstack([scene.T, scene.T[:1]]))
+    with pytest.raises(InputError, match="array of numbers"):
+        estimate_linear([["a"]], scene.T)
+
+
+def test_nonfinite_translations(scene):
+    T = scene.T.copy()
+    T[2, 1] = np.nan
+    with pytest.raises(InputError, match=r"views \[2\]"):
+        estimate_linear(scene.uv, T)
+    T[2, 1] = np.inf
+    with pytest.raises(InputError, match="not finite"):
+        estimate_linear(scene.uv, T)
+
+
+def test_infinite_pixels_and_half_nan(scene):
+    uv = scene.uv.copy()
+    uv[1, 3, 0] = np.inf
+    with pytest.raises(InputError, match="infinite"):
+        estimate_linear(uv, scene.T)
+    uv = scene.uv.copy()
+    uv[1, 3, 0] = np.nan
+    with pytest.raises(InputError, match="NaN in both"):
+        estimate_linear(uv, scene.T)
+
+
+def test_too_few_views(scene):
+    with pytest.raises(InputError, match="at least 4 views"):
+        estimate_linear(scene.uv[:3], scene.T[:3])
+
+
+def test_translations_not_spanning_3d():
+    scene = simulate.random_scene(20, 5, rng=1)
+    T = scene.T.copy()
+    T[:, 2] = T[0, 2]  # all in a plane z = const
+    uv = project(scene.K, scene.R, scene.X, T)
+    with pytest.raises(DegenerateError, match="singular values") as info:
+        estimate_linear(uv, T)
+    assert "span 3-D" in str(info.value)
+
+
+def test_fewer_than_two_points(scene):
+    uv = scene.uv.copy()
+    uv[1:, 1:] = np.nan
+    with pytest.raises(DegenerateError, match="at least 2 points"):
+        estimate_linear(uv, scene.T)
+
+
+def test_undetermined_camera():
+    """6 points, mostly in 2 views, on a plane: 8 net equations for 8 unknowns, singular."""
+    scene = simulate.random_scene(6, 4, planar=True, missing=0.35, rng=6)
+    with pytest.raises(DegenerateError, match="null space"):
+        estimate_linear(scene.uv, scene.T)
+
+
+def test_views_without_points(scene):
+    uv = scene.uv.copy()
+    uv[3] = np.nan
+    with pytest.raises(DegenerateError, match="only 3 views"):
+        estimate_linear(uv, scene.T)
+
+
+def test_mirrored_data_detected(scene):
+    """Swapping two robot axes makes the frame left-handed: said clearly, never det R = -1."""
+    T = scene.T[:, [1, 0, 2]]  # the same images, with the x and y columns swapped
+    with pytest.raises(MirroredError, match="left-handed") as info:
+        estimate_linear(scene.uv, T)
+    assert isinstance(info.value, InputError) and isinstance(info.value, DegenerateError)
+
+
+def test_unknown_method(scene):
+    with pytest.raises(InputError, match="method"):
+        estimate_linear(scene.uv, scene.T, method="svd")
+
+
+def test_dense_refuses_large_problems():
+    scene = simulate.random_scene(3100, 4, rng=0)
+    with pytest.raises(InputError, match="fast"):
+        estimate_linear(scene.uv, scene.T, method="dense")
+
+
+def test_inputs_not_modified(scene):
+    uv, T = scene.uv.copy(), scene.T.copy()
+    estimate_linear(uv, T)
+    np.testing.assert_array_equal(uv, scene.uv)
+    np.testing.assert_array_equal(T, scene.T)
+
+
+def test_solve_tls_scale_and_sign():
+    scene = simulate.random_scene(25, 4, rng=11)
+    A, depth, sv = solve_tls(scene.uv, scene.T)
+    assert np.linalg.norm(A[2]) == pytest.approx(1.0)
+    assert np.nanmin(depth) > 0
+    np.testing.assert_allclose(A, scene.K @ scene.R / np.linalg.norm((scene.K @ scene.R)[2]), atol=1e-9 * np.abs(A).max())
+    assert sv.shape == (3,) and sv[0] < 1e-6 * sv[1]
+
+
+def test_rotation_convention():
+    """R maps world vectors to the camera: the optical axis R[2] points at the scene."""
+    scene = simulate.random_scene(20, 4, rng=5)
+    est = estimate_linear(scene.uv, scene.T)
+    centre = np.nanmean(est.X, axis=0)
+    assert est.R[2] @ (centre - scene.T[0]) > 0
