@@ -1,0 +1,129 @@
+"""CSV readers: every malformed input gets a clear InputError; writers are atomic."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from transcalib import io as tio
+from transcalib.types import InputError
+
+
+def write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def poses(tmp_path):
+    return write(tmp_path / "poses.csv", "view,x,y,z\n0,0,0,0\n1,10,0,0\n2,0,10,0\n3,0,0,10\n")
+
+
+def test_round_trip(tmp_path, poses):
+    uv = np.full((4, 3, 2), np.nan)
+    uv[:, 0] = [[1.5, 2.5], [3, 4], [5, 6], [7, 8]]
+    uv[1:, 2] = [[9, 10], [11, 12], [13, 14]]
+    tio.write_tracks_csv(tmp_path / "tracks.csv", uv, ["a", "b", "c"])
+    p = tio.read_poses(poses)
+    got, ids = tio.tracks_to_uv(tmp_path / "tracks.csv", p)
+    assert ids == ["a", "c"]  # point b has no observation
+    np.testing.assert_array_equal(got, uv[:, [0, 2]])
+
+
+def test_point_order_is_first_appearance_and_ids_any_text(tmp_path, poses):
+    tracks = write(tmp_path / "t.csv", "view,point,u,v\n0,zeta,1,2\n0,alpha,3,4\n1,zeta,5,6\n")
+    uv, ids = tio.tracks_to_uv(tracks, tio.read_poses(poses))
+    assert ids == ["zeta", "alpha"]
+    assert uv[1, 0, 0] == 5 and np.isnan(uv[1, 1, 0])
+
+
+def test_views_in_poses_order_and_integer_ids(tmp_path):
+    poses = write(tmp_path / "p.csv", "view,x,y,z\n3,0,0,0\n1,1,0,0\n2,0,1,0\n0,0,0,1\n")
+    tracks = write(tmp_path / "t.csv", "view,point,u,v\n00,p,1,2\n3,p,3,4\n")
+    uv, _ = tio.tracks_to_uv(tracks, tio.read_poses(poses))
+    assert uv[3, 0, 0] == 1 and uv[0, 0, 0] == 3  # view "00" is view "0", the 4th row
+
+
+def test_header_case_whitespace_and_bom(tmp_path):
+    p = write(tmp_path / "p.csv", "\ufeffView, X ,y,Z\n0, 1 ,2,3\n")
+    poses = tio.read_poses(p)
+    np.testing.assert_array_equal(poses.T, [[1, 2, 3]])
+
+
+def test_quaternions_and_images(tmp_path):
+    p = write(tmp_path / "p.csv", "view,x,y,z,qx,qy,qz,qw,image\n0,0,0,0,0,0,0,2,a.png\n")
+    poses = tio.read_poses(p)
+    np.testing.assert_allclose(poses.quaternions, [[0, 0, 0, 1]])
+    assert poses.images == ["a.png"]
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("", "is empty"),
+        ("view,x,y,z\n", "no data rows"),
+        ("view,x,y\n0,1,2\n", r"lacks column\(s\) z"),
+        ("view,x,y,z\n0,1,two,3\n", r"line 2, column 'y': 'two' is not a finite number"),
+        ("view,x,y,z\n0,1,2,nan\n", "not a finite number"),
+        ("view,x,y,z\n0,1,2\n", "3 cells, expected 4"),
+        ("view,x,y,z\n0,1,2,3\n0,1,2,3\n", "more than once"),
+        ("view,x,y,z,qx\n0,1,2,3,0\n", "qx,qy,qz,qw"),
+    ],
+)
+def test_bad_poses(tmp_path, text, match):
+    with pytest.raises(InputError, match=match):
+        tio.read_poses(write(tmp_path / "p.csv", text))
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("", "is empty"),
+        ("view,point,u\n0,a,1\n", r"lacks column\(s\) v"),
+        ("view,point,u,v\n0,a,1,x\n", "line 2, column 'v'"),
+        ("view,point,u,v\n0,a,1,inf\n", "not a finite number"),
+        ("view,point,u,v\n0,a,1,2\n0,a,3,4\n", r"more than one row for \(view, point\)"),
+        ("view,point,u,v\n7,a,1,2\n", r"view\(s\) \['7'\] that are not in the poses file"),
+    ],
+)
+def test_bad_tracks(tmp_path, poses, text, match):
+    with pytest.raises(InputError, match=match):
+        tio.tracks_to_uv(write(tmp_path / "t.csv", text), tio.read_poses(poses))
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        tio.read_poses(tmp_path / "nope.csv")
+
+
+def test_binary_file(tmp_path):
+    p = tmp_path / "p.csv"
+    p.write_bytes(b"\xff\xfe\x00\x81binary")
+    with pytest.raises(InputError, match="UTF-8"):
+        tio.read_poses(p)
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out.json"
+    target.write_text("old")
+    with pytest.raises(RuntimeError):
+        with tio.atomic_write(target) as fh:
+            fh.write("partial")
+            raise RuntimeError("interrupted")
+    assert target.read_text() == "old"
+    assert os.listdir(tmp_path) == ["out.json"]
+
+
+def test_json_nan_becomes_null(tmp_path):
+    tio.write_json(tmp_path / "a.json", {"x": np.array([1.0, np.nan]), "n": np.int64(3), "b": np.bool_(True)})
+    assert json.loads((tmp_path / "a.json").read_text()) == {"x": [1.0, None], "n": 3, "b": True}
+
+
+def test_points_csv(tmp_path):
+    X = np.array([[1.0, 2.0, 3.0], [np.nan] * 3])
+    tio.write_points_csv(tmp_path / "p.csv", ["a", "b"], X, X_std=np.ones((2, 3)), inliers=np.array([True, False]))
+    lines = (tmp_path / "p.csv").read_text().splitlines()
+    assert lines[0] == "point,x,y,z,sx,sy,sz,inlier"
+    assert lines[1] == "a,1.0,2.0,3.0,1.0,1.0,1.0,1"
+    assert lines[2] == "b,,,,1.0,1.0,1.0,0"
