@@ -319,25 +319,34 @@ def _detect(grey, max_features, max_corners, corner_quality):
 
 
 def _match_pair(d1, d2, ratio):
-    """Mutual nearest neighbours passing the ratio test: index pairs ``(k, 2)``."""
+    """Mutual nearest neighbours passing the ratio test: index pairs ``(k, 2)``.
+
+    Exact (brute force): squared distances from one matrix product, whose row and
+    column minima give both matching directions.
+    """
     if len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), int)
-    bf = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
-    d1 = np.ascontiguousarray(d1, np.float32)
-    d2 = np.ascontiguousarray(d2, np.float32)
+    a = np.ascontiguousarray(d1, np.float32)
+    b = np.ascontiguousarray(d2, np.float32)
+    D = (a * a).sum(1)[:, None] + (b * b).sum(1)[None] - 2.0 * (a @ b.T)
+    np.maximum(D, 0.0, out=D)
+    r2 = np.float32(ratio * ratio)
 
-    def one_way(a, b):
-        m = bf.knnMatch(a, b, k=2)
-        q = np.array([[mm[0].queryIdx, mm[0].trainIdx, mm[0].distance, mm[1].distance] for mm in m if len(mm) == 2])
-        if len(q) == 0:
-            return {}
-        good = q[:, 2] < ratio * q[:, 3]
-        return dict(zip(q[good, 0].astype(int), q[good, 1].astype(int)))
+    def best_two(D, axis):
+        arg = D.argmin(axis)
+        idx = (np.arange(D.shape[0]), arg) if axis == 1 else (arg, np.arange(D.shape[1]))
+        best = D[idx].copy()
+        D[idx] = np.inf
+        second = D.min(axis)
+        D[idx] = best
+        return arg, best < r2 * second
 
-    f = one_way(d1, d2)
-    b = one_way(d2, d1)
-    pairs = [(i, j) for i, j in f.items() if b.get(j) == i]
-    return np.array(pairs, int).reshape(-1, 2)
+    ja, ok_a = best_two(D, 1)
+    ib, ok_b = best_two(D, 0)
+    i = np.flatnonzero(ok_a)
+    j = ja[i]
+    mutual = ok_b[j] & (ib[j] == i)
+    return np.column_stack([i[mutual], j[mutual]])
 
 
 def _local_rho(seeds_x, seeds_rho, query, k=6):
@@ -496,11 +505,14 @@ def _lk_affine(ref_img, ref_gx, tgt, tgt_gx, tgt_gy, p_ref, p0, M0, radius, iter
         Gy = _sample(tgt_gy, wx, wy).astype(float)
         aa = a[ia, None]
         res = aa * I + b[ia, None] - Tm[ia]
-        J = np.stack([aa * Gx, aa * Gy, aa * Gx * ox, aa * Gx * oy, aa * Gy * ox, aa * Gy * oy, I,
-                      np.ones_like(I)], axis=-1)
-        Jw = J * wgt[None, :, None]
-        H = np.einsum("mpa,mpb->mab", Jw, J)
-        g = np.einsum("mpa,mp->ma", Jw, res)
+        J = np.empty((len(ia), 8, I.shape[1]))
+        J[:, 0], J[:, 1] = aa * Gx, aa * Gy
+        J[:, 2], J[:, 3] = J[:, 0] * ox, J[:, 0] * oy
+        J[:, 4], J[:, 5] = J[:, 1] * ox, J[:, 1] * oy
+        J[:, 6], J[:, 7] = I, 1.0
+        Jw = J * wgt
+        H = Jw @ J.transpose(0, 2, 1)
+        g = (Jw @ res[..., None])[..., 0]
         H = H + 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(8)
         try:
             delta = -np.linalg.solve(H, g[..., None])[..., 0]
