@@ -61,8 +61,9 @@ class _Normalised:
 def _normalise(uv: np.ndarray, T: np.ndarray) -> _Normalised:
     """Pixels to zero mean and mean distance sqrt(2); translations to unit mean norm."""
     seen_vn = np.isfinite(uv[..., 0])  # (V, n)
-    centre = np.nanmean(uv, axis=(0, 1))
-    spread = np.nanmean(np.hypot(uv[..., 0] - centre[0], uv[..., 1] - centre[1]))
+    observed = uv[seen_vn]  # (n_obs, 2)
+    centre = observed.mean(axis=0)
+    spread = np.hypot(observed[:, 0] - centre[0], observed[:, 1] - centre[1]).mean()
     scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
     H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
     U = np.empty((uv.shape[1], uv.shape[0], 3))  # (n, V, 3)

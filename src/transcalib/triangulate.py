@@ -111,11 +111,18 @@ def triangulate(
         ok = seen & np.isfinite(depth) & (depth != 0)
         w = np.where(ok, 1.0 / np.where(ok, depth, 1.0) ** 2, seen.astype(float))
     X = None
+    V, n = seen.shape
+    basis9 = basis.reshape(4, 9)
+    per_view = per_view.reshape(4 * V, 3)
+    coef = np.empty((4, V, n))
     for _ in range(max(1, passes)):
-        coef = np.stack([w, w * u, w * v, w * r2])  # (4, V, n)
-        M = np.einsum("kn,kab->nab", coef.sum(axis=1), basis)
-        b = np.einsum("kvn,kva->na", coef, per_view)
-        X = solve_sym3(M, b)
+        np.copyto(coef[0], w)
+        np.multiply(w, u, out=coef[1])
+        np.multiply(w, v, out=coef[2])
+        np.multiply(w, r2, out=coef[3])
+        M = coef.sum(axis=1).T @ basis9  # (n, 9)
+        b = coef.reshape(4 * V, n).T @ per_view  # (n, 3)
+        X = solve_sym3(M.reshape(n, 3, 3), b)
         z = X @ A2 - (T @ A2)[:, None]  # depths (V, n)
         ok = seen & np.isfinite(z) & (z != 0)
         w = np.where(ok, 1.0 / np.where(ok, z, 1.0) ** 2, np.where(seen, w, 0.0))
