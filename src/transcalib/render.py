@@ -141,12 +141,22 @@ class Noise:
             layer = scipy.ndimage.gaussian_filter(rng.normal(size=(nh, nw)), sigma, mode="wrap")
             acc += layer / layer.std() * 0.8**k
         acc = self.mean + self.contrast * acc / acc.std()
-        object.__setattr__(self, "_grid", acc.astype(np.float32))
+        # prefiltered levels (Gaussian sigma 0, 1, 2, 4, 8 texels) against aliasing where a
+        # sample's footprint spans several texels (grazing views, far surfaces)
+        levels = [acc.astype(np.float32)] + [
+            scipy.ndimage.gaussian_filter(acc, 2.0**k, mode="nearest").astype(np.float32) for k in range(4)]
+        object.__setattr__(self, "_grid", levels)
 
     def __call__(self, s, t, ws, wt):
         x = (np.asarray(s) / self.texel + 4.0).astype(np.float32).ravel()
         y = (np.asarray(t) / self.texel + 4.0).astype(np.float32).ravel()
-        return _remap_points(self._grid, x, y).reshape(np.shape(s)).astype(float)
+        foot = np.maximum(np.asarray(ws), np.asarray(wt)).ravel() / self.texel
+        level = np.clip(np.rint(np.log2(np.maximum(foot, 1e-9))) + 1, 0, len(self._grid) - 1).astype(int)
+        out = np.empty(x.size)
+        for k in np.unique(level):  # a handful of levels, vectorised within each
+            m = level == k
+            out[m] = _remap_points(self._grid[k], x[m], y[m])
+        return out.reshape(np.shape(s))
 
 
 @dataclass(frozen=True)
