@@ -1,0 +1,615 @@
+"""Diagnostics: warnings that name the cause of a doubtful calibration and what to do.
+
+Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
+stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
+and is silent on healthy data.
+
+=========================  ==============================================================
+code                       meaning
+=========================  ==============================================================
+``translations_coplanar``  the translations nearly lie in a plane (or on a line)
+``translations_small``     the translations are tiny compared with the scene distance
+``null_space_2d``          the linear system has a nearly two-dimensional null space
+``points_behind_camera``   reconstructed points behind the camera in some view
+``view_few_points``        views that see very few points
+``view_residuals``         views whose residuals stand out from the others
+``view_rotation``          model violation: the camera rotated between views
+``pose_orientation``       robot poses whose orientation differs from view 0's
+=========================  ==============================================================
+
+Model violation (``view_rotation``)
+-----------------------------------
+The pure-translation model is tested against a small rotation ``Q_i = exp([w_i]x)`` of
+the camera in one view ``i >= 1`` (``R_i = Q_i R``, view 0 is the reference) by a
+**score (Lagrange-multiplier) test** at the pure-translation maximum-likelihood solution:
+with ``J`` the Jacobian of the predicted pixels (intrinsics, distortion, ``R``, points,
+and the translations when they were refined with a prior ``sigma_T``), ``r`` the
+residuals and the points eliminated by the Schur complement,
+
+    w_i  = I_i^-1 g_i,    Cov(w_i) = sigma^2 I_i^-1,    t_i = w_i^T Cov(w_i)^-1 w_i
+
+where ``g_i`` is the gradient of ``0.5 |r|^2`` with respect to ``w_i`` and ``I_i`` the
+information of ``w_i`` with every other parameter profiled out. ``w_i`` is the rotation
+of view ``i`` one Gauss-Newton step from the pure-translation solution and ``t_i / 3``
+follows an F(3, dof) distribution under pure translation. A view is flagged when its
+p-value is below ``alpha / (n_views - 1)`` (Bonferroni; ``alpha = 1e-3`` by default), so
+pure-translation data are flagged in about 0.1% of cases.
+
+Why not the Wald test of the fit with a free rotation in *every* view (refine's
+``estimate_view_rotations=True``)? With four views, freeing all the rotations leaves
+``K`` and ``R`` nearly undetermined (the paper's method needs three independent pure
+translations), so those estimates have standard deviations of ~0.5 degrees on the
+paper's scene and their linearised covariance is unreliable: in a Monte-Carlo check it
+flagged 14% of pure-translation data at a nominal 1% and missed most 0.2-degree
+rotations. Testing one view at a time at the well-determined null model keeps the
+other views as the reference, which is what makes a single rotated view detectable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from .camera import distort, project
+from .types import Calibration, DegenerateError, Diagnostic, InputError, LinearEstimate
+from .validate import as_uv_T
+
+__all__ = [
+    "check_translations",
+    "check_null_space",
+    "check_points_behind",
+    "check_views",
+    "check_view_rotations",
+    "view_rotation_test",
+    "check_pose_orientations",
+    "diagnose",
+]
+
+#: Defaults of the thresholds (see each check).
+COPLANAR_RATIO = 0.2
+MIN_PARALLAX_PX = 20.0
+NULL_SPACE_RATIO = 0.05
+MIN_VIEW_POINTS = 6
+VIEW_RESIDUAL_RATIO = 2.0
+ROTATION_ALPHA = 1e-3
+
+
+def _fmt_vec(v) -> str:
+    return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
+
+
+def _list(idx, limit: int = 10) -> str:
+    idx = [int(i) for i in idx]
+    s = ", ".join(map(str, idx[:limit]))
+    return s + (f", ... ({len(idx)} in all)" if len(idx) > limit else "")
+
+
+# ----------------------------------------------------------------------------------------
+# Translations
+# ----------------------------------------------------------------------------------------
+
+
+def check_translations(T, *, focal_px: float | None = None, distance: float | None = None,
+                       coplanar_ratio: float = COPLANAR_RATIO, min_parallax_px: float = MIN_PARALLAX_PX,
+                       unit: str = "units") -> list:
+    """Warn when the translations are nearly coplanar or tiny for the scene distance.
+
+    Parameters
+    ----------
+    T : (n_views, 3) float
+        Robot translations.
+    focal_px : float, optional
+        Focal length in pixels (e.g. ``(fx + fy) / 2``); with ``distance`` enables the
+        parallax check.
+    distance : float, optional
+        Typical distance of the scene from the camera (median depth, units of ``T``).
+    coplanar_ratio : float
+        Warn when ``s3 / s1 < coplanar_ratio``, ``s_k`` the singular values of the
+        centred translations ``T_i - mean(T)``.
+    min_parallax_px : float
+        Warn when the image motion produced by the translations along their weakest
+        direction ``v3``, ``focal_px * extent(T . v3) / distance``, is below this.
+    unit : str
+        Length unit named in the messages.
+
+    Returns
+    -------
+    list of Diagnostic
+        ``translations_coplanar``, ``translations_small``; each suggests moving the robot
+        along ``v3`` (robot axes) and by how much.
+    """
+    T = np.asarray(T, dtype=float)
+    t = T - T.mean(axis=0)
+    _, s, Vt = np.linalg.svd(t, full_matrices=True)
+    s = np.concatenate([s, np.zeros(3 - s.size)])[:3]
+    v3 = Vt[2]
+    v3 = v3 * np.sign(v3[np.argmax(np.abs(v3))])
+    extent = np.ptp(t @ v3)
+    longest = np.ptp(t @ Vt[0])
+    out = []
+    if s[0] > 0 and s[2] < coplanar_ratio * s[0]:
+        out.append(Diagnostic(
+            "translations_coplanar",
+            f"the robot translations nearly lie in a plane (singular values {s[0]:.3g}, {s[1]:.3g}, {s[2]:.3g} "
+            f"{unit}; ratio {s[2] / s[0]:.3f} < {coplanar_ratio}), so K and R are poorly determined. Add views "
+            f"displaced along the robot direction (x, y, z) = {_fmt_vec(v3)}, by about {longest:.3g} {unit} "
+            f"(as far as the widest motion so far)."))
+    if focal_px is not None and distance is not None and distance > 0:
+        parallax = focal_px * extent / distance
+        if parallax < min_parallax_px:
+            need = min_parallax_px * 5 * distance / focal_px
+            out.append(Diagnostic(
+                "translations_small",
+                f"the translations are tiny compared with the scene distance: along their weakest direction "
+                f"(x, y, z) = {_fmt_vec(v3)} they span {extent:.3g} {unit} at a distance of {distance:.3g} {unit}, "
+                f"i.e. only {parallax:.3g} px of image motion, so the estimate is ill-conditioned. Move the robot "
+                f"along that direction by about {need:.3g} {unit} (>= {5 * min_parallax_px:.0f} px of motion), "
+                f"or bring the scene closer."))
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Linear system
+# ----------------------------------------------------------------------------------------
+
+
+def check_null_space(linear: LinearEstimate, *, ratio: float = NULL_SPACE_RATIO) -> list:
+    """Warn when the linear system ``C b = 0`` has a nearly two-dimensional null space.
+
+    Parameters
+    ----------
+    linear : LinearEstimate
+        Its ``singular_values`` ``[sigma_1, sigma_2, ...]`` (ascending): ``sigma_1`` the
+        residual of the TLS solution, ``sigma_2`` that of the best solution with a
+        different ``A``.
+    ratio : float
+        Warn when ``sigma_1 / sigma_2 > ratio``: a second, different ``A`` explains the
+        data almost as well (on healthy data with 0.5-1 px noise the ratio is ~0.002).
+
+    Returns
+    -------
+    list of Diagnostic
+        ``null_space_2d``.
+    """
+    sv = np.asarray(linear.singular_values, dtype=float)
+    if sv.size < 2 or not np.all(np.isfinite(sv[:2])) or sv[1] <= 0:
+        return []
+    r = sv[0] / sv[1]
+    if r <= ratio:
+        return []
+    return [Diagnostic(
+        "null_space_2d",
+        f"the linear system has a nearly two-dimensional null space (sigma_1 / sigma_2 = {r:.3g} > {ratio}): "
+        "a different camera explains the data almost as well, so K and R are not determined. Causes: "
+        "translations nearly coplanar or too short, too few points, points nearly at one depth seen "
+        "under tiny parallax, or mismatched tracks. Add robot motions along a third independent direction, "
+        "track more points spread in depth, or use the robust estimator.")]
+
+
+# ----------------------------------------------------------------------------------------
+# Points and views
+# ----------------------------------------------------------------------------------------
+
+
+def _depths(R, X, T):
+    """Camera z of every point in every view (n_views, n_points)."""
+    return np.einsum("b,vnb->vn", R[2], X[None] - T[:, None])
+
+
+def check_points_behind(uv, T, calibration) -> list:
+    """Warn about reconstructed points behind the camera in a view that sees them.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+    T : (n_views, 3) float
+    calibration : Calibration or LinearEstimate
+        ``R`` and ``X`` (points with non-finite ``X`` are skipped).
+
+    Returns
+    -------
+    list of Diagnostic
+        ``points_behind_camera``.
+    """
+    uv, T = np.asarray(uv, float), np.asarray(T, float)
+    X = np.asarray(calibration.X, float)
+    seen = np.isfinite(uv[..., 0])
+    z = _depths(np.asarray(calibration.R, float), X, T)
+    with np.errstate(invalid="ignore"):
+        behind = np.any(seen & np.isfinite(z) & (z <= 0), axis=0)
+    if not behind.any():
+        return []
+    idx = np.flatnonzero(behind)
+    return [Diagnostic(
+        "points_behind_camera",
+        f"{len(idx)} reconstructed point(s) lie behind the camera in a view that sees them (points {_list(idx)}): "
+        "these tracks are almost certainly mismatches (or the robot moved the other way than the poses "
+        "say). Remove them or run the robust estimator (calibrate(..., robust=True), CLI --robust); check "
+        "the sign convention of the poses if there are many.")]
+
+
+def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINTS,
+                residual_ratio: float = VIEW_RESIDUAL_RATIO, alpha: float = 1e-4) -> list:
+    """Warn about views with very few points and views whose residuals stand out.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        Observations (NaN where unseen).
+    residuals_px : (n_views, n_points, 2) float
+        Residuals of the calibration (NaN where unseen or unused).
+    used : (n_points,) bool, optional
+        Points that count (e.g. the inliers); default: points with finite residuals.
+    min_points : int
+        Warn when a view sees fewer used points than this.
+    residual_ratio : float
+        A view's mean squared residual must exceed this many times that of the other
+        views (practical significance) ...
+    alpha : float
+        ... and the ratio must be significant at this level (F test with the numbers of
+        residuals as degrees of freedom) to be reported.
+
+    Returns
+    -------
+    list of Diagnostic
+        ``view_few_points``, ``view_residuals``.
+    """
+    uv = np.asarray(uv, float)
+    res = np.asarray(residuals_px, float)
+    n_views = uv.shape[0]
+    ok = np.isfinite(res[..., 0]) & np.isfinite(uv[..., 0])
+    if used is not None:
+        ok &= np.asarray(used, bool)[None, :]
+    counts = ok.sum(axis=1)
+    out = []
+    few = np.flatnonzero(counts < min_points)
+    if len(few):
+        detail = ", ".join(f"view {i}: {counts[i]}" for i in few[:10])
+        out.append(Diagnostic(
+            "view_few_points",
+            f"{len(few)} view(s) see very few usable points ({detail}; fewer than {min_points}): they constrain "
+            "the calibration weakly and their errors go unnoticed. Track more points in those views (check the "
+            "scene is in the field of view there) or drop those views."))
+    e2 = np.where(ok, np.sum(np.where(ok[..., None], res, 0.0) ** 2, axis=2), 0.0)
+    sse = e2.sum(axis=1)
+    n_res = 2 * counts
+    flagged = []
+    for i in range(n_views):  # one F test per view (few views)
+        others = np.arange(n_views) != i
+        if n_res[i] < 4 or n_res[others].sum() < 4:
+            continue
+        ms_i = sse[i] / n_res[i]
+        ms_o = sse[others].sum() / n_res[others].sum()
+        if ms_o <= 0:
+            continue
+        f = ms_i / ms_o
+        if f > residual_ratio and stats.f.sf(f, n_res[i], n_res[others].sum()) < alpha:
+            flagged.append((i, np.sqrt(ms_i), np.sqrt(ms_o)))
+    if flagged:
+        detail = ", ".join(f"view {i}: {a:.3g} px vs {b:.3g} px" for i, a, b in flagged)
+        out.append(Diagnostic(
+            "view_residuals",
+            f"the residuals of {len(flagged)} view(s) stand out from the others (RMS per coordinate, {detail}): "
+            "that view's image or pose is inconsistent with the rest. Check its robot pose (typo, wrong "
+            "units, a move that did not finish), whether the robot also rotated there, motion blur or a "
+            "tracking failure in that image; re-take it or drop it."))
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Model violation: a rotation in one view (score test at the pure-translation solution)
+# ----------------------------------------------------------------------------------------
+
+
+def _pixels(K, dist, xc):
+    """Pixels of camera-frame points ``xc`` (..., 3), and distorted normalised coordinates."""
+    xy = xc[..., :2] / xc[..., 2:3]
+    if np.asarray(dist).size:
+        xy = distort(xy, dist)
+    u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
+    v = K[1, 1] * xy[..., 1] + K[1, 2]
+    return np.stack([u, v], axis=-1), xy
+
+
+def _skew_rows(x):
+    """``-[x]_x`` for x (..., 3): the derivative of ``exp([w]x) x`` with respect to w."""
+    Z = np.zeros(x.shape + (3,))
+    Z[..., 0, 1], Z[..., 0, 2] = x[..., 2], -x[..., 1]
+    Z[..., 1, 0], Z[..., 1, 2] = -x[..., 2], x[..., 0]
+    Z[..., 2, 0], Z[..., 2, 1] = x[..., 1], -x[..., 0]
+    return Z
+
+
+def view_rotation_test(uv, T, calibration: Calibration, *, estimate_skew: bool | None = None,
+                       sigma_T=None) -> dict:
+    """Score test of a small camera rotation in each view ``i >= 1`` (module docstring).
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        Observations, NaN where unseen.
+    T : (n_views, 3) float
+        Translations used by the calibration (its ``T`` when refined with ``sigma_T``).
+    calibration : Calibration
+        The pure-translation maximum-likelihood solution (``K``, ``dist``, ``R``, ``X``);
+        points with non-finite ``X`` or outside ``calibration.inliers`` are left out.
+    estimate_skew : bool, optional
+        Whether the skew was a parameter (default: ``calibration.info["estimate_skew"]``).
+    sigma_T : float or (n_views,) float, optional
+        Robot precision when the translations were refined (default:
+        ``calibration.info.get("sigma_T")``); those translations are then nuisance
+        parameters with that prior.
+
+    Returns
+    -------
+    dict
+        ``rotation_deg (n_views, 3)`` one-step rotation estimate per view (rotation vector
+        in the camera frame, degrees; row 0 zero), ``std_deg (n_views, 3)``,
+        ``statistic (n_views,)`` (``t_i``, chi-square with 3 dof asymptotically),
+        ``p_value (n_views,)`` (F(3, dof); NaN for view 0), ``dof``, ``sigma_px``.
+    """
+    uv, T = as_uv_T(uv, T)
+    K, R = np.asarray(calibration.K, float), np.asarray(calibration.R, float)
+    dist = np.asarray(calibration.dist, float)
+    X = np.asarray(calibration.X, float)
+    info = getattr(calibration, "info", {}) or {}
+    if estimate_skew is None:
+        estimate_skew = bool(info.get("estimate_skew", False))
+    if sigma_T is None:
+        sigma_T = info.get("sigma_T")
+    n_views = uv.shape[0]
+    seen = np.isfinite(uv[..., 0])
+    use = np.isfinite(X).all(axis=1) & (seen.sum(axis=0) >= 2)
+    inl = getattr(calibration, "inliers", None)
+    if inl is not None:
+        use &= np.asarray(inl, bool)
+    idx = np.flatnonzero(use)
+    uv, seen, X = uv[:, idx], seen[:, idx], X[idx]
+    n = len(idx)
+    xc = np.einsum("ab,vnb->vna", R, X[None] - T[:, None])  # (V, n, 3)
+    pred, xyd = _pixels(K, dist, xc)
+    r = np.where(seen[..., None], uv - pred, 0.0)
+    w = seen.astype(float)[..., None]  # observation mask as weight
+
+    # d pixel / d camera coordinates, by central differences (any distortion model)
+    Jc = np.empty(xc.shape[:2] + (2, 3))
+    h = 1e-6 * np.linalg.norm(xc, axis=2, keepdims=True)
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1.0
+        Jc[..., k] = (_pixels(K, dist, xc + h * e)[0] - _pixels(K, dist, xc - h * e)[0]) / (2 * h)
+    # global parameters: intrinsics, distortion, R, [translations], view rotations
+    cols = []
+    zeros = np.zeros(xc.shape[:2])
+    ones = np.ones(xc.shape[:2])
+    cols += [np.stack([xyd[..., 0], zeros], -1), np.stack([zeros, xyd[..., 1]], -1),
+             np.stack([ones, zeros], -1), np.stack([zeros, ones], -1)]
+    if estimate_skew:
+        cols.append(np.stack([xyd[..., 1], zeros], -1))
+    for k in range(dist.size):
+        d1, d2 = dist.copy(), dist.copy()
+        step = 1e-6 * max(1.0, abs(dist[k]))
+        d1[k] += step
+        d2[k] -= step
+        cols.append((_pixels(K, d1, xc)[0] - _pixels(K, d2, xc)[0]) / (2 * step))
+    Jrot = np.einsum("vnij,vnjk->vnik", Jc, _skew_rows(xc))  # (V, n, 2, 3)
+    cols += [Jrot[..., k] for k in range(3)]
+    JX = np.einsum("vnij,jk->vnik", Jc, R)  # d pixel / d X_j
+    t_sigma = np.zeros(n_views) if sigma_T is None else np.broadcast_to(np.asarray(sigma_T, float), (n_views,))
+    t_views = np.flatnonzero(t_sigma > 0)
+    for i in t_views:
+        for k in range(3):
+            c = np.zeros(xc.shape[:2] + (2,))
+            c[i] = -JX[i, :, :, k]
+            cols.append(c)
+    n_nuis = len(cols)
+    for i in range(1, n_views):
+        for k in range(3):
+            c = np.zeros(xc.shape[:2] + (2,))
+            c[i] = Jrot[i, :, :, k]
+            cols.append(c)
+    Jg = np.stack(cols, axis=-1) * w[..., None]  # (V, n, 2, p)
+    JX = JX * w[..., None]
+
+    # normal equations, points eliminated by the Schur complement (O(n))
+    U = np.einsum("vnip,vniq->pq", Jg, Jg)
+    b = np.einsum("vnip,vni->p", Jg, r)
+    Wt = np.einsum("vnip,vnik->npk", Jg, JX)  # (n, p, 3)
+    Vj = np.einsum("vnik,vnil->nkl", JX, JX)  # (n, 3, 3)
+    bX = np.einsum("vnik,vni->nk", JX, r)
+    Vinv = np.linalg.inv(Vj)
+    WV = np.einsum("npk,nkl->npl", Wt, Vinv)
+    S = U - np.tensordot(WV, Wt, axes=([0, 2], [0, 2]))
+    bred = b - np.einsum("npl,nl->p", WV, bX)
+    n_obs = int(seen.sum())
+    dof = 2 * n_obs - n_nuis + 3 * len(t_views) - 3 * n
+    sse = float(np.sum(r**2))
+    if dof <= 0:
+        raise DegenerateError("too few observations to test for a rotation between views")
+    sigma2 = sse / dof
+    if len(t_views):  # translation priors, weight sigma^2 / sigma_T^2 (T fixed at their estimate)
+        for m, i in enumerate(t_views):
+            s0 = n_nuis - 3 * len(t_views) + 3 * m
+            S[s0: s0 + 3, s0: s0 + 3] += np.eye(3) * sigma2 / t_sigma[i] ** 2
+
+    rot = np.zeros((n_views, 3))
+    std = np.zeros((n_views, 3))
+    stat = np.full(n_views, np.nan)
+    pval = np.full(n_views, np.nan)
+    eta = np.arange(n_nuis)
+    S_ee_inv = np.linalg.pinv(S[np.ix_(eta, eta)], rcond=1e-13, hermitian=True)
+    for i in range(1, n_views):  # one 3-parameter test per view
+        th = n_nuis + 3 * (i - 1) + np.arange(3)
+        S_te = S[np.ix_(th, eta)]
+        info_i = S[np.ix_(th, th)] - S_te @ S_ee_inv @ S_te.T
+        g = bred[th] - S_te @ S_ee_inv @ bred[eta]
+        try:
+            cov = np.linalg.inv(info_i)
+        except np.linalg.LinAlgError:
+            continue
+        wi = cov @ g
+        stat[i] = float(g @ wi / sigma2)
+        pval[i] = float(stats.f.sf(stat[i] / 3.0, 3, dof))
+        rot[i] = np.degrees(wi)
+        std[i] = np.degrees(np.sqrt(np.maximum(np.diag(cov) * sigma2, 0.0)))
+    return {"rotation_deg": rot, "std_deg": std, "statistic": stat, "p_value": pval, "dof": int(dof),
+            "sigma_px": float(np.sqrt(sigma2))}
+
+
+def check_view_rotations(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA) -> list:
+    """Warn when the camera rotated between views (the pure-translation model is broken).
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+    T : (n_views, 3) float
+    calibration : Calibration
+        A refined (maximum-likelihood) pure-translation calibration; a linear one is
+        refined first.
+    alpha : float
+        Family-wise false-alarm probability on pure-translation data (Bonferroni over the
+        views).
+
+    Returns
+    -------
+    list of Diagnostic
+        ``view_rotation`` naming each significant view with its angle (degrees) and
+        standard deviation.
+    """
+    if getattr(calibration, "cov", None) is None:
+        from .refine import refine  # a linear calibration: take the ML solution first
+
+        calibration = refine(uv, T, calibration, distortion=getattr(calibration, "dist_model", "none"))
+    T_used = calibration.T if getattr(calibration, "T", None) is not None else T
+    res = view_rotation_test(uv, T_used, calibration)
+    n_views = len(res["p_value"])
+    level = alpha / max(1, n_views - 1)
+    bad = [i for i in range(1, n_views) if np.isfinite(res["p_value"][i]) and res["p_value"][i] < level]
+    if not bad:
+        return []
+    parts = []
+    for i in bad:
+        w, s = res["rotation_deg"][i], res["std_deg"][i]
+        ang = np.linalg.norm(w)
+        ang_std = float(np.sqrt(np.sum((w / max(ang, 1e-300)) ** 2 * s**2)))
+        parts.append(f"view {i}: {ang:.3g} deg +- {ang_std:.2g} (p = {res['p_value'][i]:.1e})")
+    return [Diagnostic(
+        "view_rotation",
+        "the camera seems to have rotated between views, which breaks the pure-translation model (view 0 is "
+        f"the reference): {'; '.join(parts)}. The calibration is biased. Make the robot keep the tool "
+        "orientation fixed (command pure Cartesian translations, check the orientation the controller "
+        "reports), check the camera mount is rigid, or drop those views. An unmodelled lens distortion "
+        "can mimic this: try distortion='radial2'.")]
+
+
+# ----------------------------------------------------------------------------------------
+# Robot orientations
+# ----------------------------------------------------------------------------------------
+
+
+def check_pose_orientations(quaternions, tol_deg: float = 0.1) -> list:
+    """Warn when the robot's reported orientation is not constant.
+
+    Parameters
+    ----------
+    quaternions : (n_views, 4) float
+        Tool orientation per view as ``qx, qy, qz, qw`` (any norm; ``q`` and ``-q`` are
+        the same orientation).
+    tol_deg : float
+        Largest acceptable rotation angle from view 0's orientation (degrees).
+
+    Returns
+    -------
+    list of Diagnostic
+        ``pose_orientation`` listing each view beyond ``tol_deg`` with its angle.
+
+    Raises
+    ------
+    InputError
+        Wrong shape, non-finite or zero quaternions.
+    """
+    try:
+        q = np.asarray(quaternions, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError("quaternions must be numbers, one row qx, qy, qz, qw per view") from None
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise InputError(f"quaternions must have shape (n_views, 4) as qx, qy, qz, qw; got shape {q.shape}")
+    if not np.isfinite(q).all():
+        raise InputError("quaternions contain NaN or inf; give the orientation of every pose (or none at all)")
+    norm = np.linalg.norm(q, axis=1)
+    if np.any(norm < 1e-12):
+        raise InputError(f"quaternions of views {np.flatnonzero(norm < 1e-12).tolist()} are zero; "
+                         "each must be a rotation qx, qy, qz, qw")
+    q = q / norm[:, None]
+    c = np.clip(np.abs(q @ q[0]), 0.0, 1.0)
+    s = np.linalg.norm(np.cross(q[:, :3], q[0, :3]) + q[0, 3] * q[:, :3] - q[:, 3:4] * q[0, :3], axis=1)
+    angle = np.degrees(2.0 * np.arctan2(s, c))  # accurate for small angles too
+    bad = np.flatnonzero(angle > tol_deg)
+    if not len(bad):
+        return []
+    detail = ", ".join(f"view {i}: {angle[i]:.3g} deg" for i in bad[:20])
+    return [Diagnostic(
+        "pose_orientation",
+        f"the robot's orientation is not constant: {len(bad)} pose(s) differ from view 0's by more than "
+        f"{tol_deg:g} deg ({detail}). The method assumes pure translations; command the moves with a fixed "
+        "tool orientation, or leave those views out.")]
+
+
+# ----------------------------------------------------------------------------------------
+# Entry point
+# ----------------------------------------------------------------------------------------
+
+
+def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quaternions=None,
+             check_rotation: bool = True, unit: str = "units") -> list:
+    """Run every check on a calibration; an empty list on healthy data.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        The observations the calibration was computed from.
+    T : (n_views, 3) float
+        Measured robot translations.
+    calibration : Calibration (or LinearEstimate)
+        The result to check; its ``inliers`` (if any) select the points that count.
+    linear : LinearEstimate, optional
+        The linear estimate (default ``calibration.linear``) for the null-space check.
+    quaternions : (n_views, 4) float, optional
+        Robot orientations ``qx, qy, qz, qw`` when the poses carry them.
+    check_rotation : bool
+        Run the model-violation (rotation) test; it needs a few refinement-sized passes.
+    unit : str
+        Length unit named in the messages.
+
+    Returns
+    -------
+    list of Diagnostic
+        In the order: translations, null space, points behind, views, rotation, poses.
+    """
+    uv, T = as_uv_T(uv, T)
+    out = []
+    K = np.asarray(calibration.K, float)
+    R = np.asarray(calibration.R, float)
+    X = np.asarray(calibration.X, float)
+    seen = np.isfinite(uv[..., 0])
+    z = _depths(R, X, T)
+    with np.errstate(invalid="ignore"):
+        zs = z[seen & np.isfinite(z) & (z > 0)]
+    distance = float(np.median(zs)) if zs.size else None
+    out += check_translations(T, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=distance, unit=unit)
+    if linear is None:
+        linear = calibration if isinstance(calibration, LinearEstimate) else getattr(calibration, "linear", None)
+    if linear is not None:
+        out += check_null_space(linear)
+    out += check_points_behind(uv, T, calibration)
+    residuals = getattr(calibration, "residuals_px", None)
+    if residuals is not None:
+        out += check_views(uv, residuals, used=getattr(calibration, "inliers", None))
+    if check_rotation and isinstance(calibration, Calibration):
+        try:
+            out += check_view_rotations(uv, T, calibration)
+        except (DegenerateError, np.linalg.LinAlgError):
+            pass  # too little data to test; the other checks say why
+    if quaternions is not None:
+        out += check_pose_orientations(quaternions)
+    return out
