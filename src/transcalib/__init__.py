@@ -14,6 +14,11 @@ from .types import (
     TranscalibError,
 )
 from . import simulate
+from .linear import estimate_linear
+from .pipeline import calibrate
+from .refine import crlb, refine
+from .robust import RobustEstimate, estimate_robust
+from .tracks import Tracks, track
 
 __all__ = [
     "Calibration",
@@ -23,6 +28,14 @@ __all__ = [
     "LinearEstimate",
     "MirroredError",
     "TranscalibError",
+    "RobustEstimate",
+    "Tracks",
+    "calibrate",
+    "crlb",
+    "estimate_linear",
+    "estimate_robust",
+    "refine",
     "simulate",
+    "track",
 ]
 __version__ = "0.1.0"
