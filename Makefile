@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/transcalib calibrate --tracks examples/paper/tracks.csv --poses examples/paper/poses.csv \
-		--unit mm --out out/demo --truth examples/paper/truth.json
+		--unit mm --robot-sigma 0.1 --out out/demo --truth examples/paper/truth.json
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

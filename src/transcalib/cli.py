@@ -61,6 +61,7 @@ def _calibration_json(cal, point_ids, unit: str, views) -> dict:
         "points_std": cal.X_std,
         "inliers": None if cal.inliers is None else cal.inliers.astype(bool),
         "point_rms_px": per_point,
+        "residuals_px": cal.residuals_px,
         "info": {k: v for k, v in cal.info.items()},
     }
     if cal.linear is not None:
