@@ -45,6 +45,7 @@ LOSSES = ("linear", "huber", "cauchy")
 _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 _RAD2DEG = 180.0 / np.pi
 _MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
+_DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see _Data
 
 
 # ----------------------------------------------------------------------------------------
@@ -127,10 +128,14 @@ class _Data:
     """Observations grouped by view: ``pts[i]`` indexes the used points seen in view i."""
 
     pts: list  # of (n_i,) int
-    uv: list  # of (n_i, 2) float
+    uv: list  # of (2, n_i) float
     T_meas: np.ndarray  # (n_views, 3)
     t_weight: np.ndarray  # (n_views,) sigma_px / sigma_T_i for free translations (else 0)
     n_points: int  # used points
+    # Views seeing most points are linearised for *all* used points with weight 0 on the
+    # unseen ones: contiguous arrays instead of a gather/scatter per accumulated quantity.
+    full_uv: list  # of (2, n) float (0 where unseen) or None
+    full_seen: list  # of (n,) bool or None
 
     @property
     def n_obs(self) -> int:
@@ -161,11 +166,13 @@ def _matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 
 
-def _predict_view(state: _State, lay: _Layout, i: int, pts: np.ndarray, jacobian: bool = True):
+def _predict_view(state: _State, lay: _Layout, i: int, pts, jacobian: bool = True, valid=None):
     """Predicted pixels of the used points ``pts`` in view ``i`` and their Jacobians.
 
     Arrays are laid out with the points last, so that every operation below is a
-    vector operation over points.
+    vector operation over points. ``pts`` is an index array or ``slice(None)`` (all);
+    with ``valid`` (n,) bool, the invalid points get depth 1 in the divisions (their
+    values are finite and meaningless: they enter with weight 0).
 
     Returns
     -------
@@ -182,24 +189,32 @@ def _predict_view(state: _State, lay: _Layout, i: int, pts: np.ndarray, jacobian
     y = R @ (state.X[pts] - state.T[i]).T  # (3, n): R (X_j - T_i)
     xc = Q @ y  # camera frame
     z = xc[2]
-    iz = 1.0 / z
+    iz = 1.0 / (z if valid is None else np.where(valid, z, 1.0))
     x, yy = xc[0] * iz, xc[1] * iz
     k1, k2, p1, p2, k3 = state.dist5
-    r2 = x * x + yy * yy
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * yy + p2 * (r2 + 2.0 * x * x)
-    yd = yy * radial + p1 * (r2 + 2.0 * yy * yy) + 2.0 * p2 * x * yy
+    distorted = bool(np.any(state.dist5))
+    if distorted:
+        r2 = x * x + yy * yy
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * yy + p2 * (r2 + 2.0 * x * x)
+        yd = yy * radial + p1 * (r2 + 2.0 * yy * yy) + 2.0 * p2 * x * yy
+    else:  # pinhole: fewer temporaries on the hot path
+        xd, yd = x, yy
     fx, fy, cx, cy, s = state.intr
     pred = np.stack([fx * xd + s * yd + cx, fy * yd + cy])
     if not jacobian:
         return pred, z, None, None
 
-    n = len(pts)
+    n = y.shape[1]
     # d(xd, yd)/d(x, y)
-    dR = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    a11 = radial + 2.0 * x * x * dR + 2.0 * p1 * yy + 6.0 * p2 * x
-    a12 = 2.0 * x * yy * dR + 2.0 * p1 * x + 2.0 * p2 * yy
-    a22 = radial + 2.0 * yy * yy * dR + 6.0 * p1 * yy + 2.0 * p2 * x
+    if distorted:
+        dR = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        a11 = radial + 2.0 * x * x * dR + 2.0 * p1 * yy + 6.0 * p2 * x
+        a12 = 2.0 * x * yy * dR + 2.0 * p1 * x + 2.0 * p2 * yy
+        a22 = radial + 2.0 * yy * yy * dR + 6.0 * p1 * yy + 2.0 * p2 * x
+    else:
+        a11, a12, a22 = 1.0, 0.0, 1.0
+        r2 = x * x + yy * yy  # for the distortion columns (all-zero start)
     # M = [[fx, s], [0, fy]] d(xd, yd)/d(x, y);  P = d pred / d xc = M [[1, 0, -x], [0, 1, -y]] / z
     m11, m12 = fx * a11 + s * a12, fx * a12 + s * a22
     m21, m22 = fy * a12, fy * a22
@@ -303,8 +318,20 @@ def _normal_equations(state, lay, data, loss, c, obs_weight=None):
     for i, pts in enumerate(data.pts):
         if len(pts) == 0:
             continue
-        r, _, Jg, JX = _residual_view(state, lay, data, i, jacobian=True)
-        w = _loss(r[0] ** 2 + r[1] ** 2, loss, c)[1] if obs_weight is None else obs_weight[i]
+        seen = data.full_seen[i]
+        if seen is None:  # gather the seen points (or all are seen)
+            r, _, Jg, JX = _residual_view(state, lay, data, i, jacobian=True)
+            w = _loss(r[0] ** 2 + r[1] ** 2, loss, c)[1] if obs_weight is None else obs_weight[i]
+        else:  # all used points, weight 0 where unseen
+            pred, _, Jg, JX = _predict_view(state, lay, i, slice(None), True, valid=seen)
+            r = data.full_uv[i] - pred
+            if obs_weight is None:
+                w = _loss(r[0] ** 2 + r[1] ** 2, loss, c)[1] * seen
+            else:
+                w = np.zeros(n)
+                w[pts] = obs_weight[i]
+            r = r * seen
+            pts = np.arange(n)
         cols = lay.view_columns(i)
         q = len(cols)
         Jw = Jg * w
@@ -538,7 +565,21 @@ def _build_data(uv, seen, used_idx, T_meas, t_weight):
         sel = np.flatnonzero(seen[i, used_idx])
         pts.append(sel)
         obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
-    return _Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=len(used_idx))
+    n = len(used_idx)
+    full_uv, full_seen = [], []
+    for i, sel in enumerate(pts):
+        if _DENSE_FRACTION * n <= len(sel) < n:
+            f = np.zeros((2, n))
+            f[:, sel] = obs[i]
+            mask = np.zeros(n, bool)
+            mask[sel] = True
+            full_uv.append(f)
+            full_seen.append(mask)
+        else:
+            full_uv.append(None)
+            full_seen.append(None)
+    return _Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=n, full_uv=full_uv,
+                 full_seen=full_seen)
 
 
 def _covariance(state, lay, data, obs_weight):
