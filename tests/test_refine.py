@@ -452,3 +452,36 @@ def test_sigma_T_forms_and_skew_from_linear_start():
     assert abs(a.K[0, 1] - 2.0) < 4 * a.std["skew"]
     c = refine(scene.uv, scene.T, start, sigma_T=np.array([0.0, 0.5, 0.5, 0.5, 0.5]))
     assert "T0_x" not in c.std and np.array_equal(c.T[0], scene.T[0])
+
+
+def test_dense_and_gathered_linearisation_agree(monkeypatch):
+    """Views seeing most points are linearised densely with zero weights: same result."""
+    import sys
+
+    refine_module = sys.modules["transcalib.refine"]  # the package re-exports the function
+    scene = simulate.random_scene(120, 5, noise_px=0.5, missing=0.2, dist=(-0.1, 0.02), rng=23)
+    start = perturbed_start(scene, 24)
+    dense = refine(scene.uv, scene.T, start, distortion="radial2", loss="huber")
+    monkeypatch.setattr(refine_module, "_DENSE_FRACTION", 2.0)  # never dense
+    gathered = refine(scene.uv, scene.T, start, distortion="radial2", loss="huber")
+    assert np.allclose(dense.K, gathered.K, rtol=1e-12, atol=1e-9)
+    assert np.allclose(dense.cov, gathered.cov, rtol=1e-8)
+    assert np.allclose(dense.X_std, gathered.X_std, rtol=1e-8, equal_nan=True)
+
+
+def test_jacobian_of_zero_distortion_matches_finite_differences():
+    """The pinhole fast path (all coefficients zero) still differentiates the distortion."""
+    scene = simulate.random_scene(20, 4, rng=25)
+    lay = _Layout(4, 5, False, False, np.zeros(4, bool))
+    K = scene.K
+    state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0.0]), np.zeros(5), scene.R.copy(),
+                   np.tile(np.eye(3), (4, 1, 1)), scene.T_true.copy(), scene.X.copy())
+    pts = np.arange(scene.n_points)
+    _, _, Jg, _ = _predict_view(state, lay, 1, pts)
+    for c in range(5):
+        dg = np.zeros(lay.size)
+        dg[lay.i_dist + c] = 1e-7
+        zero = np.zeros((3, len(pts)))
+        fd = (_predict_view(_apply_step(state, lay, dg, zero), lay, 1, pts, False)[0]
+              - _predict_view(_apply_step(state, lay, -dg, zero), lay, 1, pts, False)[0]) / 2e-7
+        assert np.abs(Jg[lay.i_dist + c] - fd).max() < 1e-5 * max(np.abs(fd).max(), 1.0)
