@@ -132,3 +132,15 @@ def test_blank_images_are_degenerate():
     imgs = [np.full((120, 160), 100, np.uint8) for _ in range(4)]
     with pytest.raises(DegenerateError, match="textured"):
         tracks.track(imgs)
+
+
+def test_lens_distortion_keeps_the_periphery():
+    # distortion bends epipolar lines; tracks near the borders (the ones that determine
+    # the distortion) must survive the geometric checks
+    dist = [-0.2, 0.04, 0.0, 0.0]
+    r = render.render_scene("natural", n_views=4, image_size=(480, 360), dist=dist, rng=5)
+    tr = tracks.track(r.images)
+    _check(track_errors(r, tr), 0.1, 0.2)
+    p = tr.uv[0][np.isfinite(tr.uv[0, :, 0])]
+    corner_dist = np.linalg.norm((p - [240, 180]) / [240, 180], axis=1)
+    assert np.sum(corner_dist > 1.0) >= 20  # many tracks in the image corners

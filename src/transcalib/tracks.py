@@ -217,7 +217,8 @@ def _fit_epipole(x, y, scale):
     return e / np.linalg.norm(e)
 
 
-def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, iterations: int = 400, rng=None):
+def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, iterations: int = 400, rng=None,
+                   detrend: bool = False):
     """Epipole of a pure translation from correspondences ``x -> y`` (2-point RANSAC).
 
     Parameters
@@ -228,6 +229,10 @@ def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, i
         Inlier distance of ``y`` from the epipolar line through ``x``.
     iterations : int
     rng : seed or Generator
+    detrend : bool
+        Measure each match's epipolar distance against the local trend of its
+        neighbours' (smooth deviations from straight epipolar lines come from lens
+        distortion; mismatches deviate alone).
 
     Returns
     -------
@@ -288,7 +293,32 @@ def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, i
             e = e_new if np.sum(r_new > 0) >= np.sum(r_new < 0) else -e_new
     dist, rho = _epi_residual(e, x, y)
     inl = (dist < threshold_px) & ((rho > 0) | ~moving)
+    if detrend and inl.sum() >= 12:
+        # lens distortion bends epipolar lines smoothly: judge each match against the
+        # local trend of its neighbours' signed residuals, not against the straight line
+        for _ in range(2):
+            dev = _detrended(x, _epi_signed(e, x, y), inl)
+            inl = (dev < threshold_px) & ((rho > 0) | ~moving)
     return e, inl, rho
+
+
+def _epi_signed(e, x, y):
+    """Signed distance (px) of ``y`` from the epipolar line through ``x``."""
+    d = _direction(e, x)
+    disp = y - x
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = (d[:, 0] * disp[:, 1] - d[:, 1] * disp[:, 0]) / np.linalg.norm(d, axis=1)
+    return np.where(np.linalg.norm(disp, axis=1) < 0.5, 0.0, r)
+
+
+def _detrended(x, r, trusted, k=10):
+    """``|r - trend|``: ``trend`` a local linear fit to the ``trusted`` points' values
+    ``r`` near each point (itself excluded)."""
+    sel = trusted & np.isfinite(r)
+    if sel.sum() < 4:
+        return np.abs(r)
+    trend = _local_rho_linear(x[sel], r[sel], x, k=k)
+    return np.nan_to_num(np.abs(r - trend), nan=np.inf)
 
 
 # --------------------------------------------------------------------------- detection
@@ -457,8 +487,13 @@ def _guided_once(ci, cj, e, xi, xj, threshold_px):
     ok = okj & oki[njc] & (ni[njc] == a)
     pairs = np.column_stack([a[ok], nj[ok]])
     if len(pairs):
-        dist, rho = _epi_residual(e, ci[pairs[:, 0]], cj[pairs[:, 1]])
-        pairs = pairs[(dist < threshold_px) & (rho > -1e-3)]
+        mi, mj = ci[pairs[:, 0]], cj[pairs[:, 1]]
+        _, rho = _epi_residual(e, mi, mj)
+        allx = np.vstack([xi, mi])
+        r = np.r_[_epi_signed(e, xi, xj), _epi_signed(e, mi, mj)]
+        trusted = np.r_[np.ones(len(xi), bool), np.zeros(len(mi), bool)]
+        dev = _detrended(allx, r, trusted)[len(xi):]
+        pairs = pairs[(dev < threshold_px) & (rho > -1e-3)]
     return pairs
 
 
@@ -681,7 +716,7 @@ def track(
     for k, (i, j) in enumerate(pairs):
         m = raw[(i, j)]
         xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
-        e, inl, _ = epipole_ransac(xi, xj, threshold_px=threshold_px, rng=rng)
+        e, inl, _ = epipole_ransac(xi, xj, threshold_px=threshold_px, rng=rng, detrend=True)
         found[(i, j)] = (e, inl)
         if e is None and len(m) and np.median(np.linalg.norm(xj - xi, axis=1)) < 0.5:
             edges.append(np.column_stack([offsets[i] + m[:, 0], offsets[j] + m[:, 1]]))  # no motion
@@ -1015,7 +1050,11 @@ def _multiview_check(uv, epi, thr_px, passes=3):
                     qh = s[j] * w
                     rho_h = 1.0 / (1.0 / qh - E[j][2])
                 pred = xr + rho_h[:, None] * _direction(E[j], xr)
-                res[j] = np.where(np.isfinite(q[j]), np.linalg.norm(pred - out[j, sel], axis=1), 0.0)
+                R = pred - out[j, sel]
+                fin = np.isfinite(R).all(1)
+                if fin.sum() >= 12:  # remove the smooth part (lens distortion), keep isolated misfits
+                    R = R - np.column_stack([_local_rho_linear(xr[fin], R[fin, c], xr, k=10) for c in range(2)])
+                res[j] = np.where(np.isfinite(q[j]), np.linalg.norm(R, axis=1), 0.0)
             res = np.nan_to_num(res, nan=0.0)
             worst = np.argmax(res, axis=0)
             bad = res[worst, np.arange(len(sel))] > thr_px
@@ -1039,7 +1078,7 @@ def _final_check(uv, n, thr, rng):
             both = seen[i] & seen[j]
             if both.sum() < 8:
                 continue
-            e, inl, _ = epipole_ransac(uv[i, both], uv[j, both], threshold_px=thr, rng=rng)
+            e, inl, _ = epipole_ransac(uv[i, both], uv[j, both], threshold_px=thr, rng=rng, detrend=True)
             if e is None:
                 continue
             epi[(i, j)] = e
