@@ -83,7 +83,7 @@ def _normalise(uv: np.ndarray, T: np.ndarray) -> _Normalised:
 # --------------------------------------------------------------------------------------
 
 #: Points per chunk in the O(n) passes: keeps temporaries in cache.
-_CHUNK = 4096
+_CHUNK = 16384
 
 
 class _Arrowhead:
