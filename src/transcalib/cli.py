@@ -129,11 +129,9 @@ def cmd_calibrate(args) -> int:
     poses = tio.read_poses(args.poses)
     out = Path(args.out)
     if args.images:
-        from .tracks import track
-
         images = _order_images(args.images, poses)
         log(f"tracking {len(images)} images ...")
-        tracks = track(images, method=args.target or "auto", progress=(None if args.quiet else _progress_printer()))
+        tracks = _track_images(images, args.target, args.quiet)
         uv, point_ids = tracks.uv, [str(i) for i in tracks.ids]
         if uv.shape[0] != len(poses.views):
             raise TranscalibError(f"{uv.shape[0]} images but {len(poses.views)} poses; give one pose per image")
@@ -170,9 +168,23 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _track_images(images, target: str | None, quiet: bool):
+    """Tracks from images: ``target="squares"`` finds the corners of dark squares."""
+    progress = None if quiet else _progress_printer()
+    if target == "squares":
+        from .target import track_squares
+
+        return track_squares(images, progress=progress)
+    from .tracks import track
+
+    return track(images, progress=progress)
+
+
 def _progress_printer():
+    """Progress of the image front-end on stderr, about four lines per stage."""
     def show(stage: str, done: int, total: int) -> None:
-        print(f"  {stage}: {done}/{total}", file=sys.stderr, flush=True)
+        if done == total or done % max(1, total // 4) == 0:
+            print(f"  tracking, {stage}: {done}/{total}", file=sys.stderr, flush=True)
 
     return show
 
@@ -219,9 +231,7 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_track(args) -> int:
-    from .tracks import track
-
-    tracks = track(args.images, method=args.target or "auto", progress=None if args.quiet else _progress_printer())
+    tracks = _track_images(args.images, args.target, args.quiet)
     tio.write_tracks_csv(args.output, tracks.uv, [str(i) for i in tracks.ids])
     n_obs = int(np.isfinite(tracks.uv[..., 0]).sum())
     print(f"Wrote {args.output}: {tracks.uv.shape[1]} tracks, {n_obs} observations in {tracks.uv.shape[0]} views")
