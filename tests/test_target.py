@@ -47,3 +47,14 @@ def test_blank_images_raise_degenerate():
 def test_single_image_is_input_error():
     with pytest.raises(InputError):
         target.track_squares([np.zeros((50, 50), np.uint8)])
+
+
+def test_uneven_lighting_and_dark_background():
+    r = render.render_scene("board", n_views=4, image_size=(640, 480), rng=6)
+    h, w = r.images.shape[1:]
+    light = 0.35 + 0.9 * np.linspace(0, 1, w)[None, :] * np.linspace(1, 0.6, h)[:, None]
+    imgs = np.clip(r.images * light[None], 0, 255).astype(np.uint8)
+    tr = target.track_squares(imgs)
+    assert tr.n_points == 24
+    e = _errors(r, tr)
+    assert np.median(e) <= 0.1, np.median(e)

@@ -133,7 +133,42 @@ def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5) 
         raise InputError(f"detect_squares: expected a grey (h, w) image, got shape {img.shape}")
     u8 = np.clip(np.rint(cv2.GaussianBlur(img, (0, 0), 1.0)), 0, 255).astype(np.uint8)
     _, dark = cv2.threshold(u8, 0, 255, cv2.THRESH_BINARY_INV + cv2.THRESH_OTSU)
-    contours, _ = cv2.findContours(dark, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    # a local threshold as well, for uneven lighting (a global one can merge the squares
+    # with a dark background); candidates of both are pooled and de-duplicated
+    block = max(15, (min(img.shape) // 6) | 1)
+    dark_local = cv2.adaptiveThreshold(u8, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 15)
+    quads = []
+    for mask in (dark, dark_local):
+        quads += _quads_from_mask(mask, min_side_px)
+    if quads:
+        c = np.array([q.mean(0) for q in quads])
+        size = np.array([np.linalg.norm(q[0] - q[2]) for q in quads])
+        keep = []
+        for k in range(len(quads)):  # few candidates
+            if all(np.linalg.norm(c[k] - c[m]) > 0.3 * size[k] for m in keep):
+                keep.append(k)
+        quads = [quads[k] for k in keep]
+    if not quads:
+        return np.zeros((0, 4, 2))
+    q = _order_corners(np.array(quads))
+    q = q[_isolated_dark(img, q)]
+    if len(q) == 0:
+        return np.zeros((0, 4, 2))
+    # a slight symmetric blur makes sharp edges smooth enough for bicubic profiles (no bias)
+    lines, rms, nfound = _side_lines(cv2.GaussianBlur(img, (0, 0), 1.0), q)
+    ok = np.all(rms < max_rms_px, axis=1) & np.all(nfound >= 8, axis=1)
+    # corners: intersection of side k-1 and side k
+    prev = np.roll(lines, 1, axis=1)
+    X = np.cross(prev, lines)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corners = X[..., :2] / X[..., 2:3]
+    ok &= np.all(np.isfinite(corners), axis=(1, 2)) & np.all(np.linalg.norm(corners - q, axis=-1) < 3.0, axis=1)
+    return corners[ok]
+
+
+def _quads_from_mask(mask, min_side_px):
+    """Convex quadrilateral blobs of a binary mask: list of (4, 2) corner arrays."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     quads = []
     for cnt in contours:  # one per blob: few, not a per-point hot path
         area = cv2.contourArea(cnt)
@@ -151,22 +186,7 @@ def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5) 
         if sides.min() < min_side_px or sides.min() < 0.25 * sides.max():
             continue
         quads.append(q)
-    if not quads:
-        return np.zeros((0, 4, 2))
-    q = _order_corners(np.array(quads))
-    q = q[_isolated_dark(img, q)]
-    if len(q) == 0:
-        return np.zeros((0, 4, 2))
-    # a slight symmetric blur makes sharp edges smooth enough for bicubic profiles (no bias)
-    lines, rms, nfound = _side_lines(cv2.GaussianBlur(img, (0, 0), 1.0), q)
-    ok = np.all(rms < max_rms_px, axis=1) & np.all(nfound >= 8, axis=1)
-    # corners: intersection of side k-1 and side k
-    prev = np.roll(lines, 1, axis=1)
-    X = np.cross(prev, lines)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        corners = X[..., :2] / X[..., 2:3]
-    ok &= np.all(np.isfinite(corners), axis=(1, 2)) & np.all(np.linalg.norm(corners - q, axis=-1) < 3.0, axis=1)
-    return corners[ok]
+    return quads
 
 
 def _isolated_dark(img, q, min_contrast=30.0):
