@@ -340,26 +340,43 @@ def test_view_rotation_noise_free_exact():
     assert rel(cal.K, scene.K) < 1e-9
 
 
-@pytest.mark.parametrize("preset", ["paper", "random"])
-def test_view_rotation_recovered_within_std(preset):
-    """One view rotated by 0.2 deg, 0.5 px noise: recovered within its std (Monte-Carlo z-scores)."""
+@pytest.mark.parametrize("preset,views,noise_px,z_max", [
+    ("paper", True, 0.5, 1.35), ("random", True, 0.5, 1.35),
+    # one rotated view on the paper preset at 0.5 px is in the nonlinear regime (fx std 33
+    # px vs 27 predicted): the linearised std is ~30 % low; at 0.1 px it is exact
+    ("paper", [2], 0.5, 1.6), ("paper", [2], 0.1, 1.25)])
+def test_view_rotation_recovered_within_std(preset, views, noise_px, z_max):
+    """One view rotated by 0.2 deg: recovered within its std (Monte-Carlo z-scores)."""
     base = simulate.paper_scene() if preset == "paper" else simulate.random_scene(100, 4, rng=18)
     truth = np.zeros((base.n_views, 3))
     truth[2] = [0.2, 0.0, 0.0]
-    z, angle_z = [], []
+    rotated = list(range(1, base.n_views)) if views is True else views
+    z = []
     rng = np.random.default_rng(19)
     for _ in range(60):
-        uv = _rotated_view_uv(base, 2, truth[2]) + rng.normal(0, 0.5, base.uv.shape)
-        cal = refine(uv, base.T, linear_start(base, uv), estimate_view_rotations=True)
+        uv = _rotated_view_uv(base, 2, truth[2]) + rng.normal(0, noise_px, base.uv.shape)
+        cal = refine(uv, base.T, linear_start(base, uv), estimate_view_rotations=views)
         est, std = cal.info["view_rotations_deg"], cal.info["view_rotations_std_deg"]
-        z.append((est[1:] - truth[1:]) / std[1:])
+        z.append((est[rotated] - truth[rotated]) / std[rotated])
+        assert np.all(est[[v for v in range(base.n_views) if v not in rotated]] == 0)
     z = np.array(z)
-    bound = crlb(replace(base, noise_px=0.5), estimate_view_rotations=True)
+    bound = crlb(replace(base, noise_px=noise_px), estimate_view_rotations=views)
     assert np.allclose([bound[f"view2_r{a}"] for a in "xyz"], std[2], rtol=0.2)
     assert np.all(np.abs(z.mean(axis=0)) < 0.6), z.mean(axis=0)
-    assert np.all((z.std(axis=0) > 0.7) & (z.std(axis=0) < 1.35)), z.std(axis=0)
+    assert np.all((z.std(axis=0) > 0.7) & (z.std(axis=0) < z_max)), z.std(axis=0)
     if preset == "random":  # a 3-D scene: 0.2 deg is clearly significant
-        assert np.mean(np.abs(z[:, 1, 0] + 0.2 / std[2, 0]) > 3) > 0.9
+        significant = np.abs(z[:, rotated.index(2), 0] + 0.2 / std[2, 0]) > 3
+        assert np.mean(significant) > 0.9
+
+
+def test_view_rotation_spec_errors():
+    scene = simulate.paper_scene(noise_px=0.5, rng=0)
+    start = perturbed_start(scene, 0)
+    for bad in ([0, 1, 2, 3], [4], "all"):
+        with pytest.raises(InputError, match="estimate_view_rotations"):
+            refine(scene.uv, scene.T, start, estimate_view_rotations=bad)
+    cal = refine(scene.uv, scene.T, start, estimate_view_rotations=[0])  # view 0 rotated, others reference
+    assert "view0_rx" in cal.std and "view1_rx" not in cal.std
 
 
 # ---------------------------------------------------------------------------- interface

@@ -60,7 +60,7 @@ class _Layout:
     n_views: int
     n_dist: int
     estimate_skew: bool
-    view_rotations: bool
+    view_rotations: object  # True (views 1..), False, or a sequence of rotated views
     t_free: np.ndarray  # (n_views,) bool: translation i is a parameter
 
     def __post_init__(self):
@@ -69,11 +69,11 @@ class _Layout:
         self.i_rot = self.i_dist + self.n_dist
         self.n_common = self.i_rot + 3
         start = self.n_common
+        self.view_rotations = _rotated_views(self.view_rotations, self.n_views)
         self.i_vrot = {}
-        if self.view_rotations:
-            for i in range(1, self.n_views):
-                self.i_vrot[i] = start
-                start += 3
+        for i in self.view_rotations:
+            self.i_vrot[i] = start
+            start += 3
         self.i_T = {}
         for i in np.flatnonzero(self.t_free):
             self.i_T[int(i)] = start
@@ -106,6 +106,24 @@ class _Layout:
         for s in self.i_vrot.values():
             m[s: s + 3] = True
         return m
+
+
+def _rotated_views(spec, n_views: int) -> tuple:
+    """Views with a rotation parameter: ``True`` -> 1..n_views-1, ``False`` -> none, or
+    the given view indices (at least one view must stay unrotated, as the reference)."""
+    if spec is True:
+        return tuple(range(1, n_views))
+    if spec is False or spec is None:
+        return ()
+    try:
+        views = sorted({int(v) for v in spec})
+    except (TypeError, ValueError):
+        raise InputError(f"estimate_view_rotations must be a bool or a sequence of view indices, got {spec!r}") \
+            from None
+    if any(v < 0 or v >= n_views for v in views) or len(views) >= n_views:
+        raise InputError(f"estimate_view_rotations={spec!r}: view indices must be in 0..{n_views - 1} and at "
+                         "least one view must stay unrotated (the reference)")
+    return tuple(views)
 
 
 @dataclass
@@ -636,7 +654,7 @@ def refine(
     sigma_px: float | None = None,
     max_iterations: int = 100,
     tol: float = 1e-6,
-    estimate_view_rotations: bool = False,
+    estimate_view_rotations=False,
     progress=None,
 ) -> Calibration:
     """Maximum-likelihood refinement of a calibration (sparse bundle adjustment).
@@ -687,11 +705,13 @@ def refine(
         Stop when an accepted step decreases the cost by less than ``tol * sigma^2`` with
         ``sigma^2 = 2 cost / dof``, i.e. when the parameters moved by less than about
         ``sqrt(2 tol)`` of their standard deviations (or the residuals are zero).
-    estimate_view_rotations : bool
-        Add a rotation ``Q_i = exp([w_i]x)`` per view ``i >= 1`` (camera rotation
-        ``R_i = Q_i R``), to detect a robot that rotated; reported in
+    estimate_view_rotations : bool or sequence of int
+        Add a rotation ``Q_i = exp([w_i]x)`` per view ``i >= 1`` (``True``) or per listed
+        view (camera rotation ``R_i = Q_i R``; the other views are the reference), to
+        detect a robot that rotated. Freeing every view leaves K poorly determined with 4
+        views; testing one view at a time (``[i]``) is far more sensitive. Reported in
         ``info["view_rotations_deg"]`` (n_views, 3) (rotation vectors in the camera frame,
-        row 0 zero), ``info["view_rotations_std_deg"]`` (n_views, 3) and
+        zero rows for unrotated views), ``info["view_rotations_std_deg"]`` (n_views, 3) and
         ``info["view_rotations_chi2"]`` (n_views,): ``w_i^T cov(w_i)^-1 w_i``, chi-square
         with 3 degrees of freedom when view i did not rotate (e.g. > 11.34: p < 0.01).
     progress : callable, optional
@@ -747,7 +767,7 @@ def refine(
         t_sigma = np.zeros(n_views)
     else:
         t_sigma = np.broadcast_to(np.asarray(sigma_T, dtype=float), (n_views,)).copy()
-    lay = _Layout(n_views, n_dist, bool(estimate_skew), bool(estimate_view_rotations), t_sigma > 0)
+    lay = _Layout(n_views, n_dist, bool(estimate_skew), estimate_view_rotations, t_sigma > 0)
     n_global_no_T = lay.size - 3 * len(lay.i_T)
     n_obs = int(seen[:, used_idx].sum())
     dof = 2 * n_obs - n_global_no_T - 3 * len(used_idx)
@@ -835,7 +855,7 @@ def refine(
         "inlier_threshold_px": thr if loss != "linear" else None,
         "time_s": time.perf_counter() - t_start,
     }
-    if estimate_view_rotations:
+    if lay.view_rotations:
         view_rot = np.zeros((n_views, 3))
         view_rot_std = np.zeros((n_views, 3))
         for i, s in lay.i_vrot.items():
@@ -950,7 +970,7 @@ def _sum_sq(state, lay, data, loss="linear", thr=np.inf) -> float:
 
 
 def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False,
-         estimate_view_rotations: bool = False) -> dict:
+         estimate_view_rotations=False) -> dict:
     """Cramér-Rao lower bound on the parameter standard deviations of a simulated scene.
 
     The Fisher information ``J^T J / noise_px^2`` (plus ``1 / robot_noise^2`` on the
@@ -967,8 +987,8 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False,
         Model whose parameters are bounded; default from the number of true coefficients.
     estimate_skew : bool
         Include the skew as a parameter.
-    estimate_view_rotations : bool
-        Include a rotation per view ``i >= 1`` (as :func:`refine`), at zero: the bound on
+    estimate_view_rotations : bool or sequence of int
+        Include a rotation per view ``i >= 1`` or per listed view (as :func:`refine`), at zero: the bound on
         how well a robot rotation could be detected (``view{i}_rx`` ..., degrees).
 
     Returns
@@ -990,7 +1010,7 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False,
     t_sigma = np.zeros(n_views)
     if scene.robot_noise > 0:
         t_sigma[1:] = scene.robot_noise
-    lay = _Layout(n_views, DIST_MODELS[distortion], bool(estimate_skew), bool(estimate_view_rotations), t_sigma > 0)
+    lay = _Layout(n_views, DIST_MODELS[distortion], bool(estimate_skew), estimate_view_rotations, t_sigma > 0)
     K = scene.K
     state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]),
                    _initial_dist(scene, DIST_MODELS[distortion]), scene.R.copy(),
