@@ -75,7 +75,7 @@ def _fmt_param(cal, name: str, value: float, unit: str = "") -> str:
     return f"{name:>5} = {value:12.4f}{pm}{unit}"
 
 
-def _summary(cal, unit: str, truth: dict | None) -> str:
+def _summary(cal, unit: str, truth: dict | None, point_ids: list) -> str:
     K = cal.K
     values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1]}
     true_vals = None
@@ -108,10 +108,11 @@ def _summary(cal, unit: str, truth: dict | None) -> str:
     lines.append(f"Reprojection RMS: {cal.rms_px:.4f} px; {n_rec} points reconstructed [{unit}]")
     if cal.inliers is not None:
         lines.append(f"Inliers: {int(cal.inliers.sum())} of {cal.n_points} points")
-    if truth is not None and "points" in truth:
+    if truth is not None and "points" in truth and point_ids and all(str(p).isdigit() for p in point_ids):
         Xt = np.asarray(truth["points"], float)
-        if Xt.shape == cal.X.shape:
-            err = np.linalg.norm(cal.X - Xt, axis=1)
+        idx = np.array([int(p) for p in point_ids])
+        if idx.size and idx.max() < len(Xt):  # simulated ids index the true points
+            err = np.linalg.norm(cal.X - Xt[idx], axis=1)
             lines.append(f"Point error vs truth: median {np.nanmedian(err):.4g} {unit}, max {np.nanmax(err):.4g} {unit}")
     if cal.diagnostics:
         lines.append("Warnings:")
@@ -162,7 +163,8 @@ def cmd_calibrate(args) -> int:
     truth = json.loads(Path(args.truth).read_text()) if args.truth else None
     tio.write_json(out / "calibration.json", _calibration_json(cal, point_ids, args.unit, poses.views))
     tio.write_points_csv(out / "points.csv", point_ids, cal.X, cal.X_std, cal.inliers)
-    print(_summary(cal, args.unit, truth))
+    # simulated tracks carry the true point indices as ids; image tracks do not
+    print(_summary(cal, args.unit, truth, point_ids if args.tracks else []))
     print(f"\nWrote {out / 'calibration.json'} and {out / 'points.csv'}" + (f" and {out / 'tracks.csv'}" if args.images else "")
           + f" in {time.perf_counter() - t_start:.2f} s")
     return 0

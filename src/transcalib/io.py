@@ -263,14 +263,15 @@ def write_points_csv(path, point_ids, X: np.ndarray, X_std: np.ndarray | None = 
 
 
 def write_tracks_csv(path, uv: np.ndarray, point_ids=None, view_ids=None) -> None:
-    """Write ``view,point,u,v`` for every finite observation of ``uv (n_views, n_points, 2)``."""
+    """Write ``view,point,u,v`` for every finite observation of ``uv (n_views, n_points, 2)``,
+    grouped by point (so that the points read back in the same order)."""
     n_views, n_points = uv.shape[:2]
     point_ids = list(range(n_points)) if point_ids is None else list(point_ids)
     view_ids = list(range(n_views)) if view_ids is None else list(view_ids)
     with atomic_write(path, newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["view", "point", "u", "v"])
-        for i, j in np.argwhere(np.isfinite(uv[..., 0])):
+        for j, i in np.argwhere(np.isfinite(uv[..., 0]).T):
             w.writerow([view_ids[i], point_ids[j], repr(float(uv[i, j, 0])), repr(float(uv[i, j, 1]))])
 
 
