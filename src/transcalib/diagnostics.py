@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import stats
+from scipy.spatial.transform import Rotation
 
 from .camera import distort, project
 from .types import Calibration, DegenerateError, Diagnostic, InputError, LinearEstimate
@@ -320,140 +321,293 @@ def _skew_rows(x):
     return Z
 
 
-def view_rotation_test(uv, T, calibration: Calibration, *, estimate_skew: bool | None = None,
-                       sigma_T=None) -> dict:
-    """Score test of a small camera rotation in each view ``i >= 1`` (module docstring).
+class _RotationModel:
+    """The pure-translation model plus a rotation ``Q_i`` of selected views, with the
+    Gauss-Newton normal equations reduced over the points (Schur complement, O(n)).
+
+    Predicted pixel: ``pi(K, dist, Q_i R (X_j - T_i))``. Parameters: intrinsics
+    (``fx, fy, cx, cy[, skew]``), distortion, ``R`` (local ``R <- exp([w]x) R``), the
+    translations of views with a prior ``sigma_T`` (weight ``sigma_px^2 / sigma_T^2``),
+    the points, and ``w_i`` (``Q_i <- exp([w_i]x) Q_i``) of the selected views.
+    """
+
+    def __init__(self, uv, T, K, dist, R, X, estimate_skew, t_sigma, sigma_px):
+        self.uv = uv
+        self.seen = np.isfinite(uv[..., 0])
+        self.uv0 = np.where(self.seen[..., None], uv, 0.0)
+        self.T_meas = T
+        self.skew = bool(estimate_skew)
+        self.t_views = np.flatnonzero(t_sigma > 0)
+        self.t_weight = (sigma_px / t_sigma[self.t_views]) ** 2 if len(self.t_views) else np.zeros(0)
+        self.n_dist = dist.size
+        self.n_intr = 5 if self.skew else 4
+        self.n_nuis = self.n_intr + self.n_dist + 3 + 3 * len(self.t_views)
+        V, n = self.seen.shape
+        self.state0 = {"intr": np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), "dist": dist.copy(),
+                       "R": R.copy(), "X": X.copy(), "T": T.copy(), "Q": np.tile(np.eye(3), (V, 1, 1))}
+
+    @staticmethod
+    def _K(intr):
+        return np.array([[intr[0], intr[4], intr[2]], [0.0, intr[1], intr[3]], [0.0, 0.0, 1.0]])
+
+    def residuals(self, st):
+        y = np.einsum("ab,vnb->vna", st["R"], st["X"][None] - st["T"][:, None])
+        xc = np.einsum("vab,vnb->vna", st["Q"], y)
+        pred, xyd = _pixels(self._K(st["intr"]), st["dist"], xc)
+        r = np.where(self.seen[..., None], self.uv0 - pred, 0.0)
+        sse = float(np.sum(r**2))
+        if len(self.t_views):
+            dT = self.T_meas[self.t_views] - st["T"][self.t_views]
+            sse += float(np.sum(self.t_weight[:, None] * dT**2))
+        return r, sse, y, xc, xyd
+
+    def normal(self, st, views):
+        """Reduced normal equations for the global parameters (nuisance, then ``w_i`` of
+        ``views``): ``S``, ``b`` and the pieces to back-substitute the points."""
+        K = self._K(st["intr"])
+        dist = st["dist"]
+        r, sse, y, xc, xyd = self.residuals(st)
+        shape = xc.shape[:2]
+        Jc = np.empty(shape + (2, 3))  # d pixel / d camera coordinates (central differences)
+        h = 1e-6 * np.linalg.norm(xc, axis=2, keepdims=True)
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = 1.0
+            Jc[..., k] = (_pixels(K, dist, xc + h * e)[0] - _pixels(K, dist, xc - h * e)[0]) / (2 * h)
+        zeros, ones = np.zeros(shape), np.ones(shape)
+        cols = [np.stack([xyd[..., 0], zeros], -1), np.stack([zeros, xyd[..., 1]], -1),
+                np.stack([ones, zeros], -1), np.stack([zeros, ones], -1)]
+        if self.skew:
+            cols.append(np.stack([xyd[..., 1], zeros], -1))
+        for k in range(self.n_dist):
+            d1, d2 = dist.copy(), dist.copy()
+            step = 1e-6 * max(1.0, abs(dist[k]))
+            d1[k] += step
+            d2[k] -= step
+            cols.append((_pixels(K, d1, xc)[0] - _pixels(K, d2, xc)[0]) / (2 * step))
+        JcQ = np.einsum("vnij,vjk->vnik", Jc, st["Q"])
+        JR = np.einsum("vnij,vnjk->vnik", JcQ, _skew_rows(y))
+        cols += [JR[..., k] for k in range(3)]
+        JX = np.einsum("vnij,jk->vnik", JcQ, st["R"])
+        for i in self.t_views:
+            for k in range(3):
+                c = np.zeros(shape + (2,))
+                c[i] = -JX[i, :, :, k]
+                cols.append(c)
+        Jw = np.einsum("vnij,vnjk->vnik", Jc, _skew_rows(xc))
+        for i in views:
+            for k in range(3):
+                c = np.zeros(shape + (2,))
+                c[i] = Jw[i, :, :, k]
+                cols.append(c)
+        m = self.seen.astype(float)[..., None, None]
+        Jg = np.stack(cols, axis=-1) * m
+        JX = JX * m
+        U = np.einsum("vnip,vniq->pq", Jg, Jg)
+        b = np.einsum("vnip,vni->p", Jg, r)
+        Wt = np.einsum("vnip,vnik->npk", Jg, JX)
+        Vinv = np.linalg.inv(np.einsum("vnik,vnil->nkl", JX, JX))
+        bX = np.einsum("vnik,vni->nk", JX, r)
+        for m_, i in enumerate(self.t_views):  # translation priors
+            s0 = self.n_intr + self.n_dist + 3 + 3 * m_
+            U[s0: s0 + 3, s0: s0 + 3] += self.t_weight[m_] * np.eye(3)
+            b[s0: s0 + 3] += self.t_weight[m_] * (self.T_meas[i] - st["T"][i])
+        WV = np.einsum("npk,nkl->npl", Wt, Vinv)
+        S = U - np.tensordot(WV, Wt, axes=([0, 2], [0, 2]))
+        bred = b - np.einsum("npl,nl->p", WV, bX)
+        return S, bred, sse, (WV, Vinv, bX)
+
+    def update(self, st, views, dg, dX):
+        st = {k: v.copy() for k, v in st.items()}
+        a = 0
+        st["intr"][: self.n_intr] += dg[a: a + self.n_intr]
+        a += self.n_intr
+        st["dist"] += dg[a: a + self.n_dist]
+        a += self.n_dist
+        st["R"] = Rotation.from_rotvec(dg[a: a + 3]).as_matrix() @ st["R"]
+        a += 3
+        for i in self.t_views:
+            st["T"][i] += dg[a: a + 3]
+            a += 3
+        for i in views:
+            st["Q"][i] = Rotation.from_rotvec(dg[a: a + 3]).as_matrix() @ st["Q"][i]
+            a += 3
+        st["X"] = st["X"] + dX
+        return st
+
+    def fit(self, st, views, iterations: int = 50):
+        """Levenberg-Marquardt (damping on the reduced system; the points are solved exactly
+        for each global step) with the rotations of ``views`` free: (state, sse)."""
+        S, b, sse, (WV, Vinv, bX) = self.normal(st, views)
+        mu = 1e-4
+        for _ in range(iterations):
+            d = np.maximum(np.diag(S), 1e-300)
+            improved = False
+            for _ in range(12):
+                A = S + mu * np.diag(d)
+                dg = np.linalg.solve(A, b)
+                dX = np.einsum("nkl,nl->nk", Vinv, bX - np.einsum("npl,p->nl", WV, dg))
+                new = self.update(st, views, dg, dX)
+                sse_new = self.residuals(new)[1]
+                if sse_new < sse:
+                    improved = True
+                    mu = max(mu / 10, 1e-9)
+                    break
+                mu *= 10
+            if not improved:
+                break
+            done = sse - sse_new <= 1e-9 * sse + 1e-300
+            st = new
+            S, b, sse, (WV, Vinv, bX) = self.normal(st, views)
+            if done:
+                break
+        return st, sse
+
+
+def _rot_cols(n_nuis, views_all, views):
+    """Columns of ``views``' rotations among the parameters (nuisance, then views_all)."""
+    return np.concatenate([n_nuis + 3 * views_all.index(i) + np.arange(3) for i in views]) if views else \
+        np.zeros(0, int)
+
+
+def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA,
+                       estimate_skew: bool | None = None, sigma_T=None) -> dict:
+    """Test each view ``i >= 1`` for a small camera rotation (module docstring).
+
+    All quantities are linearised at the pure-translation maximum-likelihood solution
+    (a few LM iterations make sure it is one), with the points eliminated by the Schur
+    complement:
+
+    1. a score test per view: the residual-sum-of-squares reduction ``d_i`` of one
+       Gauss-Newton step with view ``i``'s rotation free, ``t_i = d_i / s^2`` with
+       ``s^2 = (RSS - d_i) / (dof - 3)``, p-value from F(3, dof - 3);
+    2. forward selection: add the view whose rotation explains most (jointly with the
+       views already selected) while the extra reduction is significant at
+       ``alpha / (n_views - 1)``. With four views a rotation of one view is largely
+       explained by rotating another (the three remaining pure translations do not
+       determine ``A``), so several single-view tests fire; the selection names the view
+       that explains most, and ``also_consistent`` lists the views whose rotation alone
+       would explain the data not significantly worse (RSS reduction within the 99%
+       chi-square(3) quantile times ``s^2`` of the best one's).
+
+    The rotations are one Gauss-Newton step from the pure-translation solution: accurate
+    for small angles (a few hundredths of a degree), indicative for larger ones.
 
     Parameters
     ----------
     uv : (n_views, n_points, 2) float
         Observations, NaN where unseen.
     T : (n_views, 3) float
-        Translations used by the calibration (its ``T`` when refined with ``sigma_T``).
+        Measured translations.
     calibration : Calibration
-        The pure-translation maximum-likelihood solution (``K``, ``dist``, ``R``, ``X``);
-        points with non-finite ``X`` or outside ``calibration.inliers`` are left out.
+        The pure-translation maximum-likelihood solution (``K``, ``dist``, ``R``, ``X``,
+        and ``T`` when the translations were refined); points with non-finite ``X`` or
+        outside ``calibration.inliers`` are left out.
+    alpha : float
+        Family-wise false-alarm level (Bonferroni over the views).
     estimate_skew : bool, optional
-        Whether the skew was a parameter (default: ``calibration.info["estimate_skew"]``).
+        Whether the skew is a parameter (default ``calibration.info["estimate_skew"]``).
     sigma_T : float or (n_views,) float, optional
-        Robot precision when the translations were refined (default:
-        ``calibration.info.get("sigma_T")``); those translations are then nuisance
-        parameters with that prior.
+        Robot precision when the translations are parameters with a prior (default
+        ``calibration.info.get("sigma_T")``).
 
     Returns
     -------
     dict
-        ``rotation_deg (n_views, 3)`` one-step rotation estimate per view (rotation vector
-        in the camera frame, degrees; row 0 zero), ``std_deg (n_views, 3)``,
-        ``statistic (n_views,)`` (``t_i``, chi-square with 3 dof asymptotically),
-        ``p_value (n_views,)`` (F(3, dof); NaN for view 0), ``dof``, ``sigma_px``.
+        ``flagged`` (views selected as rotated, in order), ``also_consistent`` (other
+        views that explain the data about as well), ``rotation_deg (n_views, 3)``
+        (rotation vector in the camera frame, degrees: the joint estimate for flagged
+        views, the single-view one otherwise; row 0 zero), ``std_deg (n_views, 3)``,
+        ``statistic``, ``p_value`` ``(n_views,)`` (single-view tests; NaN for view 0),
+        ``dof``, ``sigma_px``, ``level``.
     """
     uv, T = as_uv_T(uv, T)
-    K, R = np.asarray(calibration.K, float), np.asarray(calibration.R, float)
-    dist = np.asarray(calibration.dist, float)
-    X = np.asarray(calibration.X, float)
     info = getattr(calibration, "info", {}) or {}
     if estimate_skew is None:
         estimate_skew = bool(info.get("estimate_skew", False))
     if sigma_T is None:
         sigma_T = info.get("sigma_T")
     n_views = uv.shape[0]
+    t_sigma = np.zeros(n_views) if sigma_T is None else np.broadcast_to(np.asarray(sigma_T, float), (n_views,)).copy()
+    X = np.asarray(calibration.X, float)
     seen = np.isfinite(uv[..., 0])
     use = np.isfinite(X).all(axis=1) & (seen.sum(axis=0) >= 2)
     inl = getattr(calibration, "inliers", None)
     if inl is not None:
         use &= np.asarray(inl, bool)
     idx = np.flatnonzero(use)
-    uv, seen, X = uv[:, idx], seen[:, idx], X[idx]
-    n = len(idx)
-    xc = np.einsum("ab,vnb->vna", R, X[None] - T[:, None])  # (V, n, 3)
-    pred, xyd = _pixels(K, dist, xc)
-    r = np.where(seen[..., None], uv - pred, 0.0)
-    w = seen.astype(float)[..., None]  # observation mask as weight
-
-    # d pixel / d camera coordinates, by central differences (any distortion model)
-    Jc = np.empty(xc.shape[:2] + (2, 3))
-    h = 1e-6 * np.linalg.norm(xc, axis=2, keepdims=True)
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = 1.0
-        Jc[..., k] = (_pixels(K, dist, xc + h * e)[0] - _pixels(K, dist, xc - h * e)[0]) / (2 * h)
-    # global parameters: intrinsics, distortion, R, [translations], view rotations
-    cols = []
-    zeros = np.zeros(xc.shape[:2])
-    ones = np.ones(xc.shape[:2])
-    cols += [np.stack([xyd[..., 0], zeros], -1), np.stack([zeros, xyd[..., 1]], -1),
-             np.stack([ones, zeros], -1), np.stack([zeros, ones], -1)]
-    if estimate_skew:
-        cols.append(np.stack([xyd[..., 1], zeros], -1))
-    for k in range(dist.size):
-        d1, d2 = dist.copy(), dist.copy()
-        step = 1e-6 * max(1.0, abs(dist[k]))
-        d1[k] += step
-        d2[k] -= step
-        cols.append((_pixels(K, d1, xc)[0] - _pixels(K, d2, xc)[0]) / (2 * step))
-    Jrot = np.einsum("vnij,vnjk->vnik", Jc, _skew_rows(xc))  # (V, n, 2, 3)
-    cols += [Jrot[..., k] for k in range(3)]
-    JX = np.einsum("vnij,jk->vnik", Jc, R)  # d pixel / d X_j
-    t_sigma = np.zeros(n_views) if sigma_T is None else np.broadcast_to(np.asarray(sigma_T, float), (n_views,))
-    t_views = np.flatnonzero(t_sigma > 0)
-    for i in t_views:
-        for k in range(3):
-            c = np.zeros(xc.shape[:2] + (2,))
-            c[i] = -JX[i, :, :, k]
-            cols.append(c)
-    n_nuis = len(cols)
-    for i in range(1, n_views):
-        for k in range(3):
-            c = np.zeros(xc.shape[:2] + (2,))
-            c[i] = Jrot[i, :, :, k]
-            cols.append(c)
-    Jg = np.stack(cols, axis=-1) * w[..., None]  # (V, n, 2, p)
-    JX = JX * w[..., None]
-
-    # normal equations, points eliminated by the Schur complement (O(n))
-    U = np.einsum("vnip,vniq->pq", Jg, Jg)
-    b = np.einsum("vnip,vni->p", Jg, r)
-    Wt = np.einsum("vnip,vnik->npk", Jg, JX)  # (n, p, 3)
-    Vj = np.einsum("vnik,vnil->nkl", JX, JX)  # (n, 3, 3)
-    bX = np.einsum("vnik,vni->nk", JX, r)
-    Vinv = np.linalg.inv(Vj)
-    WV = np.einsum("npk,nkl->npl", Wt, Vinv)
-    S = U - np.tensordot(WV, Wt, axes=([0, 2], [0, 2]))
-    bred = b - np.einsum("npl,nl->p", WV, bX)
-    n_obs = int(seen.sum())
-    dof = 2 * n_obs - n_nuis + 3 * len(t_views) - 3 * n
-    sse = float(np.sum(r**2))
-    if dof <= 0:
+    T_cal = getattr(calibration, "T", None)
+    T_start = np.asarray(T_cal, float) if T_cal is not None and t_sigma.any() else T
+    sigma_px = float(info.get("sigma_px") or max(getattr(calibration, "rms_px", 1.0) / np.sqrt(2), 1e-6))
+    model = _RotationModel(uv[:, idx], T, np.asarray(calibration.K, float), np.asarray(calibration.dist, float),
+                           np.asarray(calibration.R, float), X[idx], estimate_skew, t_sigma, sigma_px)
+    model.state0["T"] = T_start.copy()
+    n_obs = int(seen[:, idx].sum())
+    dof = 2 * n_obs - (model.n_nuis - 3 * len(model.t_views)) - 3 * len(idx)
+    if dof <= 3:
         raise DegenerateError("too few observations to test for a rotation between views")
-    sigma2 = sse / dof
-    if len(t_views):  # translation priors, weight sigma^2 / sigma_T^2 (T fixed at their estimate)
-        for m, i in enumerate(t_views):
-            s0 = n_nuis - 3 * len(t_views) + 3 * m
-            S[s0: s0 + 3, s0: s0 + 3] += np.eye(3) * sigma2 / t_sigma[i] ** 2
+    level = alpha / max(1, n_views - 1)
+    all_views = list(range(1, n_views))
+
+    st, sse = model.fit(model.state0, [], iterations=5)  # make sure it is the ML solution
+    S, b, sse, _ = model.normal(st, all_views)
+    eta = np.arange(model.n_nuis)
+
+    def step(views, nuis):
+        """Linearised fit of ``views``' rotations with ``nuis`` profiled out:
+        (rotation, covariance / sigma^2, RSS reduction)."""
+        th = _rot_cols(model.n_nuis, all_views, views)
+        S_tn = S[np.ix_(th, nuis)]
+        Sn_inv = np.linalg.pinv(S[np.ix_(nuis, nuis)], rcond=1e-13, hermitian=True)
+        info_t = S[np.ix_(th, th)] - S_tn @ Sn_inv @ S_tn.T
+        g = b[th] - S_tn @ Sn_inv @ b[nuis]
+        cov = np.linalg.pinv(info_t, rcond=1e-13, hermitian=True)
+        w = cov @ g
+        return w, cov, float(g @ w)
+
+    # single-view score tests (F(3, dof) with the variance of the one-view alternative)
+    single = {}
+    for i in all_views:
+        w, cov, red = step([i], eta)
+        d = dof - 3
+        s2 = max((sse - red) / d, 1e-300)
+        single[i] = (red / s2, float(stats.f.sf(red / s2 / 3.0, 3, d)), w, cov, s2)
+    # forward selection on the linearised model: add the view that explains most while significant
+    flagged: list = []
+    reduction = 0.0
+    while len(flagged) < n_views - 1:
+        cand = [(step(flagged + [i], eta)[2], i) for i in all_views if i not in flagged]
+        red, i = max(cand)
+        d = dof - 3 * (len(flagged) + 1)
+        if d <= 0:
+            break
+        f = ((red - reduction) / 3.0) / max((sse - red) / d, 1e-300)
+        if not (stats.f.sf(f, 3, d) < level and single[i][1] < level):
+            break
+        flagged.append(i)
+        reduction = red
 
     rot = np.zeros((n_views, 3))
     std = np.zeros((n_views, 3))
     stat = np.full(n_views, np.nan)
     pval = np.full(n_views, np.nan)
-    eta = np.arange(n_nuis)
-    S_ee_inv = np.linalg.pinv(S[np.ix_(eta, eta)], rcond=1e-13, hermitian=True)
-    for i in range(1, n_views):  # one 3-parameter test per view
-        th = n_nuis + 3 * (i - 1) + np.arange(3)
-        S_te = S[np.ix_(th, eta)]
-        info_i = S[np.ix_(th, th)] - S_te @ S_ee_inv @ S_te.T
-        g = bred[th] - S_te @ S_ee_inv @ bred[eta]
-        try:
-            cov = np.linalg.inv(info_i)
-        except np.linalg.LinAlgError:
-            continue
-        wi = cov @ g
-        stat[i] = float(g @ wi / sigma2)
-        pval[i] = float(stats.f.sf(stat[i] / 3.0, 3, dof))
-        rot[i] = np.degrees(wi)
-        std[i] = np.degrees(np.sqrt(np.maximum(np.diag(cov) * sigma2, 0.0)))
+    for i in all_views:
+        stat[i], pval[i] = single[i][0], single[i][1]
+        rot[i] = np.degrees(single[i][2])
+        std[i] = np.degrees(np.sqrt(np.maximum(np.diag(single[i][3]) * single[i][4], 0.0)))
+    if flagged:  # the flagged views' rotations fitted together
+        w, cov, red = step(flagged, eta)
+        s2 = max((sse - red) / (dof - 3 * len(flagged)), 1e-300)
+        for k, i in enumerate(flagged):
+            rot[i] = np.degrees(w[3 * k: 3 * k + 3])
+            std[i] = np.degrees(np.sqrt(np.maximum(np.diag(cov)[3 * k: 3 * k + 3] * s2, 0.0)))
+    also = []
+    if flagged:  # other views whose rotation alone explains the data about as well as the first's
+        top, s2 = single[flagged[0]][0] * single[flagged[0]][4], single[flagged[0]][4]
+        also = [i for i in all_views if i not in flagged and pval[i] < level
+                and (top - single[i][0] * single[i][4]) / s2 < stats.chi2.ppf(0.99, 3)]
     return {"rotation_deg": rot, "std_deg": std, "statistic": stat, "p_value": pval, "dof": int(dof),
-            "sigma_px": float(np.sqrt(sigma2))}
+            "sigma_px": float(np.sqrt(sse / dof)), "flagged": flagged, "also_consistent": also, "level": level}
 
 
 def check_view_rotations(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA) -> list:
@@ -480,19 +634,20 @@ def check_view_rotations(uv, T, calibration: Calibration, *, alpha: float = ROTA
         from .refine import refine  # a linear calibration: take the ML solution first
 
         calibration = refine(uv, T, calibration, distortion=getattr(calibration, "dist_model", "none"))
-    T_used = calibration.T if getattr(calibration, "T", None) is not None else T
-    res = view_rotation_test(uv, T_used, calibration)
-    n_views = len(res["p_value"])
-    level = alpha / max(1, n_views - 1)
-    bad = [i for i in range(1, n_views) if np.isfinite(res["p_value"][i]) and res["p_value"][i] < level]
+    res = view_rotation_test(uv, T, calibration, alpha=alpha)
+    bad = res["flagged"]
     if not bad:
         return []
     parts = []
     for i in bad:
-        w, s = res["rotation_deg"][i], res["std_deg"][i]
-        ang = np.linalg.norm(w)
-        ang_std = float(np.sqrt(np.sum((w / max(ang, 1e-300)) ** 2 * s**2)))
-        parts.append(f"view {i}: {ang:.3g} deg +- {ang_std:.2g} (p = {res['p_value'][i]:.1e})")
+        w, sd = res["rotation_deg"][i], res["std_deg"][i]
+        ang = float(np.linalg.norm(w))
+        ang_std = float(np.sqrt(np.sum((w / max(ang, 1e-300)) ** 2 * sd**2)))
+        parts.append(f"view {i}: about {ang:.2g} deg +- {ang_std:.1g} (p = {res['p_value'][i]:.1e})")
+    also = res["also_consistent"]
+    if also:
+        parts.append(f"the data are also consistent with a rotation of view(s) {_list(also)} instead; "
+                     "with few views the rotated one cannot be singled out for certain")
     return [Diagnostic(
         "view_rotation",
         "the camera seems to have rotated between views, which breaks the pure-translation model (view 0 is "

@@ -1,0 +1,224 @@
+"""Diagnostics: each check triggered by data built to trigger it, silent on good data."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from transcalib import simulate
+from transcalib.camera import project
+from transcalib.diagnostics import (
+    check_null_space,
+    check_points_behind,
+    check_pose_orientations,
+    check_translations,
+    check_view_rotations,
+    check_views,
+    diagnose,
+    view_rotation_test,
+)
+from transcalib.linear import estimate_linear
+from transcalib.refine import refine
+from transcalib.types import Diagnostic, InputError
+
+
+def _codes(diags):
+    assert all(isinstance(d, Diagnostic) and d.code and len(str(d)) > 40 for d in diags)
+    return [d.code for d in diags]
+
+
+def _reobserve(scene, T_true, noise_px, rng, uv_true=None):
+    """New noisy observations of ``scene``'s points from translations ``T_true``."""
+    rng = np.random.default_rng(rng)
+    uv = project(scene.K, scene.R, scene.X, T_true, scene.dist) if uv_true is None else uv_true
+    return uv + rng.normal(0.0, noise_px, uv.shape), T_true
+
+
+def _rotated_view(scene, view, deg, axis, noise_px, rng):
+    """Observations where the camera of ``view`` is rotated by ``deg`` about ``axis``
+    (camera frame) on top of its translation."""
+    Q = Rotation.from_rotvec(np.radians(deg) * np.asarray(axis, float) / np.linalg.norm(axis)).as_matrix()
+    uv = scene.uv_true.copy()
+    uv[view] = project(scene.K, Q @ scene.R, scene.X, scene.T_true[view: view + 1], scene.dist)[0]
+    return _reobserve(scene, scene.T_true, noise_px, rng, uv_true=uv)
+
+
+def _calibrate(uv, T, **kw):
+    return refine(uv, T, estimate_linear(uv, T), **kw)
+
+
+# ------------------------------------------------------------------------------ silence
+
+
+@pytest.mark.parametrize("make", [
+    lambda s: simulate.paper_scene(noise_px=0.5, rng=s),
+    lambda s: simulate.random_scene(150, 6, noise_px=0.5, missing=0.2, rng=s),
+    lambda s: simulate.random_scene(80, 4, planar=True, noise_px=1.0, rng=s),
+])
+@pytest.mark.parametrize("seed", range(3))
+def test_diagnose_silent_on_good_data(make, seed):
+    scene = make(seed)
+    cal = _calibrate(scene.uv, scene.T)
+    assert diagnose(scene.uv, scene.T, cal) == []
+    assert diagnose(scene.uv, scene.T, cal.linear, check_rotation=False) == []
+    q = np.tile([0.1, 0.2, 0.3, 0.9], (scene.n_views, 1))
+    assert diagnose(scene.uv, scene.T, cal, quaternions=q) == []
+
+
+# ------------------------------------------------------------------------ translations
+
+
+def test_coplanar_translations_flagged_with_the_helpful_direction():
+    scene = simulate.paper_scene()
+    T = scene.T_true.copy()
+    T[3] = T[0] + 0.05 * (T[3] - T[0])  # the third direction nearly lost
+    uv, T = _reobserve(scene, T, 0.5, 0)
+    d = check_translations(T, unit="mm")
+    assert _codes(d) == ["translations_coplanar"]
+    # the suggested direction is the normal of the plane of the translations
+    normal = np.cross(T[1] - T[0], T[2] - T[0])
+    normal /= np.linalg.norm(normal)
+    v = np.array([float(x) for x in str(d[0]).split("(x, y, z) = (")[1].split(")")[0].split(",")])
+    assert abs(abs(v @ normal) - 1) < 0.05
+    assert "translations_coplanar" in _codes(diagnose(uv, T, _calibrate(uv, T), check_rotation=False))
+
+
+def test_small_translations_flagged():
+    scene = simulate.paper_scene()
+    T = scene.T_true[0] + 0.04 * (scene.T_true - scene.T_true[0])  # 1.6 mm at 520 mm
+    uv, T = _reobserve(scene, T, 0.05, 1)
+    cal = _calibrate(uv, T)
+    codes = _codes(diagnose(uv, T, cal, check_rotation=False))
+    assert "translations_small" in codes and "translations_coplanar" not in codes
+    assert check_translations(scene.T, focal_px=1775.0, distance=520.0) == []
+
+
+# -------------------------------------------------------------------------- null space
+
+
+def test_nearly_two_dimensional_null_space_flagged():
+    scene = simulate.paper_scene()
+    T = scene.T_true.copy()
+    T[3] = T[0] + 0.002 * (T[3] - T[0])
+    uv, T = _reobserve(scene, T, 0.5, 2)
+    lin = estimate_linear(uv, T)
+    assert lin.singular_values[0] / lin.singular_values[1] > 0.05
+    assert _codes(check_null_space(lin)) == ["null_space_2d"]
+    good = estimate_linear(*_reobserve(scene, scene.T_true, 0.5, 2))
+    assert check_null_space(good) == []
+
+
+# ------------------------------------------------------------------ points and views
+
+
+def test_points_behind_camera_flagged():
+    scene = simulate.random_scene(40, 4, noise_px=0.2, rng=3)
+    uv = scene.uv.copy()
+    # reverse the image motion of points 5 and 9: they then triangulate behind the camera
+    for j in (5, 9):
+        uv[:, j] = 2 * uv[0, j] - uv[:, j]
+    lin = estimate_linear(uv, scene.T)
+    d = check_points_behind(uv, scene.T, lin)
+    assert _codes(d) == ["points_behind_camera"] and "5, 9" in str(d[0])
+    assert check_points_behind(scene.uv, scene.T, estimate_linear(scene.uv, scene.T)) == []
+
+
+def test_view_with_few_points_flagged():
+    scene = simulate.paper_scene(noise_px=0.5, rng=4)
+    uv = scene.uv.copy()
+    uv[3, 4:] = np.nan  # view 3 keeps 4 points
+    cal = _calibrate(uv, scene.T)
+    d = check_views(uv, cal.residuals_px)
+    assert _codes(d) == ["view_few_points"] and "view 3: 4" in str(d[0])
+    assert "view_few_points" in _codes(diagnose(uv, scene.T, cal, check_rotation=False))
+
+
+def test_view_with_outstanding_residuals_flagged():
+    scene = simulate.random_scene(100, 6, noise_px=0.5, rng=5)
+    rng = np.random.default_rng(6)
+    uv = scene.uv.copy()
+    uv[4] += rng.normal(0, 3.0, uv[4].shape)  # a blurred / badly tracked view
+    cal = _calibrate(uv, scene.T)
+    d = check_views(uv, cal.residuals_px)
+    assert _codes(d) == ["view_residuals"] and "view 4" in str(d[0])
+
+
+# ------------------------------------------------------------------- model violation
+
+
+@pytest.mark.parametrize("view,axis", [(1, [1, 0, 0]), (2, [0, 1, 0.3]), (3, [0.5, -1, 0])])
+def test_rotated_view_flagged_on_paper_scene(view, axis):
+    """Four views: the rotation is detected (which view is only indicative, see docs)."""
+    scene = simulate.paper_scene()
+    uv, T = _rotated_view(scene, view, 0.5, axis, 0.5, rng=view)
+    cal = _calibrate(uv, T)
+    d = check_view_rotations(uv, T, cal)
+    assert _codes(d) == ["view_rotation"] and " deg +- " in str(d[0])
+    assert "view_rotation" in _codes(diagnose(uv, T, cal))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_rotated_view_singled_out_with_its_angle_given_more_views(seed):
+    scene = simulate.random_scene(100, 6, rng=seed)
+    view = 1 + 2 * seed
+    w = np.array([0.1, -0.15, 0.05])  # degrees, camera frame
+    uv, T = _rotated_view(scene, view, np.linalg.norm(w), w, 0.5, rng=seed)
+    cal = _calibrate(uv, T)
+    res = view_rotation_test(uv, T, cal)
+    assert res["flagged"] == [view] and res["also_consistent"] == []
+    err = res["rotation_deg"][view] - w
+    assert np.all(np.abs(err) < 5 * res["std_deg"][view] + 0.01)
+    d = check_view_rotations(uv, T, cal)
+    assert _codes(d) == ["view_rotation"]
+    angle = float(str(d[0]).split(f"view {view}: about ")[1].split(" deg")[0])
+    assert 0.15 < angle < 0.25  # true 0.187
+
+
+def test_rotation_estimate_exact_to_first_order_on_noise_free_data():
+    scene = simulate.random_scene(200, 4, rng=9)
+    w = np.array([0.01, -0.02, 0.015])  # degrees, camera frame
+    uv, T = _rotated_view(scene, 2, np.linalg.norm(w), w, 0.0, rng=0)
+    cal = _calibrate(uv, T, sigma_px=0.5)
+    res = view_rotation_test(uv, T, cal)
+    np.testing.assert_allclose(res["rotation_deg"][2], w, rtol=0.05, atol=2e-4)
+
+
+def test_rotation_test_calibrated_on_pure_translations():
+    """p-values are uniform under pure translation: few small ones in 60 trials."""
+    scene = simulate.paper_scene()
+    p = []
+    for seed in range(60):
+        uv, T = _reobserve(scene, scene.T_true, 0.5, 100 + seed)
+        p.append(view_rotation_test(uv, T, _calibrate(uv, T))["p_value"][1:])
+    p = np.concatenate(p)
+    assert np.mean(p < 0.1) < 0.2 and np.mean(p < 0.01) < 0.05
+    assert 0.3 < np.mean(p) < 0.7
+
+
+def test_rotation_test_with_robot_noise_and_distortion():
+    scene = simulate.random_scene(120, 5, dist=(-0.1, 0.02), rng=10)
+    scene = simulate.observe(scene, noise_px=0.3, robot_noise=0.5, rng=11)
+    cal = refine(scene.uv, scene.T, estimate_linear(scene.uv, scene.T), distortion="radial2", sigma_T=0.5)
+    assert check_view_rotations(scene.uv, scene.T, cal) == []
+
+
+# -------------------------------------------------------------------- orientations
+
+
+def test_pose_orientations():
+    q0 = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
+    rots = [q0, q0, Rotation.from_rotvec([0, 0, np.radians(0.5)]) * q0, q0 * Rotation.from_rotvec([0.001, 0, 0])]
+    q = np.array([r.as_quat() for r in rots])  # scipy: x, y, z, w
+    q[1] *= -1  # the same orientation
+    d = check_pose_orientations(q, tol_deg=0.1)
+    assert _codes(d) == ["pose_orientation"]
+    assert "view 2: 0.5 deg" in str(d[0]) and "view 1" not in str(d[0]) and "view 3" not in str(d[0])
+    assert check_pose_orientations(q, tol_deg=1.0) == []
+    assert "view 3: 0.0573 deg" in str(check_pose_orientations(q, tol_deg=0.01)[0])
+
+
+@pytest.mark.parametrize("q", [np.zeros((4, 3)), [[0, 0, 0, 0]] * 4, [[np.nan, 0, 0, 1]] * 4, [["a"] * 4]])
+def test_pose_orientations_bad_input(q):
+    with pytest.raises(InputError):
+        check_pose_orientations(q)
