@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-import scipy.ndimage
 from scipy.spatial.transform import Rotation
 
 from .camera import K_from_params, distort, project, undistort
@@ -138,13 +137,14 @@ class Noise:
         acc = np.zeros((nh, nw))
         for k in range(self.octaves):
             sigma = 1.0 * 2.0**k
-            layer = scipy.ndimage.gaussian_filter(rng.normal(size=(nh, nw)), sigma, mode="wrap")
+            layer = cv2.GaussianBlur(rng.normal(size=(nh, nw)).astype(np.float32), (0, 0), sigma,
+                                     borderType=cv2.BORDER_REFLECT).astype(float)
             acc += layer / layer.std() * 0.8**k
         acc = self.mean + self.contrast * acc / acc.std()
         # prefiltered levels (Gaussian sigma 0, 1, 2, 4, 8 texels) against aliasing where a
         # sample's footprint spans several texels (grazing views, far surfaces)
-        levels = [acc.astype(np.float32)] + [
-            scipy.ndimage.gaussian_filter(acc, 2.0**k, mode="nearest").astype(np.float32) for k in range(4)]
+        acc = acc.astype(np.float32)
+        levels = [acc] + [cv2.GaussianBlur(acc, (0, 0), 2.0**k, borderType=cv2.BORDER_REPLICATE) for k in range(4)]
         object.__setattr__(self, "_grid", levels)
 
     def __call__(self, s, t, ws, wt):
@@ -199,6 +199,9 @@ class Surface:
     texture : callable ``(s, t, ws, wt) -> value in [0, 1]``
         ``ws, wt`` are the sample footprint widths for box filtering.
     name : str
+    cull_back : bool
+        Invisible from the side opposite its normal ``axis_s x axis_t`` (faces of a
+        closed solid); skipped when the camera is behind it, to save time.
     """
 
     origin: np.ndarray
@@ -207,6 +210,7 @@ class Surface:
     size: tuple[float, float]
     texture: object
     name: str = ""
+    cull_back: bool = False
 
     @property
     def normal(self) -> np.ndarray:
@@ -244,10 +248,12 @@ def box(center, rot, dims, textures, name: str = "box") -> list[Surface]:
     axes = [ex, ey, ez]
     for f, (k, sign) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1)]):
         i, j = [m for m in range(3) if m != k]
-        a, b = axes[i], axes[j] * sign
-        n = np.cross(a, b)
-        fr = np.column_stack([a, b, n])
-        faces.append(plane(c + sign * 0.5 * d[k] * axes[k], fr, (d[i], d[j]), textures[f], f"{name}{f}"))
+        a, b = axes[i], axes[j]
+        if np.dot(np.cross(a, b), sign * axes[k]) < 0:
+            b = -b  # outward normal, for back-face culling
+        fr = np.column_stack([a, b, np.cross(a, b)])
+        sf = plane(c + sign * 0.5 * d[k] * axes[k], fr, (d[i], d[j]), textures[f], f"{name}{f}")
+        faces.append(Surface(sf.origin, sf.axis_s, sf.axis_t, sf.size, sf.texture, sf.name, cull_back=True))
     return faces
 
 
@@ -336,6 +342,8 @@ def _rays(K, R, dist, image_size, S):
 def _crop(sf, K, R, dist, C, image_size, S):
     """Sample-grid rows/cols slice covering surface ``sf`` in the view at ``C``."""
     w, h = image_size
+    if sf.cull_back and np.dot(sf.normal, C - sf.origin) <= 0:
+        return None  # back face of a closed solid: hidden by the front faces
     full = (slice(0, h * S), slice(0, w * S))
     if np.asarray(dist).size and np.any(np.asarray(dist) != 0):
         return full  # distortion can fold far-off points: render the whole frame
@@ -714,8 +722,8 @@ def render_scene(
     # camera-0 frame -> world: X_w = R^T X_c (+ T_0); axes rotate likewise
     Rt = R.T
     T0 = T[0]
-    surfaces = [Surface(Rt @ sf.origin + T0, Rt @ sf.axis_s, Rt @ sf.axis_t, sf.size, sf.texture, sf.name)
-                for sf in surfaces_c]
+    surfaces = [Surface(Rt @ sf.origin + T0, Rt @ sf.axis_s, Rt @ sf.axis_t, sf.size, sf.texture, sf.name,
+                        sf.cull_back) for sf in surfaces_c]
     corners = (np.vstack(corners_c) @ R + T0) if corners_c else np.zeros((0, 3))
     n = len(T)
     gain = 1.0 + rng.uniform(-brightness, brightness, n) if brightness > 0 else None
