@@ -64,6 +64,30 @@ def accuracy(name: str, base, trials: int, noise_px: float = 0.5, seed: int = 0)
     return rows
 
 
+def robot_noise(trials: int, robot_noise_mm: float, noise_px: float = 0.5, seed: int = 500_000) -> list[str]:
+    """Paper preset with robot noise: translations fixed vs. modelled with ``sigma_T``."""
+    base = simulate.paper_scene()
+    sigma_T = np.array([0.0] + [robot_noise_mm] * (base.n_views - 1))  # view 0 exact in simulate.observe
+    est = {"fixed T": [], "sigma_T": []}
+    pred = {"fixed T": [], "sigma_T": []}
+    for k in range(trials):
+        scene = simulate.observe(base, noise_px, robot_noise=robot_noise_mm, rng=seed + k)
+        start = estimate_linear(scene.uv, scene.T)
+        for mode, kw in (("fixed T", {}), ("sigma_T", {"sigma_T": sigma_T})):
+            cal = refine(scene.uv, scene.T, start, **kw)
+            est[mode].append(_k4(cal.K))
+            pred[mode].append([cal.std[n] for n in KEYS])
+    bound = crlb(simulate.observe(base, noise_px, robot_noise=robot_noise_mm, rng=seed))
+    rows = [f"paper preset, robot noise {robot_noise_mm} mm, {noise_px} px, {trials} trials: "
+            "empirical std / predicted std (CRLB with robot noise)",
+            f"  {'param':>5} {'CRLB':>8} {'fixed emp':>9} {'fixed pred':>10} {'sigT emp':>9} {'sigT pred':>9}"]
+    for c, n in enumerate(KEYS):
+        fe, fp = np.std(np.array(est["fixed T"])[:, c], ddof=1), np.sqrt(np.mean(np.array(pred["fixed T"])[:, c] ** 2))
+        se, sp = np.std(np.array(est["sigma_T"])[:, c], ddof=1), np.sqrt(np.mean(np.array(pred["sigma_T"])[:, c] ** 2))
+        rows.append(f"  {n:>5} {bound[n]:8.3f} {fe:9.3f} {fp:10.3f} {se:9.3f} {sp:9.3f}")
+    return rows
+
+
 # ---------------------------------------------------------------------------- speed
 
 
@@ -134,6 +158,11 @@ def main(argv=None) -> None:
         print(line)
     random3d = simulate.random_scene(50, 4, rng=7)
     for line in accuracy("random 3-D scene", random3d, trials, seed=100_000):
+        print(line)
+
+    print()
+    print("== refine: robot noise (errors in images and robot, sigma_T) ==")
+    for line in robot_noise(max(trials // 2, 20), 0.3):
         print(line)
 
     print()
