@@ -36,6 +36,7 @@ import os
 import sys
 import tempfile
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -389,7 +390,8 @@ def _local_rho(seeds_x, seeds_rho, query, k=6):
     r = np.where(dd > 1e-9, seeds_rho[np.minimum(nn, len(seeds_x) - 1)], np.nan)
     # keep the k nearest non-self neighbours
     r = np.where(np.cumsum(np.isfinite(r), axis=1) <= k, r, np.nan)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         return np.nanmedian(r, axis=1) if r.size else np.zeros(len(query))
 
 
@@ -603,6 +605,7 @@ def track(
     images,
     *,
     method: str = "auto",
+    target: str | None = None,
     max_features: int = 2500,
     max_corners: int = 2500,
     corner_quality: float = 0.02,
@@ -628,6 +631,9 @@ def track(
     method : {"auto", "sift", "corners"}
         Features: ``"sift"`` descriptors only, ``"corners"`` Shi-Tomasi corners matched
         through the epipoles (epipoles still come from SIFT), ``"auto"`` both.
+    target : None or "squares"
+        ``"squares"``: the paper's target mode instead of feature tracking - corners of
+        dark squares on a light board (:func:`transcalib.target.track_squares`).
     max_features, max_corners : int
         Caps on SIFT keypoints and corners per image.
     corner_quality : float
@@ -669,6 +675,12 @@ def track(
     DegenerateError
         Too few tracks survive: the message says what to change.
     """
+    if target is not None:
+        if target != "squares":
+            raise InputError(f"track: target must be None or 'squares', got {target!r}")
+        from .target import track_squares
+
+        return track_squares(images, progress=progress)
     if method not in ("auto", "sift", "corners"):
         raise InputError(f"track: method must be 'auto', 'sift' or 'corners', got {method!r}")
     if min_views < 2:
@@ -1045,7 +1057,8 @@ def _multiview_check(uv, epi, thr_px, passes=3):
                     continue
                 # leave-one-out: w from the other views, so a bad view cannot hide
                 others = np.delete(w_all, j, axis=0)
-                with np.errstate(all="ignore"):
+                with np.errstate(all="ignore"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns give NaN: wanted
                     w = np.nanmedian(others, axis=0) if others.size else np.full(len(sel), np.nan)
                     qh = s[j] * w
                     rho_h = 1.0 / (1.0 / qh - E[j][2])
