@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from . import refine as _refine
+from .refine import refine as ml_refine
 from .camera import project
 from .diagnostics import diagnose
 from .linear import estimate_linear
@@ -57,6 +57,7 @@ def calibrate(
     sigma_T=None,
     loss: str = "linear",
     loss_scale_px: float = 1.0,
+    sigma_px: float | None = None,
     threshold_px: float = 2.0,
     quaternions=None,
     check_rotation: bool = True,
@@ -85,6 +86,8 @@ def calibrate(
         Robot translation precision (user units): translations become measurements.
     loss : {"linear", "huber", "cauchy"}
         Loss of the refinement; ``loss_scale_px`` its scale.
+    sigma_px : float, optional
+        Known pixel noise per coordinate; by default estimated from the residuals.
     threshold_px : float
         RANSAC inlier threshold: a point is an inlier when its reprojection error is
         below this in every view that sees it.
@@ -133,9 +136,9 @@ def calibrate(
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     if refine:
         t1 = time.perf_counter()
-        cal = _refine.refine(
+        cal = ml_refine(
             uv_fit, T, linear, distortion=distortion, estimate_skew=estimate_skew,
-            sigma_T=sigma_T, loss=loss, loss_scale_px=loss_scale_px,
+            sigma_T=sigma_T, loss=loss, loss_scale_px=loss_scale_px, sigma_px=sigma_px,
         )
         stages.append("refine")
         timings["refine_s"] = time.perf_counter() - t1
