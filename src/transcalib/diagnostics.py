@@ -74,6 +74,7 @@ __all__ = [
     "check_views",
     "check_view_rotations",
     "view_rotation_test",
+    "locate_view_rotation",
     "check_pose_orientations",
     "diagnose",
 ]
@@ -622,6 +623,77 @@ def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATI
             "sigma_px": float(np.sqrt(sse / dof)), "flagged": flagged, "also_consistent": also, "level": level}
 
 
+def _fit_rotated_views(uv, T, calibration, candidates):
+    """Refit with one candidate view's rotation free (``refine(...,
+    estimate_view_rotations=[i])``) and keep the best: ``(view, (rotation_deg (3,),
+    std_deg (3,)), views explaining the data not significantly worse)``, or None."""
+    from .refine import refine
+
+    cands = sorted(set(int(i) for i in candidates))
+    if len(cands) < 1:
+        return None
+    info = getattr(calibration, "info", {}) or {}
+    uv = np.asarray(uv, float)
+    inl = getattr(calibration, "inliers", None)
+    if inl is not None:
+        uv = np.where(np.asarray(inl, bool)[None, :, None], uv, np.nan)
+    fits = {}
+    for i in cands:  # a few views at most
+        try:
+            c = refine(uv, T, calibration, distortion=getattr(calibration, "dist_model", "none"),
+                       estimate_skew=bool(info.get("estimate_skew", False)), sigma_T=info.get("sigma_T"),
+                       estimate_view_rotations=[i])
+        except (DegenerateError, InputError, np.linalg.LinAlgError, TypeError):
+            return None
+        fits[i] = (2.0 * c.info["cost"], c.info["view_rotations_deg"][i], c.info["view_rotations_std_deg"][i],
+                   c.info["sigma_px"])
+    best = min(fits, key=lambda i: fits[i][0])
+    s2 = fits[best][3] ** 2
+    ambiguous = [i for i in cands if i != best and (fits[i][0] - fits[best][0]) / s2 < stats.chi2.ppf(0.99, 3)]
+    return best, (np.asarray(fits[best][1]), np.asarray(fits[best][2])), ambiguous
+
+
+def locate_view_rotation(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA) -> dict | None:
+    """Detect a rotated view and name it: None on pure-translation data.
+
+    Detection is :func:`view_rotation_test` (linearised, calibrated false-alarm rate).
+    When it fires, the data are refitted with the rotation of each significant view free
+    in turn (:func:`transcalib.refine.refine` with ``estimate_view_rotations=[i]``, at
+    most five views); the view whose fit has the lowest cost is named, with the fitted
+    angle, and views whose fit is not significantly worse (99% chi-square(3)) are
+    alternatives.
+
+    Parameters
+    ----------
+    uv, T, calibration, alpha
+        As :func:`check_view_rotations`.
+
+    Returns
+    -------
+    dict or None
+        ``views`` (named views, most likely first), ``alternatives``, ``rotation_deg
+        (n_views, 3)``, ``std_deg (n_views, 3)`` (camera-frame rotation vectors, degrees),
+        ``p_value (n_views,)``, and ``test`` (the :func:`view_rotation_test` result).
+    """
+    if getattr(calibration, "cov", None) is None:
+        from .refine import refine  # a linear calibration: take the ML solution first
+
+        calibration = refine(uv, T, calibration, distortion=getattr(calibration, "dist_model", "none"))
+    res = view_rotation_test(uv, T, calibration, alpha=alpha)
+    if not res["flagged"]:
+        return None
+    p = res["p_value"]
+    significant = [int(i) for i in np.argsort(-np.nan_to_num(res["statistic"], nan=-1.0)) if p[i] < res["level"]]
+    fitted = _fit_rotated_views(uv, T, calibration, significant[:5])
+    views, also = list(res["flagged"]), list(res["also_consistent"])
+    rot, std = res["rotation_deg"].copy(), res["std_deg"].copy()
+    if fitted is not None:  # the nonlinear fits name the view and give its angle
+        best, (w, sd), also = fitted
+        views = [best] + [i for i in views if i != best]
+        rot[best], std[best] = w, sd
+    return {"views": views, "alternatives": also, "rotation_deg": rot, "std_deg": std, "p_value": p, "test": res}
+
+
 def check_view_rotations(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA) -> list:
     """Warn when the camera rotated between views (the pure-translation model is broken).
 
@@ -639,27 +711,25 @@ def check_view_rotations(uv, T, calibration: Calibration, *, alpha: float = ROTA
     Returns
     -------
     list of Diagnostic
-        ``view_rotation`` naming each significant view with its angle (degrees) and
-        standard deviation.
-    """
-    if getattr(calibration, "cov", None) is None:
-        from .refine import refine  # a linear calibration: take the ML solution first
+        ``view_rotation`` naming the rotated view(s) with the angle (degrees) and its
+        standard deviation, and the views that would explain the data as well.
 
-        calibration = refine(uv, T, calibration, distortion=getattr(calibration, "dist_model", "none"))
-    res = view_rotation_test(uv, T, calibration, alpha=alpha)
-    bad = res["flagged"]
-    if not bad:
+    Notes
+    -----
+    See :func:`locate_view_rotation`.
+    """
+    loc = locate_view_rotation(uv, T, calibration, alpha=alpha)
+    if loc is None:
         return []
     parts = []
-    for i in bad:
-        w, sd = res["rotation_deg"][i], res["std_deg"][i]
+    for i in loc["views"]:
+        w, sd = loc["rotation_deg"][i], loc["std_deg"][i]
         ang = float(np.linalg.norm(w))
         ang_std = float(np.sqrt(np.sum((w / max(ang, 1e-300)) ** 2 * sd**2)))
-        parts.append(f"view {i}: about {ang:.2g} deg +- {ang_std:.1g} (p = {res['p_value'][i]:.1e})")
-    also = res["also_consistent"]
-    if also:
-        parts.append(f"the data are also consistent with a rotation of view(s) {_list(also)} instead; "
-                     "with few views the rotated one cannot be singled out for certain")
+        parts.append(f"view {i}: about {ang:.2g} deg +- {ang_std:.1g} (p = {loc['p_value'][i]:.1e})")
+    if loc["alternatives"]:
+        parts.append(f"the data are also consistent with a rotation of view(s) {_list(loc['alternatives'])} "
+                     "instead; with few views the rotated one cannot be singled out for certain")
     return [Diagnostic(
         "view_rotation",
         "the camera seems to have rotated between views, which breaks the pure-translation model (view 0 is "

@@ -41,15 +41,18 @@ by the MSAC cost ``sum_j min(e_j^2, threshold_px^2)``.
 Loop: adaptive number of trials ``log(1 - confidence) / log(1 - p)`` (``p`` the
 probability of drawing two inliers at the best inlier ratio so far); each new best
 hypothesis is refined by local optimisation (refit on its inliers, rescore, repeat while
-the cost drops); the final model is :func:`transcalib.estimate_linear` on the inliers,
-with the inliers reclassified from it (weighted triangulation) until they settle.
+the cost drops). Problems with more than ``SCORE_POINTS`` points draw and score the
+hypotheses on a random subset of that many points (the ranking of hypotheses needs no
+more); every point is then classified with the best hypothesis. The final model is
+:func:`transcalib.estimate_linear` on the inliers, with the inliers reclassified from it
+(weighted triangulation, all points) until they settle.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -60,6 +63,8 @@ from .validate import as_uv_T, check_translations_span
 
 __all__ = ["RobustEstimate", "estimate_robust", "solve_minimal", "point_errors"]
 
+#: Points on which hypotheses are scored (a random subset of larger problems).
+SCORE_POINTS = 4096
 #: Fewest inliers (sampled pair included) that count as a consensus.
 MIN_CONSENSUS = 4
 #: Relative singular value below which a set of translations counts as not spanning 3-D.
@@ -97,7 +102,7 @@ class RobustEstimate:
         MSAC cost ``sum_j min(error_px_j^2, threshold_px^2)`` of the final model (px^2).
     info : dict
         ``trials_needed``, ``lo_steps``, ``refits``, ``time_s``, ``n_candidates``
-        (points eligible for sampling).
+        (points eligible for sampling), ``n_scored`` (points hypotheses were scored on).
     """
 
     linear: LinearEstimate
@@ -202,10 +207,11 @@ class _Scorer:
         det = np.linalg.det(G)
         self.ok = (seen.sum(axis=1) >= 2) & (np.abs(det) > 1e-12 * np.abs(np.einsum("naa->n", G)) ** 3)
         G[~self.ok] = np.eye(3)
-        self.L = np.linalg.solve(G[:, None], P)  # (n, V, 3, 3)
-        self.L[~self.ok] = 0.0
+        L = np.linalg.solve(G[:, None], P)  # (n, V, 3, 3)
+        L[~self.ok] = 0.0
+        del P, G
         # as one matrix (3 n, 3 V): Y = L2 @ vec(A T_i) is a BLAS product per batch
-        self.L2 = np.ascontiguousarray(self.L.transpose(0, 2, 1, 3).reshape(3 * n, 3 * V))
+        self.L2 = np.ascontiguousarray(L.transpose(0, 2, 1, 3).reshape(3 * n, 3 * V))
         self.n, self.V = n, V
 
     def errors(self, A: np.ndarray) -> np.ndarray:
@@ -355,7 +361,7 @@ def point_errors(A: np.ndarray, uv: np.ndarray, T: np.ndarray):
     Parameters
     ----------
     A : (3, 3) float
-        ``K R`` in pixels (any scale and sign convention with positive depths).
+        ``K R`` in pixels, any scale; the sign is chosen so that most depths are positive.
     uv : (n_views, n_points, 2) float
     T : (n_views, 3) float
 
@@ -370,10 +376,13 @@ def point_errors(A: np.ndarray, uv: np.ndarray, T: np.ndarray):
     A = A / np.linalg.norm(A[2])
     X = triangulate(A, uv, T)
     p = np.einsum("ab,vnb->vna", A, X[None] - T[:, None])
+    seen = np.isfinite(uv[..., 0])
+    z = p[..., 2][seen & np.isfinite(p[..., 2])]
+    if z.size and np.median(z) < 0:  # A given with the other sign: most depths negative
+        p = -p
     with np.errstate(divide="ignore", invalid="ignore"):
         pred = p[..., :2] / p[..., 2:3]
     res = uv - pred
-    seen = np.isfinite(uv[..., 0])
     e = np.where(seen, np.hypot(res[..., 0], res[..., 1]), 0.0)
     e = np.where(seen & ~(p[..., 2] > 0), np.inf, e)
     err = e.max(axis=0)
@@ -441,7 +450,15 @@ def estimate_robust(
     thr = float(threshold_px)
     n_views, n_points = uv.shape[:2]
 
-    pb = _normalise(uv, T)
+    pb_all = _normalise(uv, T)
+    # hypotheses are drawn and scored on a random subset of at most SCORE_POINTS points;
+    # the final classification and refit use every point
+    scorable = np.flatnonzero(pb_all.seen.sum(axis=1) >= 2)
+    if len(scorable) > SCORE_POINTS:
+        subset = np.sort(rng.choice(scorable, SCORE_POINTS, replace=False))
+    else:
+        subset = np.arange(n_points)
+    pb = replace(pb_all, x=pb_all.x[subset], seen=pb_all.seen[subset])
     scorer = _Scorer(pb)
     k_views = pb.seen.sum(axis=1)
     pool = np.flatnonzero((k_views >= 3) & scorer.ok)
@@ -503,7 +520,10 @@ def estimate_robust(
         )
 
     # final model: the paper's TLS on the inliers, reclassified until the inliers settle
-    inliers = best["err"] < thr
+    if len(subset) == n_points:
+        inliers = best["err"] < thr
+    else:
+        inliers = point_errors(_to_pixels(pb, best["a"])[0], uv, T)[0] < thr
     refits = 0
     for _ in range(4):
         masked = np.where(inliers[None, :, None], uv, np.nan)
@@ -529,5 +549,5 @@ def estimate_robust(
         threshold_px=thr,
         cost=cost,
         info={"trials_needed": float(needed), "lo_steps": lo_steps, "refits": refits,
-              "n_candidates": int(len(pool)), "time_s": time.perf_counter() - t0},
+              "n_candidates": int(len(pool)), "n_scored": int(len(subset)), "time_s": time.perf_counter() - t0},
     )
