@@ -429,7 +429,7 @@ def _predict(e, seeds_x, seeds_rho, query, k=6):
     return query + np.nan_to_num(rho)[:, None] * _direction(e, query)
 
 
-def _guided_corners(ci, cj, e, xi, xj, threshold_px, rounds=3):
+def _guided_corners(ci, cj, e, xi, xj, threshold_px, rounds=2):
     """Match corners ``ci`` (view i) to ``cj`` (view j) guided by the epipole ``e``.
 
     Seeds ``xi -> xj`` (verified descriptor matches) give ``rho`` (inverse depth) near
@@ -606,8 +606,8 @@ def track(
     *,
     method: str = "auto",
     target: str | None = None,
-    max_features: int = 2500,
-    max_corners: int = 2500,
+    max_features: int = 2000,
+    max_corners: int = 2000,
     corner_quality: float = 0.02,
     ratio: float = 0.8,
     threshold_px: float = 1.5,
@@ -618,7 +618,7 @@ def track(
     smooth_px: float = 2.5,
     min_views: int = 2,
     min_tracks: int = 8,
-    max_tracks: int | None = 2000,
+    max_tracks: int | None = 1500,
     progress=None,
     rng=0,
 ) -> Tracks:
