@@ -46,61 +46,77 @@ __all__ = ["estimate_linear", "solve_tls", "DENSE_MAX_POINTS"]
 DENSE_MAX_POINTS = 3000
 
 
-@dataclass(frozen=True)
-class _Normalised:
-    """Hartley-normalised data of the used points, and the maps that undo it."""
-
-    U: np.ndarray  # (n, V, 3) normalised homogeneous pixels, zero where unseen
-    seen: np.ndarray  # (n, V) bool
-    ref: np.ndarray  # (n,) reference view of each point
-    T: np.ndarray  # (V, 3) normalised translations
-    H: np.ndarray  # (3, 3) pixel similarity: u' = H u
-    t_scale: float  # T' = (T - T_mean) / t_scale
-
-
-def _normalise(uv: np.ndarray, T: np.ndarray) -> _Normalised:
-    """Pixels to zero mean and mean distance sqrt(2); translations to unit mean norm."""
-    seen_vn = np.isfinite(uv[..., 0])  # (V, n)
-    observed = uv[seen_vn]  # (n_obs, 2)
-    centre = observed.mean(axis=0)
-    spread = np.hypot(observed[:, 0] - centre[0], observed[:, 1] - centre[1]).mean()
-    scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
-    H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
-    U = np.empty((uv.shape[1], uv.shape[0], 3))  # (n, V, 3)
-    U[..., :2] = uv.transpose(1, 0, 2)
-    U[..., :2] -= centre
-    U[..., :2] *= scale
-    U[..., 2] = 1.0
-    seen = seen_vn.T
-    U[~seen] = 0.0
-    T_mean = T.mean(axis=0)
-    t_scale = float(np.linalg.norm(T - T_mean, axis=1).mean())
-    return _Normalised(U=U, seen=seen, ref=np.argmax(seen, axis=1), T=(T - T_mean) / t_scale, H=H, t_scale=t_scale)
-
-
-# --------------------------------------------------------------------------------------
-# Fast (O(n)) total least squares through the arrowhead structure of C^T C
-# --------------------------------------------------------------------------------------
-
-#: Points per chunk in the O(n) passes: keeps temporaries in cache.
+#: Points per chunk in the O(n) passes: every temporary stays small (a few MB), so that
+#: memory is reused rather than freshly mapped, which costs more than the arithmetic.
 _CHUNK = 16384
 
 
+@dataclass(frozen=True)
+class _Normalisation:
+    """Hartley normalisation: ``u' = H u`` and ``T' = (T - T_mean) / t_scale``."""
+
+    H: np.ndarray  # (3, 3) pixel similarity
+    T: np.ndarray  # (V, 3) normalised translations
+    t_scale: float
+
+
+def _chunks(n: int):
+    for lo in range(0, n, _CHUNK):
+        yield slice(lo, min(lo + _CHUNK, n))
+
+
+def _normalisation(uv: np.ndarray, used: np.ndarray, T: np.ndarray) -> _Normalisation:
+    """Pixels of the used points to zero mean and mean distance sqrt(2) (two chunked
+    passes); translations centred and scaled to unit mean norm."""
+    total, count = np.zeros(2), 0
+    for c in _chunks(uv.shape[1]):
+        x = uv[:, c]
+        ok = np.isfinite(x[..., 0]) & used[c]
+        total += [np.sum(x[..., 0], where=ok), np.sum(x[..., 1], where=ok)]
+        count += np.count_nonzero(ok)
+    centre = total / count
+    spread = 0.0
+    for c in _chunks(uv.shape[1]):
+        x = uv[:, c]
+        ok = np.isfinite(x[..., 0]) & used[c]
+        spread += np.sum(np.hypot(x[..., 0] - centre[0], x[..., 1] - centre[1]), where=ok)
+    spread /= count
+    scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
+    H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
+    T_mean = T.mean(axis=0)
+    t_scale = float(np.linalg.norm(T - T_mean, axis=1).mean())
+    return _Normalisation(H=H, T=(T - T_mean) / t_scale, t_scale=t_scale)
+
+
+@dataclass(frozen=True)
+class _Group:
+    """Points of one chunk that are seen in the same views.
+
+    Their first seen view is their reference (the head, slot 0), the other seen views
+    the tail, so every slot is seen. With ``z_i`` the normalised homogeneous pixels in
+    slot ``i`` and ``t_k = T_k - T_r``, the blocks of ``M = C^T C`` are::
+
+        D[0, 0] = (V_g - 1) |z_0|^2,   D[k, k] = |z_k|^2,   D[0, k] = -z_0 . z_k
+        B[i] = kron(z_i, tt_i)   with tt_0 = -sum_k t_k, tt_k = t_k
+    """
+
+    points: np.ndarray  # (m,) point index
+    views: np.ndarray  # (V_g,) seen views, reference first
+    Z: np.ndarray  # (m, V_g, 3)
+    tt: np.ndarray  # (V_g, 3)
+    D00: np.ndarray  # (m,)
+    D0k: np.ndarray  # (m, V_g - 1)
+    Dkk: np.ndarray  # (m, V_g - 1)
+
+
 class _Arrowhead:
-    """The blocks of ``M = C^T C``, point by point, in a head-first layout.
+    """``M = C^T C = [[D, B], [B^T, E]]`` of the normalised system, streamed in chunks.
 
-    For point ``j`` slot 0 holds its reference view ``r`` (the head) and slots
-    ``1..V-1`` the other views (the tail; zero where unseen). With ``z_0 = u_r``,
-    ``z_k = u_k`` and ``t_k = T_k - T_r``::
-
-        D_j[0, 0] = (k_j - 1) |u_r|^2,   D_j[k, k] = |u_k|^2,   D_j[0, k] = -u_r . u_k
-        B_j[i] = kron(z_i, tt_i)   with tt_0 = -sum_k t_k, tt_k = t_k
-        E = kron(I_3, sum_jk t_k t_k^T)
-
-    ``tt`` depends only on the reference view and which views see the point, so points
-    are sorted into such groups; then ``sum_j B_j^T W_j B_j`` for per-point matrices
-    ``W_j`` (V x V) is ``sum_ii' kron(sum_j W_j[i, i'] z_ji z_ji'^T, tt_i tt_i'^T)``: all
-    per-point work is on 3-vectors, and the sums over points are matrix products.
+    ``D`` is block diagonal, one small arrowhead block ``D_j`` per point; ``B_j``'s rows
+    are Kronecker products ``kron(z_i, tt_i)`` whose ``tt`` depends only on the views that
+    see the point. Sums over points of ``B_j^T W_j B_j`` are therefore
+    ``kron(sum_j ... z z^T, tt tt^T)``: per-point work on 3-vectors, sums as matrix
+    products, nothing of size O(n) kept between passes.
 
     ``(D_j - mu I)^-1`` is applied in closed form: with ``delta_k = D_kk - mu``,
     ``q_k = D_0k / delta_k`` and the head's Schur scalar ``s = D_00 - mu - sum_k D_0k q_k``::
@@ -108,59 +124,50 @@ class _Arrowhead:
         y_0 = (b_0 - sum_k q_k b_k) / s,    y_k = (b_k - D_0k y_0) / delta_k
     """
 
-    def __init__(self, nd: _Normalised):
-        seen, ref = nd.seen, nd.ref
-        n, V = seen.shape
-        if seen.all():  # the common case: one group, reference view 0, no reordering
-            rows = slice(None)
-            others = np.broadcast_to(np.arange(1, V), (n, V - 1))
-            tail = seen[:, 1:]
-            key = np.zeros(n, dtype=int)
-            self.Z = nd.U
-        else:
-            # tail slots: the views other than the reference, in view order
-            others = np.arange(V - 1)[None, :] + (np.arange(V - 1)[None, :] >= ref[:, None])
-            tail = np.take_along_axis(seen, others, axis=1)
-            key = ref * (1 << (V - 1)) + tail @ (1 << np.arange(V - 1))
-            rows = np.argsort(key, kind="stable")  # group points of equal key
-            others, tail, key = others[rows], tail[rows], key[rows]
-            U = nd.U[rows]
-            self.Z = np.concatenate(
-                [np.take_along_axis(U, ref[rows][:, None, None], axis=1), np.take_along_axis(U, others[..., None], axis=1)],
-                axis=1,
-            )
-        self.n, self.V = n, V
-        self.point = np.arange(n)[rows]  # sorted position -> point index
-        self.ref, self.others = ref[rows], others
-        u_r, Zt = self.Z[:, 0], self.Z[:, 1:]
-        self.D00 = tail.sum(axis=1) * np.einsum("na,na->n", u_r, u_r)
-        self.D0k = -np.einsum("nka,na->nk", Zt, u_r)
-        self.Dkk = np.where(tail, np.einsum("nka,nka->nk", Zt, Zt), 1.0)
-        self.tail = tail
-        # groups of equal key: (slice, tt (V, 3))
-        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-        stops = np.r_[starts[1:], n]
-        self.groups = []
-        tt_sum = np.zeros((3, 3))
-        for a, b in zip(starts, stops):
-            t = np.where(tail[a][:, None], nd.T[others[a]] - nd.T[self.ref[a]], 0.0)
-            self.groups.append((a, b, np.vstack([-t.sum(axis=0), t])))
-            tt_sum += (b - a) * t.T @ t
-        self.E = np.kron(np.eye(3), tt_sum)
+    def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
+        self.uv, self.used, self.norm = uv, used, norm
+        self.V = uv.shape[0]
+        self.bits = 1 << np.arange(self.V, dtype=np.int64)
+        self.E = None  # kron(I_3, sum t t^T), accumulated by the first taylor() pass
 
-    def _chunks(self):
-        """(group translations tt, slice) covering all points, at most _CHUNK long."""
-        for a, b, tt in self.groups:
-            for lo in range(a, b, _CHUNK):
-                yield tt, slice(lo, min(lo + _CHUNK, b))
+    def groups(self):
+        """Yield the :class:`_Group` s of every chunk of points."""
+        H, Tn, V = self.norm.H, self.norm.T, self.V
+        for c in _chunks(self.uv.shape[1]):
+            x = self.uv[:, c]  # (V, m, 2), a view
+            m = x.shape[1]
+            seen = np.isfinite(x[..., 0])
+            key = self.bits @ seen
+            key[~self.used[c]] = 0  # not used: in no group
+            patterns = np.flatnonzero(np.bincount(key)) if V <= 16 else np.unique(key)
+            patterns = patterns[patterns > 0]
+            Zc = np.empty((m, V, 3))  # normalised homogeneous pixels, NaN where unseen
+            Zc[..., 0] = x[..., 0].T * H[0, 0] + H[0, 2]
+            Zc[..., 1] = x[..., 1].T * H[1, 1] + H[1, 2]
+            Zc[..., 2] = 1.0
+            for pattern in patterns:
+                views = np.flatnonzero(pattern & self.bits)
+                if patterns.size == 1 and np.all(key == pattern):  # the common case
+                    members, Z = np.arange(m), (Zc if views.size == V else Zc[:, views])
+                else:
+                    members = np.flatnonzero(key == pattern)
+                    Z = Zc[members][:, views]
+                t = Tn[views[1:]] - Tn[views[0]]
+                z0 = Z[:, 0]
+                yield _Group(
+                    points=c.start + members, views=views, Z=Z, tt=np.vstack([-t.sum(axis=0), t]),
+                    D00=(views.size - 1) * np.einsum("na,na->n", z0, z0),
+                    D0k=-np.einsum("nka,na->nk", Z[:, 1:], z0),
+                    Dkk=np.einsum("nka,nka->nk", Z[:, 1:], Z[:, 1:]),
+                )
 
-    def _inverse(self, c: slice, mu: float):
-        """Closed-form pieces of ``(D_j - mu I)^-1`` for the chunk: ``(q, 1/s, 1/delta)``,
-        or None if some ``D_j - mu I`` is not positive definite (``mu`` past a pole)."""
-        delta = self.Dkk[c] - mu
-        delta[~self.tail[c]] = 1.0
-        q = self.D0k[c] / delta
-        s = self.D00[c] - mu - np.einsum("nk,nk->n", self.D0k[c], q)
+    @staticmethod
+    def _inverse(g: _Group, mu: float):
+        """Closed-form pieces of ``(D_j - mu I)^-1``: ``(q, 1/s, 1/delta)``, or None if
+        some ``D_j - mu I`` is not positive definite (``mu`` past a pole)."""
+        delta = g.Dkk - mu
+        q = g.D0k / delta
+        s = g.D00 - mu - np.einsum("nk,nk->n", g.D0k, q)
         if np.any(delta <= 0) or np.any(s <= 0):
             return None
         return q, 1.0 / s, 1.0 / delta
@@ -177,25 +184,24 @@ class _Arrowhead:
             G_2 = sum_k B_k B_k^T / delta_k^2 - sum_k q_k / (s delta_k) (B_k w^T + w B_k^T)
                   + (1 + |q|^2) w w^T / s^2
 
-        and ``sum_j c_j B_jk B_jk^T = kron(sum_j c_j z_jk z_jk^T, tt_k tt_k^T)``: every sum
-        over points is a small matrix product.
+        and ``sum_j c_j B_jk B_jk^T = kron(sum_j c_j z_jk z_jk^T, tt_k tt_k^T)``.
         """
-        G1, G2 = np.zeros((9, 9)), np.zeros((9, 9))
-        for tt, c in self._chunks():
-            parts = self._inverse(c, mu)
+        G1, G2, E3 = np.zeros((9, 9)), np.zeros((9, 9)), np.zeros((3, 3))
+        for g in self.groups():
+            parts = self._inverse(g, mu)
             if parts is None:
                 return None
+            E3 += len(g.points) * g.tt[1:].T @ g.tt[1:]
             q, inv_s, inv_delta = parts
-            Z = self.Z[c]
-            n = Z.shape[0]
+            n, Vg = g.Z.shape[:2]
             qhat = np.concatenate([np.ones((n, 1)), -q], axis=1)
             # w_j = sum_i qhat_i kron(z_i, tt_i), as rows (n, 9)
-            w = ((qhat[:, :, None] * Z).transpose(0, 2, 1).reshape(3 * n, self.V) @ tt).reshape(n, 9)
+            w = ((qhat[:, :, None] * g.Z).transpose(0, 2, 1).reshape(3 * n, Vg) @ g.tt).reshape(n, 9)
             head2 = (1.0 + np.einsum("nk,nk->n", q, q)) * inv_s**2
             G1 += (w * inv_s[:, None]).T @ w
             G2 += (w * head2[:, None]).T @ w
-            for k in range(1, self.V):
-                zk, t = Z[:, k], tt[k]
+            for k in range(1, Vg):
+                zk, t = g.Z[:, k], g.tt[k]
                 d1 = inv_delta[:, k - 1]
                 M1 = (zk * d1[:, None]).T @ zk
                 M2 = (zk * (d1 * d1)[:, None]).T @ zk
@@ -205,22 +211,20 @@ class _Arrowhead:
                 X = (zk * (q[:, k - 1] * inv_s * d1)[:, None]).T @ w  # (3, 9)
                 cross = np.einsum("am,b->abm", X, t).reshape(9, 9)
                 G2 -= cross + cross.T
+        self.E = np.kron(np.eye(3), E3)
         return G1, G2
 
     def depths(self, mu: float, a: np.ndarray) -> np.ndarray:
-        """Depths ``y_j = -(D_j - mu I)^-1 B_j a`` in view slots (n, V)."""
+        """Depths ``y_j = -(D_j - mu I)^-1 B_j a`` (V, n_points), NaN where unseen or unused."""
         A = a.reshape(3, 3)
-        y = np.empty((self.n, self.V))
-        for tt, c in self._chunks():
-            b = np.einsum("nia,ia->ni", self.Z[c], tt @ A.T)  # B_j a = z_i^T A tt_i
-            q, inv_s, inv_delta = self._inverse(c, mu)
+        y = np.full(self.uv.shape[:2], np.nan)
+        for g in self.groups():
+            b = np.einsum("nia,ia->ni", g.Z, g.tt @ A.T)  # B_j a = z_i^T A tt_i
+            q, inv_s, inv_delta = self._inverse(g, mu)
             y0 = (b[:, 0] - np.einsum("nk,nk->n", q, b[:, 1:])) * inv_s
-            y[c, 0] = -y0
-            y[c, 1:] = -(b[:, 1:] - self.D0k[c] * y0[:, None]) * inv_delta
-        out = np.empty_like(y)
-        out[self.point, self.ref] = y[:, 0]
-        out[self.point[:, None], self.others] = y[:, 1:]
-        return out
+            y[g.views[0], g.points] = -y0
+            y[g.views[1:, None], g.points[None, :]] = -((b[:, 1:] - g.D0k * y0[:, None]) * inv_delta).T
+        return y
 
 
 class _TaylorModel:
@@ -259,10 +263,10 @@ class _TaylorModel:
         return nu
 
 
-def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
     """Smallest right singular vector of ``C`` via the arrowhead structure, O(n).
 
-    Returns ``(a (9,), depths (n, V), mu, eigenvalues of S(mu) (9,))``.
+    Returns ``(a (9,), depths (V, n_points), mu, eigenvalues of S(mu) (9,))``.
 
     Newton on a local model: one O(n) pass gives ``S`` and ``dS/dmu`` exactly at the
     current ``mu``; the root of the linear model (a 9 x 9 problem) is the next ``mu``.
@@ -270,7 +274,7 @@ def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     passes from ``mu = 0`` leave a truncation error below rounding (noise-free data
     need one).
     """
-    arrow = _Arrowhead(nd)
+    arrow = _Arrowhead(uv, used, norm)
     G = arrow.taylor(0.0)
     if G is None:
         raise DegenerateError(
@@ -301,27 +305,31 @@ def _tls_fast(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------
 
 
-def _tls_dense(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
     """The paper's formulation: build ``C`` and take its SVD (reference, small n).
 
-    Returns ``(a (9,), depths (n, V), mu = sigma_min^2, eigenvalues of S(mu) (9,))``.
+    Returns ``(a (9,), depths (V, n_points), mu = sigma_min^2, eigenvalues of S(mu) (9,))``.
     """
-    U, seen, ref, T = nd.U, nd.seen, nd.ref, nd.T
-    n, V = seen.shape
-    col = np.cumsum(seen.ravel()).reshape(n, V) - 1  # column of lam_jv
+    x = uv[:, used]
+    seen = np.isfinite(x[..., 0])  # (V, n)
+    U = np.concatenate([x, np.ones(x.shape[:2] + (1,))], axis=2) @ norm.H.T  # normalised
+    V, n = seen.shape
+    col = np.full((V, n), -1)
+    col.T[seen.T] = np.arange(seen.sum())  # column of lam_vj, point-major
     n_lam = int(seen.sum())
-    pairs = np.argwhere(seen & (np.arange(V)[None, :] != ref[:, None]))  # (j, v)
+    ref = np.argmax(seen, axis=0)
+    pairs = np.argwhere((seen & (np.arange(V)[:, None] != ref[None, :])).T)  # (j, v)
     C = np.zeros((3 * len(pairs), n_lam + 9))
     for p, (j, v) in enumerate(pairs):  # reference code: clarity over speed
         r = ref[j]
         rows = slice(3 * p, 3 * p + 3)
-        C[rows, col[j, r]] = U[j, r]
-        C[rows, col[j, v]] = -U[j, v]
-        C[rows, n_lam:] = -np.kron(np.eye(3), T[v] - T[r])
+        C[rows, col[r, j]] = U[r, j]
+        C[rows, col[v, j]] = -U[v, j]
+        C[rows, n_lam:] = -np.kron(np.eye(3), norm.T[v] - norm.T[r])
     _, s, Vt = np.linalg.svd(C, full_matrices=False)
     b = Vt[-1]
-    depths = np.zeros((n, V))
-    depths[seen] = b[:n_lam]
+    depths = np.full(uv.shape[:2], np.nan)
+    depths[:, used] = np.where(seen, b[col], np.nan)
     # S(mu): the Schur complement of C^T C - mu I over the depths
     mu = s[-1] ** 2
     M = C.T @ C - mu * np.eye(C.shape[1])
@@ -334,15 +342,17 @@ def _tls_dense(nd: _Normalised) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------
 
 
-def solve_tls(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, method: str = "fast"):
     """Total-least-squares ``A`` and depths from validated data (no further checks).
 
     Parameters
     ----------
     uv : (n_views, n_points, 2) float
-        Every point seen in at least 2 views.
+        Pixels, NaN where unseen.
     T : (n_views, 3) float
         Translations spanning 3-D.
+    used : (n_points,) bool, optional
+        Points to use, each seen in at least 2 views (default: all).
     method : {"fast", "dense"}
 
     Returns
@@ -350,15 +360,16 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> tuple[np.n
     A : (3, 3) float
         ``K R`` in pixel and translation units, ``||A[2]|| = 1``, depths positive.
     depth : (n_views, n_points) float
-        ``lam_ij`` (camera z), NaN where unseen.
+        ``lam_ij`` (camera z), NaN where unseen or not used.
     singular_values : (3,) float
         ``sigma_1`` the smallest singular value of the normalised ``C``, then the
         reduced values ``sqrt(sigma_1^2 + eig_k(S))``, k = 2, 3, of the Schur complement
         ``S`` over the depths: the residual of the best solution whose ``A`` is the k-th
         alternative. ``sigma_1 / sigma_2`` near 1 means ``A`` is not determined.
     """
-    nd = _normalise(uv, T)
-    a, depths, mu, w = (_tls_fast if method == "fast" else _tls_dense)(nd)
+    used = np.ones(uv.shape[1], bool) if used is None else used
+    norm = _normalisation(uv, used, T)
+    a, depths, mu, w = (_tls_fast if method == "fast" else _tls_dense)(uv, used, norm)
     # reduced singular values sqrt(mu + eig_k(S(mu))): sigma_1, then the best residuals
     # of the second and third alternative A
     sv = np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
@@ -369,14 +380,11 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> tuple[np.n
             "Track more points, over more views, spread over the image and over depth."
         )
     # undo normalisation: lam' H u = A' (X - T) / t_scale  =>  A ∝ H^-1 A' / t_scale
-    A = np.linalg.solve(nd.H, a.reshape(3, 3)) / nd.t_scale
+    A = np.linalg.solve(norm.H, a.reshape(3, 3)) / norm.t_scale
     c = 1.0 / np.linalg.norm(A[2])
-    depths *= c
-    depths[~nd.seen] = np.nan
-    depth = depths.T
-    if np.nanmedian(depth) < 0:
-        c, depth = -c, -depth
-    return A * c, depth, sv
+    if np.nanmedian(depths) < 0:
+        c = -c
+    return A * c, depths * c, sv
 
 
 def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
@@ -431,18 +439,9 @@ def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
             f"method='dense' is a reference for small problems (at most {DENSE_MAX_POINTS} points, "
             f"got {int(used.sum())}); use method='fast', which gives the same result in O(n)"
         )
-    everything = used.all() and active_views.all()
-    uv_used = uv if everything else uv[np.ix_(active_views, used)]
-    A, depth_used, sv = solve_tls(uv_used, T[active_views], method)
+    A, depth, sv = solve_tls(uv, T, used, method)
     K, R = rq_decompose(A)
-    if everything:
-        depth = depth_used
-        X = triangulate(A, uv, T, depth, passes=1)
-    else:
-        depth = np.full(uv.shape[:2], np.nan)
-        depth[np.ix_(active_views, used)] = depth_used
-        X = np.full((uv.shape[1], 3), np.nan)
-        X[used] = triangulate(A, uv[:, used], T, depth[:, used], passes=1)
+    X = triangulate(A, uv, T, depth, passes=1)  # NaN for unused points (no finite depth)
     return LinearEstimate(
         K=K, R=R, A=K @ R, X=X, depth=depth, singular_values=sv,
         n_used_points=int(used.sum()), used=used, method=method,

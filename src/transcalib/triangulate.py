@@ -91,36 +91,42 @@ def triangulate(
             raise ValueError("triangulate: K is required together with dist")
         A = np.linalg.inv(K) @ A  # = R up to scale: work in undistorted normalised coordinates
         A = A / np.linalg.norm(A[2])
-    seen = np.isfinite(uv[..., 0])  # (V, n)
-    pts = np.where(seen[..., None], uv, 0.0)
-    if np.asarray(dist).size:
-        rays = pixels_to_rays(K, pts, dist)
-        pts = rays[..., :2] / rays[..., 2:3]
-    u, v = pts[..., 0], pts[..., 1]
-    r2 = u * u + v * v
     # M = sum_v w (a_u a_u^T + a_v a_v^T) with a_u = A0 - u A2, a_v = A1 - v A2 expands
     # into four fixed 3x3 matrices weighted by per-point sums of w, w u, w v, w (u^2 + v^2);
     # b = sum_v w (a_u a_u^T + a_v a_v^T) T_v likewise with per-view vectors.
     A0, A1, A2 = A
     sym = lambda x, y: np.outer(x, y) + np.outer(y, x)  # noqa: E731
     basis = np.stack([np.outer(A0, A0) + np.outer(A1, A1), -sym(A0, A2), -sym(A1, A2), np.outer(A2, A2)])
-    per_view = np.einsum("kab,vb->kva", basis, T)  # (4, V, 3): basis_k T_v
+    per_view = np.einsum("kab,vb->kva", basis, T).reshape(-1, 3)  # (4 V, 3): basis_k T_v
+    X = np.empty((uv.shape[1], 3))
+    for lo in range(0, uv.shape[1], _CHUNK):  # small temporaries: memory is reused
+        c = slice(lo, min(lo + _CHUNK, uv.shape[1]))
+        X[c] = _triangulate_chunk(uv[:, c], None if depth is None else depth[:, c], A2, T, basis, per_view,
+                                  K, dist, passes)
+    return X
+
+
+#: Points per chunk.
+_CHUNK = 16384
+
+
+def _triangulate_chunk(uv, depth, A2, T, basis, per_view, K, dist, passes) -> np.ndarray:
+    seen = np.isfinite(uv[..., 0])  # (V, n)
+    pts = np.where(seen[..., None], uv, 0.0)
+    if np.asarray(dist).size:
+        rays = pixels_to_rays(K, pts, dist)
+        pts = rays[..., :2] / rays[..., 2:3]
+    u, v = pts[..., 0], pts[..., 1]
     if depth is None:
         w = seen.astype(float)
     else:
         ok = seen & np.isfinite(depth) & (depth != 0)
         w = np.where(ok, 1.0 / np.where(ok, depth, 1.0) ** 2, seen.astype(float))
-    X = None
     V, n = seen.shape
-    basis9 = basis.reshape(4, 9)
-    per_view = per_view.reshape(4 * V, 3)
-    coef = np.empty((4, V, n))
+    X = None
     for _ in range(max(1, passes)):
-        np.copyto(coef[0], w)
-        np.multiply(w, u, out=coef[1])
-        np.multiply(w, v, out=coef[2])
-        np.multiply(w, r2, out=coef[3])
-        M = coef.sum(axis=1).T @ basis9  # (n, 9)
+        coef = np.stack([w, w * u, w * v, w * (u * u + v * v)])  # (4, V, n)
+        M = coef.sum(axis=1).T @ basis.reshape(4, 9)  # (n, 9)
         b = coef.reshape(4 * V, n).T @ per_view  # (n, 3)
         X = solve_sym3(M.reshape(n, 3, 3), b)
         z = X @ A2 - (T @ A2)[:, None]  # depths (V, n)

@@ -40,11 +40,12 @@ def as_uv_T(uv, T, *, min_views: int = MIN_VIEWS) -> tuple[np.ndarray, np.ndarra
 
     Returns
     -------
-    uv : (n_views, n_points, 2) float64 array (a copy: inputs are never modified)
-    T : (n_views, 3) float64 array (a copy)
+    uv : (n_views, n_points, 2) float64 array (the input itself when it already is one:
+        callers never modify it)
+    T : (n_views, 3) float64 array
     """
-    uv = _as_float_array("uv", uv).copy()
-    T = _as_float_array("T", T).copy()
+    uv = _as_float_array("uv", uv)
+    T = _as_float_array("T", T)
     if uv.ndim != 3 or uv.shape[2] != 2:
         raise InputError(f"uv must have shape (n_views, n_points, 2); got shape {uv.shape}")
     if T.ndim != 2 or T.shape[1] != 3:
