@@ -19,7 +19,6 @@ import sys
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from transcalib import render
 

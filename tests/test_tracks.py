@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from transcalib import render, simulate, tracks
-from transcalib.camera import project
 from transcalib.types import DegenerateError, InputError
 
 

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .camera import K_from_params, distort, project, undistort
+from .camera import K_from_params, project, undistort
 from .simulate import Scene
 from .types import InputError
 

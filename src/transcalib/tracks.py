@@ -4,27 +4,33 @@ Stages (each timed in ``Tracks.info["time_s"]``):
 
 1. **detect** - SIFT keypoints and descriptors, plus Shi-Tomasi corners refined with
    ``cv2.cornerSubPix`` (corners carry repetitive textures such as checkerboards).
-2. **match** - SIFT descriptors between **all** view pairs, with Lowe's ratio test and a
-   mutual (cross) check.
+2. **match** - SIFT descriptors between **all** view pairs (exact nearest neighbours
+   from one matrix product per pair), with Lowe's ratio test and a mutual check.
 3. **verify** - under pure translation the fundamental matrix of every view pair is
    ``F = [e]_x``: the epipole ``e`` is the same point in both images and ``x``, ``x'``,
    ``e`` are collinear. Two correspondences fix ``e`` (the intersection of the lines
    ``x1 x1'`` and ``x2 x2'``), so a 2-point RANSAC rejects mismatches. Writing
    ``x' = x + rho (e3 x - e_xy)``, ``rho = 1 / depth'`` must have one sign for all
-   points (cheirality), and the epipoles of all pairs must be consistent
-   (``e_ik`` on the line through ``e_ij`` and ``e_jk``, since ``t_ik = t_ij + t_jk``).
-   Corners, whose descriptors are ambiguous on repetitive textures, are then matched
-   **guided by the epipole**: their ``rho`` is interpolated from the verified matches
-   nearby, the prediction is snapped to the nearest corner in the other view, and the
-   match is kept only if it is mutual and on the epipolar line.
-4. **chain** - all verified matches are joined into tracks by union-find (connected
-   components); a track with two features in one view is a conflict and loses those
-   observations.
+   points (cheirality). The epipoles of all pairs must be consistent: ``e_ik`` lies on
+   the line through ``e_ij`` and ``e_jk`` (``t_ik = t_ij + t_jk``); a pair that fails
+   this in every triplet (repetitive textures can make a wrong epipole win) is
+   re-estimated by a 1-point RANSAC on that line. Corners, whose descriptors are
+   ambiguous on repetitive textures, are then matched **guided by the epipole**: their
+   ``rho`` is interpolated from the verified matches nearby, the prediction is snapped to
+   the nearest corner of the other view (only if clearly nearer than the second
+   nearest, and both ways), and matches whose depth disagrees with their neighbours'
+   are dropped.
+4. **chain** - verified matches, best first, are joined into tracks by union-find; an
+   edge that would put two features of one view into a track is skipped, so a mismatch
+   cannot glue two tracks together.
 5. **refine** - every observation is aligned to the track's reference view (its first)
    by Lucas-Kanade with an affine warp and gain/offset (batched Gauss-Newton over all
-   tracks, bicubic sampling); observations that do not converge or correlate poorly are
-   dropped, epipoles are re-estimated from the refined points and observations off
-   their epipolar line are dropped.
+   tracks, bicubic sampling): sub-pixel accuracy, insensitive to brightness changes.
+   Observations that do not converge or correlate poorly are dropped. Then checks on
+   the refined tracks: local depth smoothness, epipoles re-estimated from the refined
+   points (each observation judged against its neighbours' trend, which tolerates lens
+   distortion), and depth consistency across 3+ views
+   (``q_j = 1 / (1 / rho_j + e3) = s_j w`` with one inverse depth ``w`` per point).
 
 Coordinates follow OpenCV: the centre of the top-left pixel is (0, 0).
 """
@@ -42,8 +48,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .types import DegenerateError, InputError
