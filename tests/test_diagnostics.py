@@ -10,6 +10,7 @@ from transcalib import simulate
 from transcalib.camera import project
 from transcalib.diagnostics import (
     check_null_space,
+    check_outliers,
     check_points_behind,
     check_pose_orientations,
     check_translations,
@@ -222,3 +223,34 @@ def test_pose_orientations():
 def test_pose_orientations_bad_input(q):
     with pytest.raises(InputError):
         check_pose_orientations(q)
+
+
+def test_diagnose_silent_after_robust_pipeline():
+    """Outliers removed by the robust estimator leave nothing to report."""
+    from test_robust import plant_outliers
+
+    from transcalib.robust import estimate_robust
+
+    scene = simulate.random_scene(300, 5, noise_px=0.5, rng=31)
+    uv, _ = plant_outliers(scene, 0.3, rng=32)
+    r = estimate_robust(uv, scene.T, rng=0)
+    masked = np.where(r.inliers[None, :, None], uv, np.nan)
+    cal = replace(refine(masked, scene.T, r.linear), inliers=r.inliers)
+    assert diagnose(uv, scene.T, cal, linear=r.linear) == []
+    # without the robust step the same data are flagged
+    lin = estimate_linear(uv, scene.T)
+    assert "points_behind_camera" in _codes(diagnose(uv, scene.T, lin, check_rotation=False))
+    codes = _codes(diagnose(uv, scene.T, refine(uv, scene.T, lin)))
+    assert "outliers" in codes and "points_behind_camera" in codes
+
+
+def test_outliers_flagged_and_silent_on_gaussian_residuals():
+    rng = np.random.default_rng(0)
+    res = rng.normal(0, 0.5, (4, 500, 2))
+    assert check_outliers(res) == []
+    res[2, 10:20] += 30.0
+    d = check_outliers(res)
+    assert _codes(d) == ["outliers"] and "in 10 points" in str(d[0])
+    used = np.ones(500, bool)
+    used[10:20] = False
+    assert check_outliers(res, used=used) == []

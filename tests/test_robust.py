@@ -148,3 +148,18 @@ def test_bad_options_raise_input_error(kw):
 def test_bad_shapes_raise_input_error():
     with pytest.raises(InputError):
         estimate_robust(np.zeros((4, 5, 3)), np.zeros((4, 3)))
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_views=st.integers(4, 7), planar=st.booleans())
+def test_minimal_solver_exact_property(seed, n_views, planar):
+    scene = simulate.random_scene(12, n_views, planar=planar, rng=seed)
+    k = np.isfinite(scene.uv[..., 0]).sum(axis=0)
+    idx = np.flatnonzero(k >= 4)
+    if len(idx) < 2:
+        return
+    A = solve_minimal(scene.uv, scene.T, [idx[:2]])
+    np.testing.assert_allclose(A[0], _A_true(scene), atol=1e-8)

@@ -13,6 +13,7 @@ code                       meaning
 ``points_behind_camera``   reconstructed points behind the camera in some view
 ``view_few_points``        views that see very few points
 ``view_residuals``         views whose residuals stand out from the others
+``outliers``               gross outliers left in the residuals (mismatched tracks)
 ``view_rotation``          model violation: the camera rotated between views
 ``pose_orientation``       robot poses whose orientation differs from view 0's
 =========================  ==============================================================
@@ -72,6 +73,7 @@ __all__ = [
     "check_null_space",
     "check_points_behind",
     "check_views",
+    "check_outliers",
     "check_view_rotations",
     "view_rotation_test",
     "locate_view_rotation",
@@ -308,6 +310,50 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
             "units, a move that did not finish), whether the robot also rotated there, motion blur or a "
             "tracking failure in that image; re-take it or drop it."))
     return out
+
+
+def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, max_fraction: float = 0.001) -> list:
+    """Warn when the residuals have gross outliers (heavy tails) the fit did not remove.
+
+    Parameters
+    ----------
+    residuals_px : (n_views, n_points, 2) float
+        Residuals of the calibration (NaN where unseen or unused).
+    used : (n_points,) bool, optional
+        Points that count (e.g. the inliers).
+    k_sigma : float
+        An observation is gross when its residual norm exceeds ``k_sigma`` times the
+        robust noise ``sigma = 1.4826 median(|r|)`` per coordinate (Gaussian: probability
+        ``exp(-k^2 / 2)``, 4e-6 for k = 5).
+    max_fraction : float
+        Warn when more than this fraction of the observations (and at least 3) are gross.
+
+    Returns
+    -------
+    list of Diagnostic
+        ``outliers``.
+    """
+    res = np.asarray(residuals_px, float)
+    ok = np.isfinite(res[..., 0])
+    if used is not None:
+        ok &= np.asarray(used, bool)[None, :]
+    r = res[ok]
+    if len(r) < 10:
+        return []
+    sigma = 1.4826 * np.median(np.abs(r))
+    if not sigma > 0:
+        return []
+    e = np.hypot(r[:, 0], r[:, 1])
+    gross = int(np.sum(e > k_sigma * sigma))
+    if gross < 3 or gross <= max_fraction * len(e):
+        return []
+    pts = np.flatnonzero(np.any(ok & (np.hypot(res[..., 0], res[..., 1]) > k_sigma * sigma), axis=0))
+    return [Diagnostic(
+        "outliers",
+        f"{gross} of {len(e)} observations ({100 * gross / len(e):.1f}%, in {len(pts)} points: {_list(pts)}) have "
+        f"residuals beyond {k_sigma:g} sigma (robust sigma {sigma:.3g} px): the tracks contain mismatches, which "
+        "bias the calibration. Run the robust estimator (calibrate(..., robust=True), CLI --robust) or remove "
+        "those tracks.")]
 
 
 # ----------------------------------------------------------------------------------------
@@ -822,7 +868,8 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
     Returns
     -------
     list of Diagnostic
-        In the order: translations, null space, points behind, views, rotation, poses.
+        In the order: translations, null space, points behind, views, outliers, rotation,
+        poses.
     """
     uv, T = as_uv_T(uv, T)
     out = []
@@ -839,10 +886,19 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         linear = calibration if isinstance(calibration, LinearEstimate) else getattr(calibration, "linear", None)
     if linear is not None:
         out += check_null_space(linear)
-    out += check_points_behind(uv, T, calibration)
+    behind = check_points_behind(uv, T, calibration)
+    n_excluded = int((getattr(calibration, "info", None) or {}).get("n_points_behind_camera", 0) or 0)
+    if not behind and n_excluded > 0:
+        behind = [Diagnostic(
+            "points_behind_camera",
+            f"{n_excluded} point(s) were left out of the refinement because they lie behind the camera: these "
+            "tracks are almost certainly mismatches. Remove them or run the robust estimator "
+            "(calibrate(..., robust=True), CLI --robust).")]
+    out += behind
     residuals = getattr(calibration, "residuals_px", None)
     if residuals is not None:
         out += check_views(uv, residuals, used=getattr(calibration, "inliers", None))
+        out += check_outliers(residuals, used=getattr(calibration, "inliers", None))
     if check_rotation and isinstance(calibration, Calibration):
         try:
             out += check_view_rotations(uv, T, calibration)
