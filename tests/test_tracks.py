@@ -150,3 +150,29 @@ def test_lens_distortion_keeps_the_periphery():
     p = tr.uv[0][np.isfinite(tr.uv[0, :, 0])]
     corner_dist = np.linalg.norm((p - [240, 180]) / [240, 180], axis=1)
     assert np.sum(corner_dist > 1.0) >= 20  # many tracks in the image corners
+
+
+def test_plain_checkerboard_every_corner_tracked():
+    # nothing but a checkerboard on a plain wall: descriptors alone are ambiguous, the
+    # epipole-guided corner matching must still track every inner corner in every view
+    from scipy.spatial.transform import Rotation
+
+    from transcalib.camera import K_from_params
+
+    rng = np.random.default_rng(1)
+    K = K_from_params(600.0, 620.0, 330.0, 230.0)
+    R = Rotation.from_euler("xyz", rng.uniform(-180, 180, 3), degrees=True).as_matrix()
+    T = render.robot_translations(4, 100.0, rng)
+    tilt = Rotation.from_euler("xy", rng.uniform(-25, 25, 2), degrees=True).as_matrix()
+    board, corners_c = render.checker_board([0, 0, 800], tilt, 60, 9, 7, margin=0.5)
+    wall = render.plane([0, 0, 1200], np.eye(3), (4000, 4000), render.Constant(0.4))
+    surfaces = [render.Surface(R.T @ s.origin, R.T @ s.axis_s, R.T @ s.axis_t, s.size, s.texture) for s in (board, wall)]
+    images = render.render(surfaces, K, R, T, (640, 480), noise_std=1.0, rng=1)
+    r = render.Rendered(images=images, K=K, R=R, dist=np.zeros(0), T=T, surfaces=surfaces, corners=corners_c @ R,
+                        corner_kind=np.array(["checker"] * len(corners_c)), image_size=(640, 480))
+    tr = tracks.track(images)
+    _check(track_errors(r, tr), 0.1, 0.15, gross=0.0)
+    P = r.project(r.corners)
+    d = np.linalg.norm(tr.uv[:, :, None] - P[:, None], axis=-1)
+    tracked = np.nanmin(np.where(np.isfinite(d), d, np.inf), axis=1) < 0.5
+    assert np.all(tracked.sum(1) == len(corners_c))
