@@ -37,12 +37,18 @@ translation (a score test). A forward selection names the view(s) whose rotation
 explains the data, each accepted at ``alpha / (n_views - 1)`` (Bonferroni; default
 ``alpha = 0.01``: 0.5% of pure-translation trials flagged on the paper's scene).
 
+When the test fires, :func:`locate_view_rotation` refits the data with the rotation of
+each significant view free in turn (``refine(..., estimate_view_rotations=[i])``) and
+names the view whose fit is best, with the fitted angle and its standard deviation;
+views whose fit is not significantly worse are reported as alternatives.
+
 Sensitivity (``benchmarks/bench_robust.py``, paper scene, 0.5 px): a 0.2 degree tilt or
 pan of one view is always detected; a roll about the optical axis moves the points by
-only ~0.5 px and is detected in ~90% of the trials. With four views a rotation of one
-view is largely explained by rotating another (the three remaining pure translations
-do not determine ``A``), so the view named is indicative; with five or more views it
-is reliable, and so is the angle for small rotations.
+only ~0.5 px and is detected in ~90% of the trials, about as often as an ideal test
+that knew the view and the noise. With four views a rotation of one view is largely
+explained by rotating another (the three remaining pure translations do not determine
+``A``), so the view named is often one of several alternatives; with five or more views
+it is reliable.
 
 Why not the Wald test of refine's ``estimate_view_rotations=True`` (all views free)?
 With four views, freeing every rotation leaves ``K`` and ``R`` nearly undetermined: the
@@ -52,10 +58,10 @@ tests flagged 14% of pure-translation data at a nominal 1% and detected 0.2 degr
 rotations in under 10% of the trials. Testing at the well-determined null model avoids
 both problems.
 
-Robot noise also moves the images of a view as a whole: if the robot is less precise
-than ~1/20 of the image motion per pixel, pass its precision (``sigma_T``) to the
-refinement, which the test then takes into account (0.1 mm on the paper's scene without
-``sigma_T``: 20% flagged; with it: 1%).
+Errors of the robot positions shift a view's image as a whole, much like a small
+rotation: when the robot is not precise compared with the image motion, pass its
+precision (``sigma_T``) to the refinement; the test then accounts for it (robot noise
+0.1 mm on the paper's scene: 20% of the trials flagged without ``sigma_T``, 1% with it).
 """
 
 from __future__ import annotations
@@ -64,7 +70,7 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from .camera import distort, project
+from .camera import distort
 from .types import Calibration, DegenerateError, Diagnostic, InputError, LinearEstimate
 from .validate import as_uv_T
 
