@@ -163,3 +163,12 @@ def test_minimal_solver_exact_property(seed, n_views, planar):
         return
     A = solve_minimal(scene.uv, scene.T, [idx[:2]])
     np.testing.assert_allclose(A[0], _A_true(scene), atol=1e-8)
+
+
+def test_mirrored_data_raise_mirrored_error():
+    from transcalib.types import MirroredError
+
+    scene = simulate.random_scene(60, 4, noise_px=0.2, rng=4)
+    T = scene.T * np.array([1.0, 1.0, -1.0])  # a left-handed robot frame
+    with pytest.raises(MirroredError):
+        estimate_robust(scene.uv, T, rng=0)

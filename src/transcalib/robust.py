@@ -58,7 +58,7 @@ import numpy as np
 
 from .linear import estimate_linear
 from .triangulate import triangulate
-from .types import DegenerateError, InputError, LinearEstimate
+from .types import DegenerateError, InputError, LinearEstimate, MirroredError
 from .validate import as_uv_T, check_translations_span
 
 __all__ = ["RobustEstimate", "estimate_robust", "solve_minimal", "point_errors"]
@@ -436,6 +436,8 @@ def estimate_robust(
     DegenerateError
         No two points can be sampled (each needs 3+ views, together 8+ views whose
         translations span 3-D), or no consensus of at least ``MIN_CONSENSUS`` points.
+    MirroredError
+        The inliers imply a mirrored camera (left-handed robot frame, swapped axes).
     """
     t0 = time.perf_counter()
     uv, T = as_uv_T(uv, T)
@@ -443,7 +445,7 @@ def estimate_robust(
         raise InputError(f"threshold_px must be a positive number of pixels, got {threshold_px!r}")
     if not 0.0 < confidence < 1.0:
         raise InputError(f"confidence must be in (0, 1), got {confidence!r}")
-    if int(max_trials) != max_trials or max_trials < 1:
+    if not isinstance(max_trials, (int, np.integer)) or max_trials < 1:
         raise InputError(f"max_trials must be a positive integer, got {max_trials!r}")
     check_translations_span(T)
     rng = np.random.default_rng(rng)
@@ -529,6 +531,8 @@ def estimate_robust(
         masked = np.where(inliers[None, :, None], uv, np.nan)
         try:
             lin = estimate_linear(masked, T)
+        except MirroredError:
+            raise
         except DegenerateError as exc:
             raise DegenerateError(f"the {int(inliers.sum())} inliers found do not determine the camera: {exc}") from exc
         refits += 1
