@@ -93,7 +93,7 @@ def _side_lines(img, quads, n_samples=24, step=0.2):
         dist_to_line = np.einsum("mksa,mka->mks", base, nvec) + lines[..., 2][..., None]
         base = base - dist_to_line[..., None] * nvec[:, :, None, :]
         nrm = nvec * np.sign(np.einsum("mka,mka->mk", nvec, nrm))[..., None]
-    return lines, rms, found.sum(-1)
+    return lines, rms, found.sum(-1), pts, w
 
 
 def _order_corners(q):
@@ -109,7 +109,8 @@ def _order_corners(q):
     return np.take_along_axis(q, idx[..., None], 1)
 
 
-def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5) -> np.ndarray:
+def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5, curved: bool = True,
+                   min_sagitta_px: float = 0.02) -> np.ndarray:
     """Sub-pixel corners of the dark squares in one grey image.
 
     Parameters
@@ -120,6 +121,9 @@ def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5) 
         Smallest square side to accept (pixels).
     max_rms_px : float
         Largest rms distance of a side's edge points from its fitted line.
+    curved : bool
+        Model sides bent by lens distortion as parabolas where their bow exceeds
+        ``min_sagitta_px`` (pixels); straight lines otherwise.
 
     Returns
     -------
@@ -155,15 +159,60 @@ def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5) 
     if len(q) == 0:
         return np.zeros((0, 4, 2))
     # a slight symmetric blur makes sharp edges smooth enough for bicubic profiles (no bias)
-    lines, rms, nfound = _side_lines(cv2.GaussianBlur(img, (0, 0), 1.0), q)
+    lines, rms, nfound, pts, w = _side_lines(cv2.GaussianBlur(img, (0, 0), 1.0), q)
     ok = np.all(rms < max_rms_px, axis=1) & np.all(nfound >= 8, axis=1)
     # corners: intersection of side k-1 and side k
     prev = np.roll(lines, 1, axis=1)
     X = np.cross(prev, lines)
     with np.errstate(divide="ignore", invalid="ignore"):
         corners = X[..., :2] / X[..., 2:3]
+    if curved:
+        corners = _curved_corners(corners, lines, pts, w, min_sagitta_px)
     ok &= np.all(np.isfinite(corners), axis=(1, 2)) & np.all(np.linalg.norm(corners - q, axis=-1) < 3.0, axis=1)
     return corners[ok]
+
+
+def _curved_corners(corners, lines, pts, w, min_sagitta_px):
+    """Corners as intersections of parabolas fitted to the sides' edge points.
+
+    Lens distortion bends straight sides; where a side's fitted bow (sagitta) exceeds
+    ``min_sagitta_px``, its edge is modelled as ``o = a + b tau + c tau^2`` in the line's
+    frame (``tau`` along, ``o`` across), and the two curves of each corner are intersected
+    by Newton's method from the straight-line corner. Other sides stay straight.
+    """
+    n = lines[..., :2]  # (m, 4, 2) unit normals
+    t = np.stack([-n[..., 1], n[..., 0]], axis=-1)
+    c0 = -lines[..., 2:3] * n  # a point on each line
+    rel = pts - c0[:, :, None, :]
+    tau = np.einsum("mksa,mka->mks", rel, t)
+    off = np.einsum("mksa,mka->mks", rel, n)
+    A = np.stack([np.ones_like(tau), tau, tau**2], axis=-1)
+    Aw = A * w[..., None]
+    H = np.einsum("mksa,mksb->mkab", Aw, A) + 1e-9 * np.eye(3)
+    coef = np.linalg.solve(H, np.einsum("mksa,mks->mka", Aw, off)[..., None])[..., 0]  # (m, 4, 3)
+    span = np.where(w > 0, tau, np.nan)
+    half = 0.5 * (np.nanmax(span, axis=-1) - np.nanmin(span, axis=-1))
+    bowed = np.abs(coef[..., 2]) * half**2 > min_sagitta_px
+    coef = np.where(bowed[..., None], coef, np.concatenate([np.zeros_like(coef[..., :2]), np.zeros_like(coef[..., :1])],
+                                                           axis=-1))
+    if not bowed.any():
+        return corners
+    p = corners.copy()
+    sides = [np.roll(np.arange(4), 1), np.arange(4)]  # corner k: sides k-1 and k
+    for _ in range(6):
+        G, J = [], []
+        for s in sides:
+            ns, ts, cs, cf = n[:, s], t[:, s], c0[:, s], coef[:, s]
+            r = p - cs
+            ta = np.einsum("mka,mka->mk", r, ts)
+            G.append(np.einsum("mka,mka->mk", r, ns) - (cf[..., 0] + cf[..., 1] * ta + cf[..., 2] * ta**2))
+            J.append(ns - (cf[..., 1] + 2 * cf[..., 2] * ta)[..., None] * ts)
+        G = np.stack(G, axis=-1)  # (m, 4, 2)
+        J = np.stack(J, axis=-2)  # (m, 4, 2, 2)
+        with np.errstate(all="ignore"):
+            step = np.linalg.solve(J + 1e-12 * np.eye(2), G[..., None])[..., 0]
+        p = p - np.nan_to_num(step)
+    return p
 
 
 def _quads_from_mask(mask, min_side_px):
