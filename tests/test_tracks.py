@@ -176,3 +176,17 @@ def test_plain_checkerboard_every_corner_tracked():
     d = np.linalg.norm(tr.uv[:, :, None] - P[:, None], axis=-1)
     tracked = np.nanmin(np.where(np.isfinite(d), d, np.inf), axis=1) < 0.5
     assert np.all(tracked.sum(1) == len(corners_c))
+
+
+def test_epipole_at_infinity_and_duplicate_view():
+    # a translation parallel to the image plane puts the epipole at infinity
+    sc = simulate.random_scene(100, 4, rng=3)
+    from transcalib.camera import project
+
+    uv = project(sc.K, sc.R, sc.X, np.vstack([np.zeros(3), sc.R.T @ [100.0, 0.0, 0.0]]))
+    e, inl, rho = tracks.epipole_ransac(uv[0], uv[1], rng=0)
+    assert abs(e[2]) < 1e-9 and e[0] > 0.999 and inl.all() and np.all(rho > 0)
+    # two identical views (no motion between them) must not break tracking
+    r = render.render_scene("natural", n_views=3, image_size=(320, 240), rng=2)
+    tr = tracks.track(np.concatenate([r.images[:1], r.images]))
+    assert tr.n_views == 4 and tr.n_points > 100
