@@ -257,7 +257,14 @@ def _isolated_dark(img, q, min_contrast=30.0):
     r, i = vals[:, :ring.shape[1]], vals[:, ring.shape[1]:]
     im = np.median(i, axis=1)
     rm = np.median(r, axis=1)
-    return (rm - im > min_contrast) & (np.min(r, axis=1) > im + 0.6 * (rm - im)) & (np.max(i, axis=1) < im + 0.4 * (rm - im))
+    ok = (rm - im > min_contrast) & (np.min(r, axis=1) > im + 0.6 * (rm - im)) & (np.max(i, axis=1) < im + 0.4 * (rm - im))
+    if ok.sum() >= 3:
+        # the target's squares are alike: drop odd ones out (texture blobs) by size and contrast
+        d1, d2 = q[:, 2] - q[:, 0], q[:, 3] - q[:, 1]
+        size = np.sqrt(np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / 2.0)  # sqrt(area)
+        ms, mc = np.median(size[ok]), np.median((rm - im)[ok])
+        ok &= (size > 0.5 * ms) & (size < 2.0 * ms) & (rm - im > 0.5 * mc)
+    return ok
 
 
 def _row_order(centres, size):
