@@ -95,7 +95,8 @@ def test_to_csv_roundtrip(tmp_path):
     tr = tracks.Tracks(uv=uv, ids=np.array([10, 11]))
     p = tmp_path / "tracks.csv"
     tr.to_csv(p)
-    rows = list(csv.DictReader(open(p)))
+    with open(p, newline="") as f:
+        rows = list(csv.DictReader(f))
     assert list(rows[0]) == ["view", "point", "u", "v"]
     got = {(int(r["view"]), int(r["point"])): (float(r["u"]), float(r["v"])) for r in rows}
     assert got == {(0, 10): (1.5, 2.25), (1, 10): (3.0, 4.0), (1, 11): (5.0, 6.0)}
