@@ -7,9 +7,9 @@ Projection of scene point ``X_j`` in view ``i`` (paper eq. 2, OpenCV distortion)
     (x', y') = distort(x, y; k1, k2, p1, p2, k3)
     u = fx x' + s y' + cx,   v = fy y' + cy
 
-Distortion coefficients follow OpenCV's order and meaning, so they can be passed to
-``cv2.undistort`` / ``cv2.projectPoints`` unchanged (OpenCV has no skew: keep ``s = 0``
-when mixing the two).
+Distortion coefficients follow OpenCV's order and meaning; padded to five values
+(``Calibration.dist_opencv``) they go to ``cv2.undistort`` / ``cv2.projectPoints`` as they
+are (OpenCV has no skew: keep ``s = 0`` when mixing the two).
 """
 
 from __future__ import annotations

@@ -48,6 +48,7 @@ def _calibration_json(cal, point_ids, unit: str, views) -> dict:
         "R": cal.R,
         "dist": cal.dist,
         "dist_model": cal.dist_model,
+        "dist_opencv": cal.dist_opencv,
         "rms_px": cal.rms_px,
         "std": cal.std,
         "param_names": list(cal.param_names),

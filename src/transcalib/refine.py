@@ -675,8 +675,8 @@ def refine(
         non-finite ``X``, seen in fewer than 2 views, or behind the camera in some view
         are left out (NaN in the result; counted in ``info["n_points_excluded"]``).
     distortion : {"none", "radial2", "opencv5"}
-        Lens distortion model, OpenCV order ``k1, k2, p1, p2, k3`` (values can be passed
-        to ``cv2.undistort`` unchanged).
+        Lens distortion model, OpenCV order ``k1, k2, p1, p2, k3``
+        (``Calibration.dist_opencv`` pads them to the five values OpenCV takes).
     estimate_skew : bool
         Estimate the skew ``K[0, 1]``; otherwise it is fixed at 0 (OpenCV's model).
     sigma_T : float or (n_views,) float, optional

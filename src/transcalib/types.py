@@ -132,8 +132,9 @@ class Calibration:
     X : (n_points, 3) float
         Scene points in world axes and user units; NaN for unused points.
     dist : (k,) float
-        Lens distortion coefficients in OpenCV order (``k1, k2, p1, p2, k3``, truncated
-        to the model); all zeros / empty when no distortion is modelled.
+        Lens distortion coefficients of the model in OpenCV order (``k1, k2, p1, p2, k3``
+        truncated to the model: empty for "none", ``k1, k2`` for "radial2");
+        :attr:`dist_opencv` pads them to the five values OpenCV functions take.
     dist_model : str
         ``"none"``, ``"radial2"`` or ``"opencv5"``.
     residuals_px : (n_views, n_points, 2) float
@@ -183,6 +184,14 @@ class Calibration:
     def A(self) -> np.ndarray:
         """``K @ R`` (3, 3)."""
         return self.K @ self.R
+
+    @property
+    def dist_opencv(self) -> np.ndarray:
+        """The five OpenCV coefficients ``k1, k2, p1, p2, k3`` (zeros beyond the model),
+        ready for ``cv2.undistort`` / ``cv2.projectPoints``."""
+        out = np.zeros(5)
+        out[: self.dist.size] = self.dist
+        return out
 
     @property
     def n_views(self) -> int:
