@@ -94,6 +94,8 @@ NULL_SPACE_RATIO = 0.05
 MIN_VIEW_POINTS = 6
 VIEW_RESIDUAL_RATIO = 2.0
 ROTATION_ALPHA = 1e-2
+MIN_ROTATION_SHIFT_PX = 0.1
+OUTLIER_MIN_PX = 1.0
 
 
 def _fmt_vec(v) -> str:
@@ -318,7 +320,8 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
     return out
 
 
-def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, max_fraction: float = 0.001) -> list:
+def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, min_px: float = OUTLIER_MIN_PX,
+                   max_fraction: float = 0.001) -> list:
     """Warn when the residuals have gross outliers (heavy tails) the fit did not remove.
 
     Parameters
@@ -330,7 +333,10 @@ def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, max_fractio
     k_sigma : float
         An observation is gross when its residual norm exceeds ``k_sigma`` times the
         robust noise ``sigma = 1.4826 median(|r|)`` per coordinate (Gaussian: probability
-        ``exp(-k^2 / 2)``, 4e-6 for k = 5).
+        ``exp(-k^2 / 2)``, 4e-6 for k = 5) ...
+    min_px : float
+        ... and ``min_px`` pixels: with very precise tracks (0.02 px) small tracking errors
+        are many sigmas but harmless.
     max_fraction : float
         Warn when more than this fraction of the observations (and at least 3) are gross.
 
@@ -349,15 +355,17 @@ def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, max_fractio
     sigma = 1.4826 * np.median(np.abs(r))
     if not sigma > 0:
         return []
+    limit = max(k_sigma * sigma, min_px)
     e = np.hypot(r[:, 0], r[:, 1])
-    gross = int(np.sum(e > k_sigma * sigma))
+    gross = int(np.sum(e > limit))
     if gross < 3 or gross <= max_fraction * len(e):
         return []
-    pts = np.flatnonzero(np.any(ok & (np.hypot(res[..., 0], res[..., 1]) > k_sigma * sigma), axis=0))
+    pts = np.flatnonzero(np.any(ok & (np.hypot(res[..., 0], res[..., 1]) > limit), axis=0))
     return [Diagnostic(
         "outliers",
         f"{gross} of {len(e)} observations ({100 * gross / len(e):.1f}%, in {len(pts)} points: {_list(pts)}) have "
-        f"residuals beyond {k_sigma:g} sigma (robust sigma {sigma:.3g} px): the tracks contain mismatches, which "
+        f"residuals beyond {limit:.3g} px ({k_sigma:g} sigma, robust sigma {sigma:.3g} px): the tracks contain "
+        "mismatches, which "
         "bias the calibration. Run the robust estimator (calibrate(..., robust=True), CLI --robust) or remove "
         "those tracks.")]
 
@@ -536,7 +544,8 @@ def _rot_cols(n_nuis, views_all, views):
 
 
 def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA,
-                       estimate_skew: bool | None = None, sigma_T=None) -> dict:
+                       min_shift_px: float = MIN_ROTATION_SHIFT_PX, estimate_skew: bool | None = None,
+                       sigma_T=None) -> dict:
     """Test each view ``i >= 1`` for a small camera rotation (module docstring).
 
     All quantities are linearised at the pure-translation maximum-likelihood solution
@@ -570,6 +579,11 @@ def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATI
         outside ``calibration.inliers`` are left out.
     alpha : float
         Family-wise false-alarm level (Bonferroni over the views).
+    min_shift_px : float
+        Practical significance: a view is selected only if its rotation moves the image
+        by at least this much (angle times the focal length). With thousands of very
+        precise tracks, rotations of a few thousandths of a degree become statistically
+        significant without mattering.
     estimate_skew : bool, optional
         Whether the skew is a parameter (default ``calibration.info["estimate_skew"]``).
     sigma_T : float or (n_views,) float, optional
@@ -613,6 +627,7 @@ def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATI
         raise DegenerateError("too few observations to test for a rotation between views")
     level = alpha / max(1, n_views - 1)
     all_views = list(range(1, n_views))
+    focal = 0.5 * (calibration.K[0, 0] + calibration.K[1, 1])
 
     st, sse = model.fit(model.state0, [], iterations=5)  # make sure it is the ML solution
     S, b, sse, _ = model.normal(st, all_views)
@@ -647,7 +662,8 @@ def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATI
         if d <= 0:
             break
         f = ((red - reduction) / 3.0) / max((sse - red) / d, 1e-300)
-        if not (stats.f.sf(f, 3, d) < level and single[i][1] < level):
+        w_i = step(flagged + [i], eta)[0][-3:]
+        if not (stats.f.sf(f, 3, d) < level and single[i][1] < level and np.linalg.norm(w_i) * focal >= min_shift_px):
             break
         flagged.append(i)
         reduction = red
