@@ -254,3 +254,19 @@ def test_outliers_flagged_and_silent_on_gaussian_residuals():
     used = np.ones(500, bool)
     used[10:20] = False
     assert check_outliers(res, used=used) == []
+
+
+def test_rendered_images_pure_silent_and_rotated_view_flagged():
+    """End to end on rendered images: tracks -> calibrate -> diagnostics."""
+    from transcalib import render, tracks
+    from transcalib.pipeline import calibrate
+
+    r = render.render_scene("natural", n_views=4, image_size=(560, 420), rng=5)
+    cal = calibrate(tracks.track(r.images).uv, r.T)
+    assert cal.diagnostics == []
+    Q = Rotation.from_rotvec(np.radians(0.2) * np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2]))
+    images = r.images.copy()
+    images[3] = render.render(r.surfaces, r.K, Q.as_matrix() @ r.R, r.T[3:4], r.image_size, rng=5)[0]
+    cal = calibrate(tracks.track(images).uv, r.T)
+    rot = [d for d in cal.diagnostics if d.code == "view_rotation"]
+    assert len(rot) == 1 and "view 3: about 0.2 deg" in str(rot[0])

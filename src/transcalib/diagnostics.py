@@ -253,7 +253,8 @@ def check_points_behind(uv, T, calibration) -> list:
 
 
 def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINTS,
-                residual_ratio: float = VIEW_RESIDUAL_RATIO, alpha: float = 1e-4) -> list:
+                residual_ratio: float = VIEW_RESIDUAL_RATIO, alpha: float = 1e-4,
+                min_excess_px: float = 0.1) -> list:
     """Warn about views with very few points and views whose residuals stand out.
 
     Parameters
@@ -270,8 +271,11 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
         A view's mean squared residual must exceed this many times that of the other
         views (practical significance) ...
     alpha : float
-        ... and the ratio must be significant at this level (F test with the numbers of
-        residuals as degrees of freedom) to be reported.
+        ... the ratio must be significant at this level (F test with the numbers of
+        residuals as degrees of freedom) ...
+    min_excess_px : float
+        ... and the view's RMS must exceed the others' by this much (very precise tracks
+        make harmless differences of hundredths of a pixel significant).
 
     Returns
     -------
@@ -307,7 +311,8 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
         if ms_o <= 0:
             continue
         f = ms_i / ms_o
-        if f > residual_ratio and stats.f.sf(f, n_res[i], n_res[others].sum()) < alpha:
+        if (f > residual_ratio and np.sqrt(ms_i) - np.sqrt(ms_o) >= min_excess_px
+                and stats.f.sf(f, n_res[i], n_res[others].sum()) < alpha):
             flagged.append((i, np.sqrt(ms_i), np.sqrt(ms_o)))
     if flagged:
         detail = ", ".join(f"view {i}: {a:.3g} px vs {b:.3g} px" for i, a, b in flagged)
