@@ -327,16 +327,15 @@ def _rays(K, R, dist, image_size, S):
     off = (np.arange(S) + 0.5) / S - 0.5
     u = (np.arange(w)[:, None] + off[None, :]).ravel()
     v = (np.arange(h)[:, None] + off[None, :]).ravel()
-    uu, vv = np.meshgrid(u, v)
     fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    y = (vv - cy) / fy
-    x = (uu - cx - sk * y) / fx
-    xy = np.stack([x, y], axis=-1)
+    y = ((v - cy) / fy)[:, None]
+    x = (u[None, :] - cx - sk * y) / fx
+    y = np.broadcast_to(y, x.shape)
     if np.asarray(dist).size and np.any(np.asarray(dist) != 0):
-        xy = undistort(xy, dist)
-    d_cam = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
-    d = d_cam @ R  # R^T d_cam, row-wise: camera z = 1 at unit ray parameter
-    return [np.ascontiguousarray(d[..., k]) for k in range(3)]
+        xy = undistort(np.stack([x, y], axis=-1), dist)
+        x, y = xy[..., 0], xy[..., 1]
+    # R^T [x, y, 1]: camera z = 1 at unit ray parameter
+    return [x * R[0, k] + y * R[1, k] + R[2, k] for k in range(3)]
 
 
 def _crop(sf, K, R, dist, C, image_size, S):
@@ -376,25 +375,27 @@ def _render_view(surfaces, d, C, S, background, K, R, dist, image_size):
     Hs, Ws = d[0].shape
     best = np.full((Hs, Ws), np.inf)
     owner = np.full((Hs, Ws), -1, dtype=np.int32)
-    crops = []
+    crops, coords = [], []
     for k, sf in enumerate(surfaces):  # pass 1: z-buffer
         sl = _crop(sf, K, R, dist, C, image_size, S)
         crops.append(sl)
         if sl is None:
+            coords.append(None)
             continue
         z, s, t = _surface_coords(sf, d, C, sl)
         hit = (z > 0) & (s >= 0) & (s <= sf.size[0]) & (t >= 0) & (t <= sf.size[1]) & (z < best[sl])
         best[sl][hit] = z[hit]
         owner[sl][hit] = k
+        coords.append((s, t) if hit.any() else None)
     out = np.full((Hs, Ws), float(background))
     for k, sf in enumerate(surfaces):  # pass 2: texture of the visible samples
         sl = crops[k]
-        if sl is None:
+        if sl is None or coords[k] is None:
             continue
         m = owner[sl] == k
         if not m.any():
             continue
-        z, s, t = _surface_coords(sf, d, C, sl)
+        s, t = coords[k]
         # footprint of one sample in surface units: bounding box of its parallelogram
         with np.errstate(invalid="ignore"):
             ws = np.abs(np.gradient(s, axis=1)[m]) + np.abs(np.gradient(s, axis=0)[m]) if min(s.shape) > 1 else 0 * s[m]
