@@ -502,3 +502,16 @@ def test_jacobian_of_zero_distortion_matches_finite_differences():
         fd = (_predict_view(_apply_step(state, lay, dg, zero), lay, 1, pts, False)[0]
               - _predict_view(_apply_step(state, lay, -dg, zero), lay, 1, pts, False)[0]) / 2e-7
         assert np.abs(Jg[lay.i_dist + c] - fd).max() < 1e-5 * max(np.abs(fd).max(), 1.0)
+
+
+def test_robust_loss_with_a_point_left_out():
+    """A point without an initial position is excluded, not a shape error (regression)."""
+    from transcalib.linear import estimate_linear
+
+    scene = simulate.random_scene(50, 4, noise_px=0.5, rng=1)
+    lin = estimate_linear(scene.uv, scene.T)
+    X = lin.X.copy()
+    X[3] = np.nan
+    cal = refine(scene.uv, scene.T, replace(lin, X=X), loss="huber")
+    assert np.isnan(cal.X[3]).all() and not cal.inliers[3]
+    assert cal.inliers.sum() >= 45

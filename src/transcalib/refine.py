@@ -790,8 +790,7 @@ def refine(
         #    them), so that estimate and covariance are those of the inliers alone.
         previous = None
         for _ in range(3):
-            res = _all_residuals(state, lay, uv, seen, used_idx, T)
-            obs_in = seen & (np.sum(res**2, axis=2) <= thr * thr)
+            obs_in = _inlier_observations(state, lay, uv, seen, used_idx, T, thr)
             if previous is not None and np.array_equal(obs_in, previous):
                 break
             previous = obs_in
@@ -802,8 +801,7 @@ def refine(
             state.intr, state.dist5, state.R, state.Q, state.T = sub.intr, sub.dist5, sub.R, sub.Q, sub.T
             state.X[keep] = sub.X
             fit_idx, fit_mask, fit_state = used_idx[keep], obs_in, sub
-        res = _all_residuals(state, lay, uv, seen, used_idx, T)
-        obs_in = seen & (np.sum(res**2, axis=2) <= thr * thr)
+        obs_in = _inlier_observations(state, lay, uv, seen, used_idx, T, thr)
         inliers = np.zeros(n_points, bool)
         inliers[used_idx] = np.all(obs_in[:, used_idx] | ~seen[:, used_idx], axis=0)
 
@@ -944,6 +942,14 @@ class _Fitter:
                 break
         data = _build_data(self.uv, mask, idx, self.T, self._weights(sigma))
         return state, _cost(state, lay, data, loss, self.c), reason, data, sigma
+
+
+def _inlier_observations(state, lay, uv, seen, used_idx, T, thr) -> np.ndarray:
+    """(n_views, n_points) bool: observations of the used points with residual norm <= thr."""
+    obs_in = np.zeros(seen.shape, bool)
+    res = _all_residuals(state, lay, uv, seen, used_idx, T)
+    obs_in[:, used_idx] = seen[:, used_idx] & (np.sum(res**2, axis=2) <= thr * thr)
+    return obs_in
 
 
 def _all_residuals(state, lay, uv, seen, used_idx, T) -> np.ndarray:
