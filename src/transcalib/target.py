@@ -110,7 +110,7 @@ def _order_corners(q):
 
 
 def detect_squares(image, *, min_side_px: float = 8.0, max_rms_px: float = 0.5, curved: bool = True,
-                   min_sagitta_px: float = 0.02) -> np.ndarray:
+                   min_sagitta_px: float = 0.05) -> np.ndarray:
     """Sub-pixel corners of the dark squares in one grey image.
 
     Parameters
@@ -192,7 +192,13 @@ def _curved_corners(corners, lines, pts, w, min_sagitta_px):
     coef = np.linalg.solve(H, np.einsum("mksa,mks->mka", Aw, off)[..., None])[..., 0]  # (m, 4, 3)
     span = np.where(w > 0, tau, np.nan)
     half = 0.5 * (np.nanmax(span, axis=-1) - np.nanmin(span, axis=-1))
-    bowed = np.abs(coef[..., 2]) * half**2 > min_sagitta_px
+    # significant bow only: above min_sagitta_px and 4 standard errors (noise must not bend sides)
+    resid = off - np.einsum("mksa,mka->mks", A, coef)
+    dof = np.maximum(w.sum(-1) - 3, 1)
+    sig2 = (w * resid**2).sum(-1) / dof
+    var_c = sig2 * np.linalg.inv(H)[..., 2, 2]
+    sag, sag_se = np.abs(coef[..., 2]) * half**2, np.sqrt(var_c) * half**2
+    bowed = (sag > min_sagitta_px) & (sag > 4.0 * sag_se)
     coef = np.where(bowed[..., None], coef, np.concatenate([np.zeros_like(coef[..., :2]), np.zeros_like(coef[..., :1])],
                                                            axis=-1))
     if not bowed.any():
