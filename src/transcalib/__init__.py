@@ -14,6 +14,7 @@ from .types import (
     TranscalibError,
 )
 from . import simulate
+from .diagnostics import diagnose
 from .linear import estimate_linear
 from .pipeline import calibrate
 from .refine import crlb, refine
@@ -32,6 +33,7 @@ __all__ = [
     "Tracks",
     "calibrate",
     "crlb",
+    "diagnose",
     "estimate_linear",
     "estimate_robust",
     "refine",

@@ -12,9 +12,12 @@ import time
 import numpy as np
 
 from .refine import refine as ml_refine
+from dataclasses import replace
+
 from .camera import project
 from .diagnostics import diagnose
 from .linear import estimate_linear
+from .triangulate import triangulate
 from .robust import estimate_robust
 from .types import Calibration, InputError, LinearEstimate
 from .validate import as_uv_T
@@ -44,6 +47,15 @@ def from_linear(uv: np.ndarray, T: np.ndarray, linear: LinearEstimate) -> Calibr
         residuals_px=residuals, rms_px=rms, T=T.copy(), linear=linear,
         info={"stage": "linear"},
     )
+
+
+def _point_errors(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
+    """Largest reprojection error (px) of each point over the views that see it (n_points,);
+    inf for points that cannot be triangulated."""
+    r = uv - project(cal.K, cal.R, np.nan_to_num(X), cal.T, cal.dist)
+    e = np.sqrt(np.sum(r**2, axis=2))
+    e = np.where(np.isfinite(e), e, 0.0).max(axis=0)
+    return np.where(np.isfinite(X[:, 0]), e, np.inf)
 
 
 def calibrate(
@@ -145,6 +157,22 @@ def calibrate(
         notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px})
     else:
         cal = from_linear(uv_fit, T, linear)
+    if refine and inliers is not None:
+        # RANSAC judged points with the linear, distortion-free camera; judge every track
+        # again with the refined one (this matters under strong distortion) and refit if
+        # the inlier set changes.
+        X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
+        error = _point_errors(uv, cal, X_all)
+        again = error <= threshold_px
+        if np.any(again != inliers) and again.sum() >= 2:
+            inliers = again
+            uv_fit = np.where(inliers[None, :, None], uv, np.nan)
+            cal = ml_refine(
+                uv_fit, T, replace(cal, X=np.where(inliers[:, None], X_all, np.nan)), distortion=distortion,
+                estimate_skew=estimate_skew, sigma_T=sigma_T, loss=loss, loss_scale_px=loss_scale_px,
+                sigma_px=sigma_px,
+            )
+            stages.append("reclassify+refine")
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
 
