@@ -90,7 +90,7 @@ def _normalisation(uv: np.ndarray, used: np.ndarray, T: np.ndarray) -> _Normalis
 
 @dataclass(frozen=True)
 class _Group:
-    """Points of one chunk that are seen in the same views.
+    """Points of one chunk that are seen in the same views, component-major.
 
     Their first seen view is their reference (the head, slot 0), the other seen views
     the tail, so every slot is seen. With ``z_i`` the normalised homogeneous pixels in
@@ -102,11 +102,11 @@ class _Group:
 
     points: np.ndarray  # (m,) point index
     views: np.ndarray  # (V_g,) seen views, reference first
-    Z: np.ndarray  # (m, V_g, 3)
+    Z: np.ndarray  # (V_g, 3, m)
     tt: np.ndarray  # (V_g, 3)
     D00: np.ndarray  # (m,)
-    D0k: np.ndarray  # (m, V_g - 1)
-    Dkk: np.ndarray  # (m, V_g - 1)
+    D0k: np.ndarray  # (V_g - 1, m)
+    Dkk: np.ndarray  # (V_g - 1, m)
 
 
 class _Arrowhead:
@@ -125,40 +125,40 @@ class _Arrowhead:
     """
 
     def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
-        self.uv, self.used, self.norm = uv, used, norm
-        self.V = uv.shape[0]
-        self.bits = 1 << np.arange(self.V, dtype=np.int64)
+        self.uv, self.norm = uv, norm
+        V = uv.shape[0]
+        # points by visibility pattern (bit v set: seen in view v); unused points in none
+        key = (1 << np.arange(V, dtype=np.int64)) @ np.isfinite(uv[..., 0])
+        key[~used] = 0
+        patterns = np.flatnonzero(np.bincount(key)) if V <= 16 else np.unique(key)
+        self.patterns = []
+        for pattern in patterns[patterns > 0]:
+            members = np.arange(key.size) if patterns.size == 1 else np.flatnonzero(key == pattern)
+            self.patterns.append((np.flatnonzero(pattern >> np.arange(V) & 1), members))
         self.E = None  # kron(I_3, sum t t^T), accumulated by the first taylor() pass
 
     def groups(self):
-        """Yield the :class:`_Group` s of every chunk of points."""
-        H, Tn, V = self.norm.H, self.norm.T, self.V
-        for c in _chunks(self.uv.shape[1]):
-            x = self.uv[:, c]  # (V, m, 2), a view
-            m = x.shape[1]
-            seen = np.isfinite(x[..., 0])
-            key = self.bits @ seen
-            key[~self.used[c]] = 0  # not used: in no group
-            patterns = np.flatnonzero(np.bincount(key)) if V <= 16 else np.unique(key)
-            patterns = patterns[patterns > 0]
-            Zc = np.empty((m, V, 3))  # normalised homogeneous pixels, NaN where unseen
-            Zc[..., 0] = x[..., 0].T * H[0, 0] + H[0, 2]
-            Zc[..., 1] = x[..., 1].T * H[1, 1] + H[1, 2]
-            Zc[..., 2] = 1.0
-            for pattern in patterns:
-                views = np.flatnonzero(pattern & self.bits)
-                if patterns.size == 1 and np.all(key == pattern):  # the common case
-                    members, Z = np.arange(m), (Zc if views.size == V else Zc[:, views])
+        """Yield :class:`_Group` s: chunks of the points of each visibility pattern."""
+        H, Tn, V = self.norm.H, self.norm.T, self.uv.shape[0]
+        for views, members in self.patterns:
+            t = Tn[views[1:]] - Tn[views[0]]
+            tt = np.vstack([-t.sum(axis=0), t])
+            contiguous = members[-1] - members[0] + 1 == members.size
+            for c in _chunks(members.size):
+                if contiguous:  # a view of uv, no copy
+                    cols = slice(members[c.start], members[c.stop - 1] + 1)
+                    x = self.uv[:, cols] if views.size == V else self.uv[views, cols]
                 else:
-                    members = np.flatnonzero(key == pattern)
-                    Z = Zc[members][:, views]
-                t = Tn[views[1:]] - Tn[views[0]]
-                z0 = Z[:, 0]
+                    x = self.uv[views[:, None], members[c][None, :]]
+                Z = np.empty((views.size, 3, x.shape[1]))  # normalised homogeneous pixels
+                Z[:, 0] = x[..., 0] * H[0, 0] + H[0, 2]
+                Z[:, 1] = x[..., 1] * H[1, 1] + H[1, 2]
+                Z[:, 2] = 1.0
                 yield _Group(
-                    points=c.start + members, views=views, Z=Z, tt=np.vstack([-t.sum(axis=0), t]),
-                    D00=(views.size - 1) * np.einsum("na,na->n", z0, z0),
-                    D0k=-np.einsum("nka,na->nk", Z[:, 1:], z0),
-                    Dkk=np.einsum("nka,nka->nk", Z[:, 1:], Z[:, 1:]),
+                    points=members[c], views=views, Z=Z, tt=tt,
+                    D00=(views.size - 1) * np.einsum("am,am->m", Z[0], Z[0]),
+                    D0k=-np.einsum("kam,am->km", Z[1:], Z[0]),
+                    Dkk=np.einsum("kam,kam->km", Z[1:], Z[1:]),
                 )
 
     @staticmethod
@@ -167,7 +167,7 @@ class _Arrowhead:
         some ``D_j - mu I`` is not positive definite (``mu`` past a pole)."""
         delta = g.Dkk - mu
         q = g.D0k / delta
-        s = g.D00 - mu - np.einsum("nk,nk->n", g.D0k, q)
+        s = g.D00 - mu - np.einsum("km,km->m", g.D0k, q)
         if np.any(delta <= 0) or np.any(s <= 0):
             return None
         return q, 1.0 / s, 1.0 / delta
@@ -191,24 +191,21 @@ class _Arrowhead:
             parts = self._inverse(g, mu)
             if parts is None:
                 return None
-            E3 += len(g.points) * g.tt[1:].T @ g.tt[1:]
             q, inv_s, inv_delta = parts
-            n, Vg = g.Z.shape[:2]
-            qhat = np.concatenate([np.ones((n, 1)), -q], axis=1)
-            # w_j = sum_i qhat_i kron(z_i, tt_i), as rows (n, 9)
-            w = ((qhat[:, :, None] * g.Z).transpose(0, 2, 1).reshape(3 * n, Vg) @ g.tt).reshape(n, 9)
-            head2 = (1.0 + np.einsum("nk,nk->n", q, q)) * inv_s**2
-            G1 += (w * inv_s[:, None]).T @ w
-            G2 += (w * head2[:, None]).T @ w
-            for k in range(1, Vg):
-                zk, t = g.Z[:, k], g.tt[k]
-                d1 = inv_delta[:, k - 1]
-                M1 = (zk * d1[:, None]).T @ zk
-                M2 = (zk * (d1 * d1)[:, None]).T @ zk
+            E3 += len(g.points) * g.tt[1:].T @ g.tt[1:]
+            # w_j = sum_i qhat_i kron(z_i, tt_i), as columns (9, m)
+            qz = g.Z.copy()
+            qz[1:] *= -q[:, None, :]
+            w = np.tensordot(g.tt, qz, axes=(0, 0)).transpose(1, 0, 2).reshape(9, -1)
+            head2 = (1.0 + np.einsum("km,km->m", q, q)) * inv_s**2
+            G1 += (w * inv_s) @ w.T
+            G2 += (w * head2) @ w.T
+            for k in range(1, len(g.views)):
+                zk, t, d1 = g.Z[k], g.tt[k], inv_delta[k - 1]
                 tt_outer = np.outer(t, t)
-                G1 += np.kron(M1, tt_outer)
-                G2 += np.kron(M2, tt_outer)
-                X = (zk * (q[:, k - 1] * inv_s * d1)[:, None]).T @ w  # (3, 9)
+                G1 += np.kron((zk * d1) @ zk.T, tt_outer)
+                G2 += np.kron((zk * (d1 * d1)) @ zk.T, tt_outer)
+                X = (zk * (q[k - 1] * inv_s * d1)) @ w.T  # (3, 9)
                 cross = np.einsum("am,b->abm", X, t).reshape(9, 9)
                 G2 -= cross + cross.T
         self.E = np.kron(np.eye(3), E3)
@@ -219,11 +216,11 @@ class _Arrowhead:
         A = a.reshape(3, 3)
         y = np.full(self.uv.shape[:2], np.nan)
         for g in self.groups():
-            b = np.einsum("nia,ia->ni", g.Z, g.tt @ A.T)  # B_j a = z_i^T A tt_i
+            b = np.einsum("iam,ia->im", g.Z, g.tt @ A.T)  # B_j a = z_i^T A tt_i
             q, inv_s, inv_delta = self._inverse(g, mu)
-            y0 = (b[:, 0] - np.einsum("nk,nk->n", q, b[:, 1:])) * inv_s
+            y0 = (b[0] - np.einsum("km,km->m", q, b[1:])) * inv_s
             y[g.views[0], g.points] = -y0
-            y[g.views[1:, None], g.points[None, :]] = -((b[:, 1:] - g.D0k * y0[:, None]) * inv_delta).T
+            y[g.views[1:, None], g.points[None, :]] = -(b[1:] - g.D0k * y0) * inv_delta
         return y
 
 
