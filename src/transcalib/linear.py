@@ -197,9 +197,8 @@ class _Arrowhead:
             qz = g.Z.copy()
             qz[1:] *= -q[:, None, :]
             w = np.tensordot(g.tt, qz, axes=(0, 0)).transpose(1, 0, 2).reshape(9, -1)
-            head2 = (1.0 + np.einsum("km,km->m", q, q)) * inv_s**2
             G1 += (w * inv_s) @ w.T
-            G2 += (w * head2) @ w.T
+            G2 += (w * ((1.0 + np.einsum("km,km->m", q, q)) * inv_s**2)) @ w.T
             for k in range(1, len(g.views)):
                 zk, t, d1 = g.Z[k], g.tt[k], inv_delta[k - 1]
                 tt_outer = np.outer(t, t)
