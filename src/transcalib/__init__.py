@@ -13,12 +13,13 @@ from .types import (
     MirroredError,
     TranscalibError,
 )
-from . import simulate
+from . import render, simulate
 from .diagnostics import diagnose
 from .linear import estimate_linear
 from .pipeline import calibrate
 from .refine import crlb, refine
 from .robust import RobustEstimate, estimate_robust
+from .target import track_squares
 from .tracks import Tracks, track
 
 __all__ = [
@@ -37,7 +38,9 @@ __all__ = [
     "estimate_linear",
     "estimate_robust",
     "refine",
+    "render",
     "simulate",
     "track",
+    "track_squares",
 ]
 __version__ = "0.1.0"
