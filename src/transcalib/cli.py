@@ -72,7 +72,7 @@ def _calibration_json(cal, point_ids, unit: str, views) -> dict:
 
 def _fmt_param(cal, name: str, value: float, unit: str = "") -> str:
     std = cal.std.get(name)
-    pm = f" ± {std:.3g}" if std is not None and np.isfinite(std) else ""
+    pm = f" ± {std:<9.3g}" if std is not None and np.isfinite(std) else " " * 12
     return f"{name:>5} = {value:12.4f}{pm}{unit}"
 
 
@@ -90,7 +90,7 @@ def _summary(cal, unit: str, truth: dict | None, point_ids: list) -> str:
             continue
         line = "  " + _fmt_param(cal, name, v)
         if true_vals is not None:
-            line += f"    truth {true_vals[name]:12.4f}   error {v - true_vals[name]:+.4f}"
+            line += f" truth {true_vals[name]:12.4f}   error {v - true_vals[name]:+.4f}"
         lines.append(line)
     if cal.dist.size:
         lines.append(f"Distortion ({cal.dist_model}, OpenCV order):")
