@@ -89,3 +89,28 @@ def test_cli_images_missing_from_poses(tmp_path):
                         *[str(tmp_path / f"v{i}.png") for i in range(4)], "--poses", str(tmp_path / "poses.csv"),
                         "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "other.png" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_cli_board_of_six_squares_without_target_option(tmp_path):
+    """A scene that is only the paper's board: auto tracking falls back to the target mode."""
+    import cv2
+    from scipy.spatial.transform import Rotation
+
+    from transcalib import render
+
+    scene = simulate.paper_scene()
+    tilt = Rotation.from_euler("xy", [15, -10], degrees=True).as_matrix()
+    board, _ = render.paper_board(scene.X.mean(axis=0), scene.R.T @ tilt)
+    images = render.render([board], scene.K, scene.R, scene.T_true, (752, 582), background=0.3, noise_std=1.0,
+                           rng=0)
+    names = [f"b{i}.png" for i in range(len(images))]
+    for name, image in zip(names, images):
+        cv2.imwrite(str(tmp_path / name), image)
+    tio.write_poses_csv(tmp_path / "poses.csv", scene.T_true)
+    r = subprocess.run([sys.executable, "-m", "transcalib", "calibrate", "--images",
+                        *[str(tmp_path / n) for n in names], "--poses", str(tmp_path / "poses.csv"),
+                        "--out", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    cal = json.loads((tmp_path / "out" / "calibration.json").read_text())
+    assert cal["n_points"] == 24
+    assert abs(np.array(cal["K"])[0, 0] / scene.K[0, 0] - 1) < 0.01

@@ -43,7 +43,7 @@ import sys
 import tempfile
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -634,7 +634,9 @@ def track(
         The views, in order (the order of the robot poses). Arrays: grey or RGB.
     method : {"auto", "sift", "corners"}
         Features: ``"sift"`` descriptors only, ``"corners"`` Shi-Tomasi corners matched
-        through the epipoles (epipoles still come from SIFT), ``"auto"`` both.
+        through the epipoles (epipoles still come from SIFT), ``"auto"`` both - and when
+        fewer than ``AUTO_MIN_LONG_TRACKS`` tracks reach 3 views (a scene that is only a
+        board of dark squares), the target mode if it tracks more.
     target : None or "squares"
         ``"squares"``: the paper's target mode instead of feature tracking - corners of
         dark squares on a light board (:func:`transcalib.target.track_squares`).
@@ -679,16 +681,55 @@ def track(
     DegenerateError
         Too few tracks survive: the message says what to change.
     """
+    from .target import track_squares
+
     if target is not None:
         if target != "squares":
             raise InputError(f"track: target must be None or 'squares', got {target!r}")
-        from .target import track_squares
-
         return track_squares(images, progress=progress)
     if method not in ("auto", "sift", "corners"):
         raise InputError(f"track: method must be 'auto', 'sift' or 'corners', got {method!r}")
     if min_views < 2:
         raise InputError(f"track: min_views must be >= 2, got {min_views}")
+    options = dict(method=method, max_features=max_features, max_corners=max_corners,
+                   corner_quality=corner_quality, ratio=ratio, threshold_px=threshold_px, refine=refine,
+                   window_radius=window_radius, min_ncc=min_ncc, final_threshold_px=final_threshold_px,
+                   smooth_px=smooth_px, min_views=min_views, min_tracks=min_tracks, max_tracks=max_tracks,
+                   progress=progress, rng=rng)
+    if method != "auto":
+        return _track_features(images, **options)
+    # auto: features; a scene that is only a board of dark squares (too little texture)
+    # falls back to the target mode when that tracks more points through 3+ views
+    try:
+        tracks, failure = _track_features(images, **options), None
+    except DegenerateError as exc:
+        tracks, failure = None, exc
+    n_features = 0 if tracks is None else _n_long(tracks.uv)
+    if n_features < AUTO_MIN_LONG_TRACKS:
+        try:
+            squares = track_squares(images, progress=progress)
+        except DegenerateError:
+            squares = None
+        if squares is not None and _n_long(squares.uv) > n_features:
+            return replace(squares, info={**squares.info, "method": "squares (auto: too few feature tracks)"})
+    if failure is not None:
+        raise failure
+    return tracks
+
+
+#: With fewer feature tracks seen in 3+ views, ``track(method="auto")`` tries the target mode.
+AUTO_MIN_LONG_TRACKS = 30
+
+
+def _n_long(uv: np.ndarray) -> int:
+    """Number of tracks seen in at least 3 views."""
+    return int((np.isfinite(uv[..., 0]).sum(axis=0) >= 3).sum())
+
+
+def _track_features(images, *, method, max_features, max_corners, corner_quality, ratio, threshold_px, refine,
+                    window_radius, min_ncc, final_threshold_px, smooth_px, min_views, min_tracks, max_tracks,
+                    progress, rng) -> Tracks:
+    """Feature tracking (the body of :func:`track`; options as there)."""
     rng = np.random.default_rng(rng)
     report = _progress_fn(progress)
     times = {}
