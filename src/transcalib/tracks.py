@@ -222,6 +222,16 @@ def _fit_epipole(x, y, scale):
     return e / np.linalg.norm(e)
 
 
+def _hypothesis_residuals(E: np.ndarray, x: np.ndarray, y: np.ndarray):
+    """Epipolar distance and signed displacement of matches ``x -> y`` (m, 2) under each
+    hypothesised epipole ``E`` (h, 3, homogeneous): ``(dist (h, m), rho (h, m))``."""
+    d = E[:, None, 2:3] * x[None] - E[:, None, :2]  # direction from the epipole to x
+    dv = (y - x)[None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.abs(d[..., 0] * dv[..., 1] - d[..., 1] * dv[..., 0]) / np.linalg.norm(d, axis=-1)
+    return dist, (dv * d).sum(-1)
+
+
 def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, iterations: int = 400, rng=None,
                    detrend: bool = False):
     """Epipole of a pure translation from correspondences ``x -> y`` (2-point RANSAC).
@@ -273,12 +283,7 @@ def epipole_ransac(x: np.ndarray, y: np.ndarray, *, threshold_px: float = 1.5, i
     if len(E) == 0:
         return none
     # score every hypothesis on every match (vectorised): count inliers with rho of the majority sign
-    d = E[:, None, 2:3] * x[None] - E[:, None, :2]
-    nd = np.linalg.norm(d, axis=-1)
-    dv = (y - x)[None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dist = np.abs(d[..., 0] * dv[..., 1] - d[..., 1] * dv[..., 0]) / nd
-        rho = (dv * d).sum(-1)
+    dist, rho = _hypothesis_residuals(E, x, y)
     ok = (dist < threshold_px) | ~moving[None]
     pos = (ok & ((rho > 0) | ~moving[None])).sum(1)
     neg = (ok & ((rho < 0) | ~moving[None])).sum(1)
@@ -951,12 +956,7 @@ def _repair_pair(i, k, good, x, y, thr):
         E = E[nE > 1e-12] / nE[nE > 1e-12, None]
         if len(E) == 0:
             continue
-        d = E[:, None, 2:3] * x[None] - E[:, None, :2]
-        nd = np.linalg.norm(d, axis=-1)
-        dv = (y - x)[None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dist = np.abs(d[..., 0] * dv[..., 1] - d[..., 1] * dv[..., 0]) / nd
-            rho = (dv * d).sum(-1)
+        dist, rho = _hypothesis_residuals(E, x, y)
         ok = dist < thr
         pos, neg = (ok & (rho > 0)).sum(1), (ok & (rho < 0)).sum(1)
         score = np.maximum(pos, neg)
