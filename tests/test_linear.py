@@ -229,3 +229,19 @@ def test_rotation_convention():
     est = estimate_linear(scene.uv, scene.T)
     centre = np.nanmean(est.X, axis=0)
     assert est.R[2] @ (centre - scene.T[0]) > 0
+
+
+def test_one_visibility_pattern_plus_unused_points():
+    scene = simulate.paper_scene(noise_px=0.3, rng=1)
+    uv = scene.uv.copy()
+    uv[1:, 5] = np.nan  # point 5 only in view 0: unused; every other point in all views
+    fast, dense = estimate_linear(uv, scene.T), estimate_linear(uv, scene.T, method="dense")
+    assert not fast.used[5] and np.isnan(fast.X[5]).all() and np.isnan(fast.depth[:, 5]).all()
+    assert rel_err_K(fast.K, dense.K) < 1e-9
+
+
+def test_many_views():
+    """More than 62 views: visibility patterns are no longer bit masks."""
+    scene = simulate.random_scene(40, 70, missing=0.5, noise_px=0.3, rng=2)
+    fast, dense = estimate_linear(scene.uv, scene.T), estimate_linear(scene.uv, scene.T, method="dense")
+    assert rel_err_K(fast.K, dense.K) < 1e-9

@@ -126,15 +126,22 @@ class _Arrowhead:
 
     def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
         self.uv, self.norm = uv, norm
-        V = uv.shape[0]
-        # points by visibility pattern (bit v set: seen in view v); unused points in none
-        key = (1 << np.arange(V, dtype=np.int64)) @ np.isfinite(uv[..., 0])
-        key[~used] = 0
-        patterns = np.flatnonzero(np.bincount(key)) if V <= 16 else np.unique(key)
-        self.patterns = []
-        for pattern in patterns[patterns > 0]:
-            members = np.arange(key.size) if patterns.size == 1 else np.flatnonzero(key == pattern)
-            self.patterns.append((np.flatnonzero(pattern >> np.arange(V) & 1), members))
+        # the used points grouped by visibility pattern: [(seen views, point indices)]
+        seen = np.isfinite(uv[..., 0])
+        if uv.shape[0] <= 62:  # pattern as an integer, bit v set: seen in view v
+            key = (1 << np.arange(uv.shape[0], dtype=np.int64)) @ seen
+            key[~used] = 0
+            patterns = np.flatnonzero(np.bincount(key)) if uv.shape[0] <= 16 else np.unique(key)
+            patterns = patterns[patterns > 0]
+            self.patterns = [
+                (np.flatnonzero(p >> np.arange(uv.shape[0]) & 1),
+                 np.arange(key.size) if patterns.size == 1 and used.all() else np.flatnonzero(key == p))
+                for p in patterns
+            ]
+        else:
+            used_idx = np.flatnonzero(used)
+            rows, inverse = np.unique(seen[:, used].T, axis=0, return_inverse=True)
+            self.patterns = [(np.flatnonzero(r), used_idx[inverse.ravel() == k]) for k, r in enumerate(rows)]
         self.E = None  # kron(I_3, sum t t^T), accumulated by the first taylor() pass
 
     def groups(self):
