@@ -158,6 +158,7 @@ def cmd_calibrate(args) -> int:
         loss_scale_px=args.loss_scale_px,
         threshold_px=args.threshold_px,
         quaternions=poses.quaternions,
+        unit=args.unit,
         rng=args.seed,
         progress=progress,
     )
@@ -186,7 +187,7 @@ def _track_images(images, target: str | None, quiet: bool):
 def _progress_printer():
     """Progress of the image front-end on stderr, about four lines per stage."""
     def show(stage: str, done: int, total: int) -> None:
-        if done == total or done % max(1, total // 4) == 0:
+        if done == total or done % -(-total // 4) == 0:  # every ceil(total / 4) steps
             print(f"  tracking, {stage}: {done}/{total}", file=sys.stderr, flush=True)
 
     return show

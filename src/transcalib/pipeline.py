@@ -73,6 +73,7 @@ def calibrate(
     threshold_px: float = 2.0,
     quaternions=None,
     check_rotation: bool = True,
+    unit: str = "units",
     rng=None,
     progress=None,
 ) -> Calibration:
@@ -107,6 +108,8 @@ def calibrate(
         Robot orientations ``qx, qy, qz, qw``; checked to be constant.
     check_rotation : bool
         Test for views where the robot rotated (model violation); needs ``refine``.
+    unit : str
+        Name of the length unit of ``T``, used in the diagnostics' messages.
     rng : seed or Generator
         Randomness of RANSAC.
     progress : callable, optional
@@ -163,7 +166,7 @@ def calibrate(
         # the inlier set changes.
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
         error = _point_errors(uv, cal, X_all)
-        again = error <= threshold_px
+        again = error < threshold_px  # the rule of estimate_robust
         if np.any(again != inliers) and again.sum() >= 2:
             inliers = again
             uv_fit = np.where(inliers[None, :, None], uv, np.nan)
@@ -192,7 +195,7 @@ def calibrate(
     )
     t2 = time.perf_counter()
     found = diagnose(uv_fit, T, result, linear=linear, quaternions=quaternions,
-                     check_rotation=check_rotation and refine)
+                     check_rotation=check_rotation and refine, unit=unit)
     result.diagnostics.extend(found)
     info["diagnostics_s"] = time.perf_counter() - t2
     notify("diagnostics", {"warnings": len(found)})

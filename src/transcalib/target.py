@@ -1,15 +1,16 @@
 """Target mode (``--target squares``): corners of dark squares on a light board.
 
-As in the paper's experiment, each corner is the intersection of two straight lines
-fitted to the sides of a square:
+As in the paper's experiment, each corner is the intersection of two lines fitted to the
+sides of a square:
 
 1. dark blobs (Otsu threshold) whose outline is a convex quadrilateral with a clearly
    lighter surround are candidate squares;
-2. along every side, intensity profiles across the edge are sampled (bicubic, 0.2 px
+2. along every side, intensity profiles across the edge are sampled (bicubic, sub-pixel
    steps) and the edge point is where the profile crosses the mean of its dark and
    light levels - unbiased for a symmetric blur, whatever its width;
 3. a line is fitted to each side's edge points (total least squares, outliers
-   removed), and adjacent sides are intersected;
+   removed) - a parabola where lens distortion visibly bows the side - and adjacent
+   sides are intersected;
 4. squares are labelled consistently across views: in the reference view (the one with
    the most squares) by rows (top to bottom) then columns (left to right); in every
    other view by the image translation that superimposes most square centres (pure
@@ -17,7 +18,7 @@ fitted to the sides of a square:
    optimal assignment. Point id = ``4 * square + corner``; corners go around each square
    in image order starting from the top-left.
 
-Straight sides are assumed: with strong lens distortion, undistort the images first.
+Keep the board unsaturated: clipped whites pull the corners inwards (docs/images.md).
 """
 
 from __future__ import annotations

@@ -1019,7 +1019,7 @@ def _refine(grey, uv, epi, radius, min_ncc, report):
         good = (ok_in & conv & (ncc >= min_ncc) & (np.linalg.norm(p - p0, axis=1) < 4.0)
                 & (det > 0.25) & (det < 4.0) & (min_eig > 1.0))
         out[j, sel] = np.where(good[:, None], p, np.nan)
-        out[r, sel[~ok_in]] = np.nan
+        out[r, sel[~inside[r, sel]]] = np.nan  # no template: the reference goes too
         report("refine", k + 1, len(steps))
     return out
 

@@ -61,9 +61,9 @@ class MirroredError(InputError, DegenerateError):
 class Diagnostic(str):
     """A human-readable warning (a ``str``) with a stable machine-readable ``code``.
 
-    >>> d = Diagnostic("coplanar_translations", "translations are nearly coplanar ...")
+    >>> d = Diagnostic("translations_coplanar", "translations are nearly coplanar ...")
     >>> d.code, str(d)
-    ('coplanar_translations', 'translations are nearly coplanar ...')
+    ('translations_coplanar', 'translations are nearly coplanar ...')
     """
 
     code: str
