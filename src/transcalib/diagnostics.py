@@ -463,16 +463,16 @@ class _RotationModel:
             d1[k] += step
             d2[k] -= step
             cols.append((_pixels(K, d1, xc)[0] - _pixels(K, d2, xc)[0]) / (2 * step))
-        JcQ = np.einsum("vnij,vjk->vnik", Jc, st["Q"])
-        JR = np.einsum("vnij,vnjk->vnik", JcQ, _skew_rows(y))
+        JcQ = np.einsum("vnij,vjk->vnik", Jc, st["Q"], optimize=True)
+        JR = np.einsum("vnij,vnjk->vnik", JcQ, _skew_rows(y), optimize=True)
         cols += [JR[..., k] for k in range(3)]
-        JX = np.einsum("vnij,jk->vnik", JcQ, st["R"])
+        JX = np.einsum("vnij,jk->vnik", JcQ, st["R"], optimize=True)
         for i in self.t_views:
             for k in range(3):
                 c = np.zeros(shape + (2,))
                 c[i] = -JX[i, :, :, k]
                 cols.append(c)
-        Jw = np.einsum("vnij,vnjk->vnik", Jc, _skew_rows(xc))
+        Jw = np.einsum("vnij,vnjk->vnik", Jc, _skew_rows(xc), optimize=True)
         for i in views:
             for k in range(3):
                 c = np.zeros(shape + (2,))
@@ -481,18 +481,18 @@ class _RotationModel:
         m = self.seen.astype(float)[..., None, None]
         Jg = np.stack(cols, axis=-1) * m
         JX = JX * m
-        U = np.einsum("vnip,vniq->pq", Jg, Jg)
-        b = np.einsum("vnip,vni->p", Jg, r)
-        Wt = np.einsum("vnip,vnik->npk", Jg, JX)
-        Vinv = np.linalg.inv(np.einsum("vnik,vnil->nkl", JX, JX))
-        bX = np.einsum("vnik,vni->nk", JX, r)
+        U = np.einsum("vnip,vniq->pq", Jg, Jg, optimize=True)
+        b = np.einsum("vnip,vni->p", Jg, r, optimize=True)
+        Wt = np.einsum("vnip,vnik->npk", Jg, JX, optimize=True)
+        Vinv = np.linalg.inv(np.einsum("vnik,vnil->nkl", JX, JX, optimize=True))
+        bX = np.einsum("vnik,vni->nk", JX, r, optimize=True)
         for m_, i in enumerate(self.t_views):  # translation priors
             s0 = self.n_intr + self.n_dist + 3 + 3 * m_
             U[s0: s0 + 3, s0: s0 + 3] += self.t_weight[m_] * np.eye(3)
             b[s0: s0 + 3] += self.t_weight[m_] * (self.T_meas[i] - st["T"][i])
-        WV = np.einsum("npk,nkl->npl", Wt, Vinv)
+        WV = np.einsum("npk,nkl->npl", Wt, Vinv, optimize=True)
         S = U - np.tensordot(WV, Wt, axes=([0, 2], [0, 2]))
-        bred = b - np.einsum("npl,nl->p", WV, bX)
+        bred = b - np.einsum("npl,nl->p", WV, bX, optimize=True)
         return S, bred, sse, (WV, Vinv, bX)
 
     def update(self, st, views, dg, dX):
