@@ -101,3 +101,20 @@ def test_inputs_untouched(simulated, tmp_path):
     run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", tmp_path,
         "--quiet")
     assert before == {p.name: p.read_bytes() for p in simulated.iterdir()}
+
+
+def test_pose_orientations_checked(tmp_path):
+    """poses.csv with qx,qy,qz,qw: a view whose orientation differs is reported, with its angle."""
+    scene = simulate.paper_scene(noise_px=0.2, rng=1)
+    tio.write_tracks_csv(tmp_path / "t.csv", scene.uv)
+    lines = ["view,x,y,z,qx,qy,qz,qw"]
+    for i, t in enumerate(scene.T):
+        q = "0.0026,0,0,0.99999662" if i == 2 else "0,0,0,1"  # view 2: turned 0.3 deg
+        lines.append(f"{i},{t[0]!r},{t[1]!r},{t[2]!r},{q}")
+    (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
+    r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o",
+            "--quiet")
+    assert r.returncode == 0, r.stderr
+    cal = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert "pose_orientation" in cal["diagnostic_codes"]
+    assert any("view 2: 0.298 deg" in d for d in cal["diagnostics"])
