@@ -110,7 +110,7 @@ def test_pose_orientations_checked(tmp_path):
     lines = ["view,x,y,z,qx,qy,qz,qw"]
     for i, t in enumerate(scene.T):
         q = "0.0026,0,0,0.99999662" if i == 2 else "0,0,0,1"  # view 2: turned 0.3 deg
-        lines.append(f"{i},{t[0]!r},{t[1]!r},{t[2]!r},{q}")
+        lines.append(",".join([str(i), *(repr(float(x)) for x in t), q]))
     (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
     r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o",
             "--quiet")
