@@ -21,11 +21,7 @@ def _errors(r, tr):
     uv = tr.uv
     seen = np.isfinite(uv[..., 0])
     ref = np.argmax(seen, axis=0)
-    X = np.full((uv.shape[1], 3), np.nan)
-    ghost = np.zeros(uv.shape[1], bool)
-    for v in range(uv.shape[0]):
-        X[ref == v] = r.backproject(v, uv[v, ref == v])
-        ghost[ref == v] = r.near_occlusion(v, uv[v, ref == v])
+    X, ghost = r.track_truth(uv)
     err = np.linalg.norm(r.project(X) - uv, axis=-1)
     other = seen & (np.arange(uv.shape[0])[:, None] != ref[None]) & ~ghost[None]
     return err[other]

@@ -24,9 +24,7 @@ def check(cal, rendered, uv, distance):
     assert rotation_angle_deg(cal.R @ rendered.R.T) < 0.3
     # true 3-D point of each track: what its first view sees at the tracked pixel; tracks
     # next to an occlusion edge (T-junctions) have no fixed 3-D point and are left out
-    first = np.argmax(np.isfinite(uv[..., 0]), axis=0)
-    X_true = np.array([rendered.backproject(v, uv[v, j])[0] for j, v in enumerate(first)])
-    junction = np.array([rendered.near_occlusion(v, uv[v, j][None])[0] for j, v in enumerate(first)])
+    X_true, junction = rendered.track_truth(uv)
     ok = np.isfinite(cal.X[:, 0]) & np.isfinite(X_true[:, 0]) & ~junction
     if cal.inliers is not None:
         ok &= cal.inliers

@@ -540,6 +540,20 @@ class Rendered:
         X[~np.isfinite(best)] = np.nan
         return (X, which) if return_surface else X
 
+    def track_truth(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ground truth of tracks ``uv (n_views, n, 2)``: the world point ``(n, 3)`` seen at
+        each track's first observation, and ``(n,)`` bool, True where that observation is
+        next to an occlusion edge (a T-junction of two depths has no fixed 3-D point)."""
+        seen = np.isfinite(uv[..., 0])
+        first = np.argmax(seen, axis=0)
+        X = np.full((uv.shape[1], 3), np.nan)
+        junction = np.zeros(uv.shape[1], bool)
+        for v in range(uv.shape[0]):
+            mine = first == v
+            X[mine] = self.backproject(v, uv[v, mine])
+            junction[mine] = self.near_occlusion(v, uv[v, mine])
+        return X, junction
+
     def near_occlusion(self, view: int, uv: np.ndarray, radius_px: float = 10.0) -> np.ndarray:
         """``(n,)`` bool: a different surface (or background) lies within ``radius_px`` of
         pixels ``uv`` in ``view`` - features there may be occlusion ghosts (T-junctions),
