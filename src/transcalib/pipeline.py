@@ -179,11 +179,13 @@ def calibrate(
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
 
-    # residuals of every observation (outliers included) for reporting
+    # residuals of every observation for reporting, outliers included: an outlier is
+    # triangulated with the final camera for that (its X stays NaN)
     residuals = cal.residuals_px
     if inliers is not None:
-        full = uv - project(cal.K, cal.R, np.nan_to_num(cal.X), cal.T, cal.dist)
-        residuals = np.where(np.isfinite(cal.X)[None, :, :1], full, np.nan)
+        X_eval = np.where(np.isfinite(cal.X), cal.X, triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist))
+        full = uv - project(cal.K, cal.R, np.nan_to_num(X_eval), cal.T, cal.dist)
+        residuals = np.where(np.isfinite(X_eval)[None, :, :1], full, np.nan)
 
     info = dict(cal.info)
     info.update(stages=stages, **timings)
