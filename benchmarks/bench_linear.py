@@ -16,7 +16,7 @@ import tracemalloc
 import numpy as np
 
 from transcalib import simulate
-from transcalib.linear import estimate_linear
+from transcalib.estimate.linear import estimate_linear
 
 
 def measure(uv, T, method: str, repeats: int) -> tuple[float, float, np.ndarray]:

@@ -21,9 +21,9 @@ import time
 import numpy as np
 
 from transcalib import simulate
-from transcalib.camera import project
-from transcalib.linear import estimate_linear
-from transcalib.refine import _rotvec_to_matrix, crlb, refine
+from transcalib.geometry.camera import project
+from transcalib.estimate.linear import estimate_linear
+from transcalib.estimate.refine import _rotvec_to_matrix, crlb, refine
 
 KEYS = ("fx", "fy", "cx", "cy")
 

@@ -30,12 +30,12 @@ from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
-from transcalib.camera import project
-from transcalib.diagnostics import ROTATION_ALPHA, locate_view_rotation
-from transcalib.linear import estimate_linear
-from transcalib.refine import refine
-from transcalib.robust import estimate_robust
-from transcalib.triangulate import triangulate
+from transcalib.geometry.camera import project
+from transcalib.check.diagnostics import ROTATION_ALPHA, locate_view_rotation
+from transcalib.estimate.linear import estimate_linear
+from transcalib.estimate.refine import refine
+from transcalib.estimate.robust import estimate_robust
+from transcalib.geometry.triangulate import triangulate
 
 KEYS = ("fx", "fy", "cx", "cy")
 

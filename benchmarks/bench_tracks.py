@@ -14,7 +14,10 @@ import time
 
 import numpy as np
 
-from transcalib import calibrate, render, target, tracks
+from transcalib import calibrate
+from transcalib import images as tracks
+from transcalib.images import target
+from transcalib.synth import render
 
 
 def _errors(r, tr):

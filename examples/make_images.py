@@ -20,7 +20,7 @@ from pathlib import Path
 
 import cv2
 
-from transcalib import render
+from transcalib.synth import render
 
 
 def main(out: str | Path | None = None) -> Path:

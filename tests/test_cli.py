@@ -89,7 +89,7 @@ def test_degenerate_translations_message(tmp_path):
     scene = simulate.random_scene(30, 4, rng=2)
     T = scene.T.copy()
     T[3] = T[1] + 0.5 * (T[2] - T[1])  # coplanar with the others
-    from transcalib.camera import project
+    from transcalib.geometry.camera import project
     tio.write_tracks_csv(tmp_path / "t.csv", project(scene.K, scene.R, scene.X, T))
     tio.write_poses_csv(tmp_path / "p.csv", T)
     r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o")

@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
-from transcalib.camera import project
-from transcalib.diagnostics import (
+from transcalib.geometry.camera import project
+from transcalib.check.diagnostics import (
     check_null_space,
     check_outliers,
     check_points_behind,
@@ -19,8 +19,8 @@ from transcalib.diagnostics import (
     diagnose,
     view_rotation_test,
 )
-from transcalib.linear import estimate_linear
-from transcalib.refine import refine
+from transcalib.estimate.linear import estimate_linear
+from transcalib.estimate.refine import refine
 from transcalib.types import Diagnostic, InputError
 
 
@@ -229,7 +229,7 @@ def test_diagnose_silent_after_robust_pipeline():
     """Outliers removed by the robust estimator leave nothing to report."""
     from test_robust import plant_outliers
 
-    from transcalib.robust import estimate_robust
+    from transcalib.estimate.robust import estimate_robust
 
     scene = simulate.random_scene(300, 5, noise_px=0.5, rng=31)
     uv, _ = plant_outliers(scene, 0.3, rng=32)
@@ -258,7 +258,8 @@ def test_outliers_flagged_and_silent_on_gaussian_residuals():
 
 def test_rendered_images_pure_silent_and_rotated_view_flagged():
     """End to end on rendered images: tracks -> calibrate -> diagnostics."""
-    from transcalib import render, tracks
+    from transcalib import images as tracks
+    from transcalib.synth import render
     from transcalib.pipeline import calibrate
 
     r = render.render_scene("natural", n_views=4, image_size=(560, 420), rng=5)

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from transcalib import calibrate, simulate, track, track_squares
+from transcalib.synth import render
 from transcalib import io as tio
-from transcalib.camera import rotation_angle_deg
+from transcalib.geometry.camera import rotation_angle_deg
 
 
 def check(cal, rendered, uv, distance):
@@ -36,7 +37,7 @@ def check(cal, rendered, uv, distance):
 
 @pytest.mark.parametrize("kind, seed", [("natural", 3), ("checker", 4), ("mixed", 5)])
 def test_images_to_calibration(kind, seed):
-    rendered = simulate.render_scene(kind, n_views=5, image_size=(640, 480), noise_std=1.0, rng=seed)
+    rendered = render.render_scene(kind, n_views=5, image_size=(640, 480), noise_std=1.0, rng=seed)
     tracks = track(rendered.images)
     cal = calibrate(tracks.uv, rendered.T)
     check(cal, rendered, tracks.uv, distance=1000.0)
@@ -44,7 +45,7 @@ def test_images_to_calibration(kind, seed):
 
 
 def test_paper_board_target_mode():
-    rendered = simulate.render_scene("board", n_views=4, image_size=(752, 582), noise_std=0.5, rng=2)
+    rendered = render.render_scene("board", n_views=4, image_size=(752, 582), noise_std=0.5, rng=2)
     tracks = track_squares(rendered.images)
     assert tracks.uv.shape[1] >= 20
     cal = calibrate(tracks.uv, rendered.T)
@@ -53,7 +54,7 @@ def test_paper_board_target_mode():
 
 
 def test_cli_calibrate_from_images(tmp_path):
-    rendered = simulate.render_scene("mixed", n_views=4, image_size=(640, 480), rng=7)
+    rendered = render.render_scene("mixed", n_views=4, image_size=(640, 480), rng=7)
     import cv2
 
     names = []
@@ -77,7 +78,7 @@ def test_cli_calibrate_from_images(tmp_path):
 
 
 def test_cli_images_missing_from_poses(tmp_path):
-    rendered = simulate.render_scene("natural", n_views=4, image_size=(320, 240), rng=1)
+    rendered = render.render_scene("natural", n_views=4, image_size=(320, 240), rng=1)
     import cv2
 
     for i, image in enumerate(rendered.images):
@@ -94,7 +95,7 @@ def test_cli_board_of_six_squares_without_target_option(tmp_path):
     import cv2
     from scipy.spatial.transform import Rotation
 
-    from transcalib import render
+    from transcalib.synth import render
 
     scene = simulate.paper_scene()
     tilt = Rotation.from_euler("xy", [15, -10], degrees=True).as_matrix()

@@ -11,8 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
-from transcalib.camera import project
-from transcalib.refine import (
+from transcalib.geometry.camera import project
+from transcalib.estimate.refine import (
     _apply_step,
     _Layout,
     _predict_view,
@@ -46,7 +46,7 @@ def perturbed_start(scene, rng, dK=0.02, drot_rad=0.01, dX=0.01, dist=()):
 def linear_start(scene, uv=None):
     """The linear estimate when linear.py is available, else a perturbed truth."""
     try:
-        from transcalib.linear import estimate_linear
+        from transcalib.estimate.linear import estimate_linear
     except ImportError:  # pragma: no cover - while linear.py is being written
         return perturbed_start(scene, 0)
     return estimate_linear(scene.uv if uv is None else uv, scene.T)
@@ -171,8 +171,8 @@ def test_distortion_matches_cv2_project_points():
 def test_paper_monte_carlo_refined_beats_linear_and_std_is_honest():
     """Paper preset, 0.5 px: refined RMS error of fx, fy, cx, cy below the linear one's;
     predicted std within 20 % of the empirical one and close to the CRLB."""
-    pytest.importorskip("transcalib.linear")
-    from transcalib.linear import estimate_linear
+    pytest.importorskip("transcalib.estimate.linear")
+    from transcalib.estimate.linear import estimate_linear
 
     base = simulate.paper_scene()
     truth = _k4(base.K)
@@ -384,7 +384,7 @@ def test_view_rotation_spec_errors():
 
 def test_accepts_linear_estimate_and_reports_info():
     scene = simulate.paper_scene(noise_px=0.5, rng=1)
-    pytest.importorskip("transcalib.linear")
+    pytest.importorskip("transcalib.estimate.linear")
     start = linear_start(scene)
     steps = []
     cal = refine(scene.uv, scene.T, start, progress=steps.append)
@@ -475,7 +475,7 @@ def test_dense_and_gathered_linearisation_agree(monkeypatch):
     """Views seeing most points are linearised densely with zero weights: same result."""
     import sys
 
-    refine_module = sys.modules["transcalib.refine"]  # the package re-exports the function
+    refine_module = sys.modules["transcalib.estimate.refine"]  # the package re-exports the function
     scene = simulate.random_scene(120, 5, noise_px=0.5, missing=0.2, dist=(-0.1, 0.02), rng=23)
     start = perturbed_start(scene, 24)
     dense = refine(scene.uv, scene.T, start, distortion="radial2", loss="huber")
@@ -506,7 +506,7 @@ def test_jacobian_of_zero_distortion_matches_finite_differences():
 
 def test_robust_loss_with_a_point_left_out():
     """A point without an initial position is excluded, not a shape error (regression)."""
-    from transcalib.linear import estimate_linear
+    from transcalib.estimate.linear import estimate_linear
 
     scene = simulate.random_scene(50, 4, noise_px=0.5, rng=1)
     lin = estimate_linear(scene.uv, scene.T)

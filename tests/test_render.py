@@ -4,9 +4,10 @@ import cv2
 import numpy as np
 import pytest
 
-from transcalib import render, target
-from transcalib.camera import K_from_params, project
-from transcalib.simulate import Scene
+from transcalib.images import target
+from transcalib.synth import render
+from transcalib.geometry.camera import K_from_params, project
+from transcalib.synth.simulate import Scene
 
 
 def test_edge_pixel_is_exact_area_fraction():

@@ -1,10 +1,10 @@
-"""Robust estimation: the two-point minimal solver and LO-MSAC (transcalib.robust)."""
+"""Robust estimation: the two-point minimal solver and LO-MSAC (transcalib.estimate.robust)."""
 
 import numpy as np
 import pytest
 
 from transcalib import simulate
-from transcalib.robust import RobustEstimate, estimate_robust, point_errors, solve_minimal
+from transcalib.estimate.robust import RobustEstimate, estimate_robust, point_errors, solve_minimal
 from transcalib.types import DegenerateError, InputError
 
 

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from transcalib import render, target
+from transcalib.images import target
+from transcalib.synth import render
 from transcalib.types import DegenerateError, InputError
 
 

@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from transcalib import render, simulate, tracks
+from transcalib import images as tracks
+from transcalib.synth import render, simulate
 from transcalib.types import DegenerateError, InputError
 
 
@@ -154,7 +155,7 @@ def test_plain_checkerboard_every_corner_tracked():
     # epipole-guided corner matching must still track every inner corner in every view
     from scipy.spatial.transform import Rotation
 
-    from transcalib.camera import K_from_params
+    from transcalib.geometry.camera import K_from_params
 
     rng = np.random.default_rng(1)
     K = K_from_params(600.0, 620.0, 330.0, 230.0)
@@ -178,7 +179,7 @@ def test_plain_checkerboard_every_corner_tracked():
 def test_epipole_at_infinity_and_duplicate_view():
     # a translation parallel to the image plane puts the epipole at infinity
     sc = simulate.random_scene(100, 4, rng=3)
-    from transcalib.camera import project
+    from transcalib.geometry.camera import project
 
     uv = project(sc.K, sc.R, sc.X, np.vstack([np.zeros(3), sc.R.T @ [100.0, 0.0, 0.0]]))
     e, inl, rho = tracks.epipole_ransac(uv[0], uv[1], rng=0)

@@ -2,7 +2,14 @@
 
 After T. Pajdla and V. Hlavac, *Camera Calibration and Euclidean Reconstruction from
 Known Translations* (1996). See ``docs/`` for the method and conventions.
+
+``import transcalib`` is light: the public names below are imported on first use, and
+OpenCV only when images are touched.
 """
+
+from __future__ import annotations
+
+import importlib
 
 from .types import (
     Calibration,
@@ -13,34 +20,41 @@ from .types import (
     MirroredError,
     TranscalibError,
 )
-from . import render, simulate
-from .diagnostics import diagnose
-from .linear import estimate_linear
-from .pipeline import calibrate
-from .refine import crlb, refine
-from .robust import RobustEstimate, estimate_robust
-from .target import track_squares
-from .tracks import Tracks, track
+
+__version__ = "0.1.0"
+
+#: public name -> (module, attribute); attribute None: the module itself
+_LAZY = {
+    "calibrate": (".pipeline", "calibrate"),
+    "estimate_linear": (".estimate.linear", "estimate_linear"),
+    "estimate_robust": (".estimate.robust", "estimate_robust"),
+    "RobustEstimate": (".estimate.robust", "RobustEstimate"),
+    "refine": (".estimate.refine", "refine"),
+    "crlb": (".estimate.refine", "crlb"),
+    "diagnose": (".check.diagnostics", "diagnose"),
+    "track": (".images", "track"),
+    "track_squares": (".images", "track_squares"),
+    "Tracks": (".images.frames", "Tracks"),
+    "simulate": (".synth.simulate", None),
+    "render": (".synth.render", None),
+}
 
 __all__ = [
-    "Calibration",
-    "DegenerateError",
-    "Diagnostic",
-    "InputError",
-    "LinearEstimate",
-    "MirroredError",
-    "TranscalibError",
-    "RobustEstimate",
-    "Tracks",
-    "calibrate",
-    "crlb",
-    "diagnose",
-    "estimate_linear",
-    "estimate_robust",
-    "refine",
-    "render",
-    "simulate",
-    "track",
-    "track_squares",
+    "Calibration", "DegenerateError", "Diagnostic", "InputError", "LinearEstimate", "MirroredError",
+    "TranscalibError", *_LAZY,
 ]
-__version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    try:
+        module, attr = _LAZY[name]
+    except KeyError:
+        raise AttributeError(f"module 'transcalib' has no attribute {name!r}") from None
+    mod = importlib.import_module(module, __name__)
+    value = mod if attr is None else getattr(mod, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(__all__)

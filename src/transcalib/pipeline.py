@@ -11,14 +11,14 @@ import time
 
 import numpy as np
 
-from .refine import refine as ml_refine
+from .estimate.refine import refine as ml_refine
 from dataclasses import replace
 
-from .camera import project
-from .diagnostics import diagnose
-from .linear import estimate_linear
-from .triangulate import triangulate
-from .robust import estimate_robust
+from .geometry.camera import project
+from .check.diagnostics import diagnose
+from .estimate.linear import estimate_linear
+from .geometry.triangulate import triangulate
+from .estimate.robust import estimate_robust
 from .types import Calibration, InputError, LinearEstimate
 from .validate import as_uv_T
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from .types import MirroredError
+from ..types import MirroredError
 
 __all__ = [
     "DIST_MODELS",

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .types import InputError
+from ..types import InputError
 
 __all__ = [
     "Poses",

@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .tracks import Tracks, load_images
-from .types import DegenerateError, InputError
+from .frames import Tracks, load_images
+from ..types import DegenerateError, InputError
 
 __all__ = ["detect_squares", "track_squares"]
 

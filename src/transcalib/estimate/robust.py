@@ -57,9 +57,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .linear import estimate_linear
-from .triangulate import triangulate
-from .types import DegenerateError, InputError, LinearEstimate, MirroredError
-from .validate import as_uv_T, check_translations_span
+from ..geometry.triangulate import triangulate
+from ..types import DegenerateError, InputError, LinearEstimate, MirroredError
+from ..validate import as_uv_T, check_translations_span
 
 __all__ = ["RobustEstimate", "estimate_robust", "solve_minimal", "point_errors"]
 

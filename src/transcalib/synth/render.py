@@ -29,9 +29,9 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .camera import K_from_params, project, undistort
+from ..geometry.camera import K_from_params, project, undistort
 from .simulate import Scene
-from .types import InputError
+from ..types import InputError
 
 __all__ = [
     "Checker",

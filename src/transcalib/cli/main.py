@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from . import io as tio
-from .types import TranscalibError
+from .. import __version__
+from .. import io as tio
+from ..types import TranscalibError
 
 EXIT_INPUT = 2
 
@@ -103,7 +103,7 @@ def _summary(cal, unit: str, truth: dict | None, point_ids: list) -> str:
     if "rx" in cal.std:
         lines.append("  std of rotation [deg]: " + ", ".join(f"{k} {cal.std[k]:.3g}" for k in ("rx", "ry", "rz")))
     if truth is not None:
-        from .camera import rotation_angle_deg
+        from ..geometry.camera import rotation_angle_deg
 
         lines.append(f"  angle to truth: {rotation_angle_deg(cal.R @ np.asarray(truth['R']).T):.4f} deg")
     n_rec = int(np.isfinite(cal.X[:, 0]).sum())
@@ -125,7 +125,7 @@ def _summary(cal, unit: str, truth: dict | None, point_ids: list) -> str:
 
 
 def cmd_calibrate(args) -> int:
-    from .pipeline import calibrate
+    from ..pipeline import calibrate
 
     log = _log(args.quiet)
     t_start = time.perf_counter()
@@ -177,10 +177,10 @@ def _track_images(images, target: str | None, quiet: bool):
     """Tracks from images: ``target="squares"`` finds the corners of dark squares."""
     progress = None if quiet else _progress_printer()
     if target == "squares":
-        from .target import track_squares
+        from ..images import track_squares
 
         return track_squares(images, progress=progress)
-    from .tracks import track
+    from ..images import track
 
     return track(images, progress=progress)
 
@@ -211,7 +211,7 @@ def _order_images(images: list[str], poses) -> list[str]:
 
 
 def cmd_simulate(args) -> int:
-    from . import simulate
+    from ..synth import simulate
 
     if args.preset == "paper":
         scene = simulate.paper_scene(noise_px=args.noise_px, robot_noise=args.robot_noise, rng=args.seed)

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .camera import K_from_params, project
+from ..geometry.camera import K_from_params, project
 
-__all__ = ["Scene", "paper_scene", "random_scene", "random_rotation", "observe", "render_scene"]
+__all__ = ["Scene", "paper_scene", "random_scene", "random_rotation", "observe"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -258,10 +258,3 @@ def _make_scene(K, R, dist, T_true, X, image_size, noise_px, robot_noise, missin
                   uv_true=uv_true, image_size=tuple(int(s) for s in image_size), meta=meta)
     return observe(exact, noise_px, robot_noise, missing, rng)
 
-
-def render_scene(*args, **kwargs):
-    """Rendered images of a textured scene with exact ground truth: see
-    :func:`transcalib.render.render_scene` (imported lazily: render uses this module)."""
-    from .render import render_scene as _render_scene
-
-    return _render_scene(*args, **kwargs)

@@ -35,10 +35,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import rq_decompose
-from .triangulate import triangulate
-from .types import DegenerateError, InputError, LinearEstimate
-from .validate import as_uv_T, check_translations_span
+from ..geometry.camera import rq_decompose
+from ..geometry.triangulate import triangulate
+from ..types import DegenerateError, InputError, LinearEstimate
+from ..validate import as_uv_T, check_translations_span
 
 __all__ = ["estimate_linear", "solve_tls", "DENSE_MAX_POINTS"]
 

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from .camera import DIST_MODELS, K_from_params
-from .types import Calibration, DegenerateError, InputError, LinearEstimate
+from ..geometry.camera import DIST_MODELS, K_from_params
+from ..types import Calibration, DegenerateError, InputError, LinearEstimate
 
 __all__ = ["refine", "crlb", "LOSSES"]
 

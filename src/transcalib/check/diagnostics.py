@@ -70,9 +70,9 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from .camera import distort
-from .types import Calibration, DegenerateError, Diagnostic, InputError, LinearEstimate
-from .validate import as_uv_T
+from ..geometry.camera import distort
+from ..types import Calibration, DegenerateError, Diagnostic, InputError, LinearEstimate
+from ..validate import as_uv_T
 
 __all__ = [
     "check_translations",
@@ -700,7 +700,7 @@ def _fit_rotated_views(uv, T, calibration, candidates):
     """Refit with one candidate view's rotation free (``refine(...,
     estimate_view_rotations=[i])``) and keep the best: ``(view, (rotation_deg (3,),
     std_deg (3,)), views explaining the data not significantly worse)``, or None."""
-    from .refine import refine
+    from ..estimate.refine import refine
 
     cands = sorted(set(int(i) for i in candidates))
     if len(cands) < 1:
@@ -749,7 +749,7 @@ def locate_view_rotation(uv, T, calibration: Calibration, *, alpha: float = ROTA
         ``p_value (n_views,)``, and ``test`` (the :func:`view_rotation_test` result).
     """
     if getattr(calibration, "cov", None) is None:
-        from .refine import refine  # a linear calibration: take the ML solution first
+        from ..estimate.refine import refine  # a linear calibration: take the ML solution first
 
         calibration = refine(uv, T, calibration, distortion=getattr(calibration, "dist_model", "none"))
     res = view_rotation_test(uv, T, calibration, alpha=alpha)

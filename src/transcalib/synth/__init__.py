@@ -1,0 +1,15 @@
+"""Simulated scenes with exact ground truth (:mod:`.simulate`) and the image renderer
+(:mod:`.render`): data for tests, benchmarks and examples."""
+
+from . import simulate
+from .simulate import Scene, observe, paper_scene, random_scene
+
+__all__ = ["simulate", "Scene", "observe", "paper_scene", "random_scene", "render_scene"]
+
+
+def render_scene(*args, **kwargs):
+    """Rendered images with exact ground truth: :func:`transcalib.synth.render.render_scene`
+    (the renderer loads OpenCV, so it is imported on first use)."""
+    from .render import render_scene as _render_scene
+
+    return _render_scene(*args, **kwargs)
