@@ -15,7 +15,7 @@ import pytest
 from transcalib import calibrate, simulate, track, track_squares
 from transcalib.synth import render
 from transcalib import io as tio
-from transcalib.geometry.camera import rotation_angle_deg
+from transcalib.geometry.rotation import rotation_angle_deg
 
 
 def check(cal, rendered, uv, distance):

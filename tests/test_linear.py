@@ -6,7 +6,8 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from transcalib import simulate
-from transcalib.geometry.camera import project, rotation_angle_deg
+from transcalib.geometry.camera import project
+from transcalib.geometry.rotation import rotation_angle_deg
 from transcalib.estimate.linear import estimate_linear, solve_tls
 from transcalib.types import DegenerateError, InputError, MirroredError
 

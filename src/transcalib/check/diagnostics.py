@@ -70,7 +70,7 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from ..geometry.camera import distort
+from ..geometry.camera import distort, pad_dist
 from ..types import Calibration, DegenerateError, Diagnostic, InputError, LinearEstimate
 from ..validate import as_uv_T
 
@@ -384,7 +384,8 @@ def _pixels(K, dist, xc):
     """Pixels of camera-frame points ``xc`` (..., 3), and distorted normalised coordinates."""
     xy = xc[..., :2] / xc[..., 2:3]
     if np.asarray(dist).size:
-        xy = distort(xy, dist)
+        d = distort(xy[..., 0], xy[..., 1], pad_dist(dist))
+        xy = np.stack([d.xd, d.yd], axis=-1)
     u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
     v = K[1, 1] * xy[..., 1] + K[1, 2]
     return np.stack([u, v], axis=-1), xy

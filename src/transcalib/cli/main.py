@@ -103,7 +103,7 @@ def _summary(cal, unit: str, truth: dict | None, point_ids: list) -> str:
     if "rx" in cal.std:
         lines.append("  std of rotation [deg]: " + ", ".join(f"{k} {cal.std[k]:.3g}" for k in ("rx", "ry", "rz")))
     if truth is not None:
-        from ..geometry.camera import rotation_angle_deg
+        from ..geometry.rotation import rotation_angle_deg
 
         lines.append(f"  angle to truth: {rotation_angle_deg(cal.R @ np.asarray(truth['R']).T):.4f} deg")
     n_rec = int(np.isfinite(cal.X[:, 0]).sum())

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.camera import rq_decompose
+from ..geometry.rotation import rq_decompose
 from ..geometry.triangulate import triangulate
 from ..types import DegenerateError, InputError, LinearEstimate
 from ..validate import as_uv_T, check_translations_span

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..geometry.camera import DIST_MODELS, K_from_params
+from ..geometry.camera import DIST_MODELS, K_from_params, dist_size
 from ..types import Calibration, DegenerateError, InputError, LinearEstimate
 
 __all__ = ["refine", "crlb", "LOSSES"]
@@ -746,7 +746,7 @@ def refine(
     uv, T, X0, K0 = _check_inputs(uv, T, initial, distortion, loss, loss_scale_px, sigma_px, sigma_T,
                                   max_iterations, tol)
     n_views, n_points = uv.shape[:2]
-    n_dist = DIST_MODELS[distortion]
+    n_dist = dist_size(distortion)
     seen = np.all(np.isfinite(uv), axis=2)
 
     R0 = np.asarray(initial.R, dtype=float)
@@ -1016,10 +1016,10 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False,
     t_sigma = np.zeros(n_views)
     if scene.robot_noise > 0:
         t_sigma[1:] = scene.robot_noise
-    lay = _Layout(n_views, DIST_MODELS[distortion], bool(estimate_skew), estimate_view_rotations, t_sigma > 0)
+    lay = _Layout(n_views, dist_size(distortion), bool(estimate_skew), estimate_view_rotations, t_sigma > 0)
     K = scene.K
     state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]),
-                   _initial_dist(scene, DIST_MODELS[distortion]), scene.R.copy(),
+                   _initial_dist(scene, dist_size(distortion)), scene.R.copy(),
                    np.tile(np.eye(3), (n_views, 1, 1)), scene.T_true.copy(), scene.X[used_idx].copy())
     tw = np.where(t_sigma > 0, scene.noise_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
     data = _build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)

@@ -1,84 +1,125 @@
-"""Camera model: pinhole projection with OpenCV lens distortion, and ``A -> (K, R)``.
+"""The camera model, written once: pinhole projection with OpenCV lens distortion.
 
-Projection of scene point ``X_j`` in view ``i`` (paper eq. 2, OpenCV distortion)::
+Projection of scene point ``X_j`` seen from camera centre ``T_i`` (paper eq. 2 with
+OpenCV's distortion model)::
 
-    x_cam = R (X_j - T_i)                      camera frame, z forward
-    (x, y) = x_cam[:2] / x_cam[2]              normalised image coordinates
-    (x', y') = distort(x, y; k1, k2, p1, p2, k3)
+    x_c = R (X_j - T_i)                        camera frame, z forward
+    (x, y) = x_c[:2] / x_c[2]                  normalised image coordinates
+    r^2 = x^2 + y^2,  rad = 1 + k1 r^2 + k2 r^4 + k3 r^6
+    x' = x rad + 2 p1 x y + p2 (r^2 + 2 x^2)
+    y' = y rad + p1 (r^2 + 2 y^2) + 2 p2 x y
     u = fx x' + s y' + cx,   v = fy y' + cy
 
-Distortion coefficients follow OpenCV's order and meaning; padded to five values
-(``Calibration.dist_opencv``) they go to ``cv2.undistort`` / ``cv2.projectPoints`` as they
-are (OpenCV has no skew: keep ``s = 0`` when mixing the two).
+:func:`distort` (with its Jacobian) and :func:`project_camera_frame` are the only
+implementation of these formulas: the bundle adjuster, the diagnostics, the pipeline
+and the renderer all call them. Coefficients follow OpenCV's order and meaning; padded to
+five values (:attr:`Camera.dist5`) they go to ``cv2.undistort`` / ``cv2.projectPoints``
+as they are (OpenCV has no skew: keep ``s = 0`` when mixing the two).
 """
 
 from __future__ import annotations
 
-import numpy as np
-import scipy.linalg
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
-from ..types import MirroredError
+import numpy as np
+
+from ..errors import InputError
 
 __all__ = [
     "DIST_MODELS",
+    "DIST_NAMES",
     "dist_size",
+    "pad_dist",
+    "Camera",
+    "Distortion",
     "distort",
     "undistort",
+    "project_camera_frame",
     "project",
     "pixels_to_rays",
     "K_from_params",
-    "rq_decompose",
-    "rotation_angle_deg",
 ]
 
-#: Number of distortion coefficients of each model (OpenCV order k1, k2, p1, p2, k3).
-DIST_MODELS = {"none": 0, "radial2": 2, "opencv5": 5}
+#: Distortion models: the OpenCV coefficients each one estimates (the others are 0).
+DIST_MODELS = {"none": (), "radial1": ("k1",), "radial2": ("k1", "k2"), "opencv5": ("k1", "k2", "p1", "p2", "k3")}
+#: OpenCV's order of the five coefficients.
+DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 
 
 def dist_size(model: str) -> int:
-    """Number of coefficients of distortion ``model`` (raises ``ValueError`` if unknown)."""
+    """Number of coefficients of distortion ``model`` (raises ``InputError`` if unknown)."""
     try:
-        return DIST_MODELS[model]
+        return len(DIST_MODELS[model])
     except KeyError:
-        raise ValueError(f"unknown distortion model {model!r}; expected one of {sorted(DIST_MODELS)}") from None
+        raise InputError(f"unknown distortion model {model!r}; expected one of {', '.join(DIST_MODELS)}") from None
 
 
-def _dist5(dist) -> np.ndarray:
-    """Pad coefficients ``(k,)`` of any supported model to OpenCV's five."""
+def pad_dist(dist) -> np.ndarray:
+    """Coefficients of any model (0, 1, 2, 4 or 5 values, OpenCV order) as OpenCV's five."""
     d = np.zeros(5)
     dist = np.asarray(dist, dtype=float).ravel()
-    if dist.size == 2:  # radial2: k1, k2
-        d[:2] = dist
-    elif dist.size in (0, 4, 5):
-        d[: dist.size] = dist
-    else:
-        raise ValueError(f"distortion must have 0, 2, 4 or 5 coefficients, got {dist.size}")
+    if dist.size not in (0, 1, 2, 4, 5):
+        raise InputError(f"distortion must have 0, 1, 2, 4 or 5 coefficients (OpenCV order), got {dist.size}")
+    d[: dist.size] = dist
     return d
 
 
-def distort(xy: np.ndarray, dist) -> np.ndarray:
-    """Apply OpenCV lens distortion to normalised image coordinates.
+class Distortion(NamedTuple):
+    """Distorted normalised coordinates and, on request, their derivatives.
+
+    ``dx``, ``dy`` are ``(d x'/dx, d x'/dy)`` and ``(d y'/dx, d y'/dy)``; ``dk`` has one
+    ``(d x'/dk, d y'/dk)`` pair per coefficient, in OpenCV order (5 pairs). All entries
+    have the shape of the input coordinates.
+    """
+
+    xd: np.ndarray
+    yd: np.ndarray
+    dx: tuple | None = None
+    dy: tuple | None = None
+    dk: tuple | None = None
+
+
+def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool = False) -> Distortion:
+    """OpenCV distortion of normalised coordinates ``(x, y)`` (arrays of any one shape).
 
     Parameters
     ----------
-    xy : (..., 2) float
-        Undistorted normalised coordinates ``(x/z, y/z)``.
-    dist : (k,) float
-        ``k1, k2[, p1, p2[, k3]]``.
+    x, y : float arrays
+        Undistorted normalised coordinates ``x_c / z_c``, ``y_c / z_c``.
+    dist5 : (5,) float
+        ``k1, k2, p1, p2, k3`` (:func:`pad_dist`).
+    jacobian : bool
+        Also return the derivatives with respect to ``x, y`` and the coefficients.
 
     Returns
     -------
-    (..., 2) float
-        ``x' = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)``,
-        ``y' = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y``.
+    Distortion
+        ``x', y'`` of the module docstring (and derivatives).
     """
-    k1, k2, p1, p2, k3 = _dist5(dist)
-    x, y = xy[..., 0], xy[..., 1]
+    k1, k2, p1, p2, k3 = dist5
     r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([xd, yd], axis=-1)
+    if not np.any(dist5):  # pinhole: no temporaries on the hot path
+        xd, yd = x, y
+        radial = None
+    else:
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    if not jacobian:
+        return Distortion(xd, yd)
+    if radial is None:
+        one, zero = np.ones_like(x), np.zeros_like(x)
+        dx, dy = (one, zero), (zero, one)
+    else:
+        dR = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        a12 = 2.0 * x * y * dR + 2.0 * p1 * x + 2.0 * p2 * y
+        dx = (radial + 2.0 * x * x * dR + 2.0 * p1 * y + 6.0 * p2 * x, a12)
+        dy = (a12, radial + 2.0 * y * y * dR + 6.0 * p1 * y + 2.0 * p2 * x)
+    r4 = r2 * r2
+    dk = ((x * r2, y * r2), (x * r4, y * r4), (2.0 * x * y, r2 + 2.0 * y * y),
+          (r2 + 2.0 * x * x, 2.0 * x * y), (x * r4 * r2, y * r4 * r2))
+    return Distortion(xd, yd, dx, dy, dk)
 
 
 def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
@@ -89,31 +130,87 @@ def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
     xy_d : (..., 2) float
         Distorted normalised coordinates.
     dist : (k,) float
-        Distortion coefficients.
+        Distortion coefficients (any model, OpenCV order).
 
     Returns
     -------
     (..., 2) float
         Undistorted normalised coordinates.
     """
-    d = _dist5(dist)
+    d = pad_dist(dist)
     xy_d = np.asarray(xy_d, dtype=float)
     if not d.any():
         return xy_d.copy()
     k1, k2, p1, p2, k3 = d
-    xy = xy_d.copy()
+    x, y = xy_d[..., 0].copy(), xy_d[..., 1].copy()
     for _ in range(iterations):
-        x, y = xy[..., 0], xy[..., 1]
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
         dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
         dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        xy = np.stack([(xy_d[..., 0] - dx) / radial, (xy_d[..., 1] - dy) / radial], axis=-1)
-    return xy
+        x, y = (xy_d[..., 0] - dx) / radial, (xy_d[..., 1] - dy) / radial
+    return np.stack([x, y], axis=-1)
+
+
+class Projection(NamedTuple):
+    """Pixels of camera-frame points and, on request, their derivatives (points last).
+
+    ``pred (2, ...)``; ``P (2, 3, ...)`` = d pixel / d x_c; ``J_intr (5, 2, ...)`` =
+    d pixel / d (fx, fy, cx, cy, skew); ``J_dist (5, 2, ...)`` = d pixel / d (k1, k2, p1,
+    p2, k3).
+    """
+
+    pred: np.ndarray
+    P: np.ndarray | None = None
+    J_intr: np.ndarray | None = None
+    J_dist: np.ndarray | None = None
+
+
+def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *, jacobian: bool = False,
+                         valid: np.ndarray | None = None) -> Projection:
+    """Pixels of points in the camera frame (module docstring), components first.
+
+    Parameters
+    ----------
+    intr : (5,) float
+        ``fx, fy, cx, cy, skew``.
+    dist5 : (5,) float
+        OpenCV coefficients.
+    xc : (3, ...) float
+        Camera-frame points (``z > 0`` in front of the camera).
+    jacobian : bool
+        Also return the derivatives (:class:`Projection`).
+    valid : (...) bool, optional
+        Points whose values matter; the others get depth 1 in the divisions (their
+        results are finite and meaningless).
+
+    Returns
+    -------
+    Projection
+    """
+    fx, fy, cx, cy, s = intr
+    z = xc[2] if valid is None else np.where(valid, xc[2], 1.0)
+    iz = 1.0 / z
+    x, y = xc[0] * iz, xc[1] * iz
+    d = distort(x, y, dist5, jacobian=jacobian)
+    pred = np.stack([fx * d.xd + s * d.yd + cx, fy * d.yd + cy])
+    if not jacobian:
+        return Projection(pred)
+    # M = [[fx, s], [0, fy]] d(x', y')/d(x, y);  P = M [[1, 0, -x], [0, 1, -y]] / z
+    m11, m12 = fx * d.dx[0] + s * d.dy[0], fx * d.dx[1] + s * d.dy[1]
+    m21, m22 = fy * d.dy[0], fy * d.dy[1]
+    P = np.empty((2, 3) + x.shape)
+    P[0, 0], P[0, 1], P[0, 2] = m11 * iz, m12 * iz, -(m11 * x + m12 * y) * iz
+    P[1, 0], P[1, 1], P[1, 2] = m21 * iz, m22 * iz, -(m21 * x + m22 * y) * iz
+    zero, one = np.zeros_like(x), np.ones_like(x)
+    J_intr = np.stack([np.stack([d.xd, zero]), np.stack([zero, d.yd]), np.stack([one, zero]),
+                       np.stack([zero, one]), np.stack([d.yd, zero])])
+    J_dist = np.stack([np.stack([fx * gx + s * gy, fy * gy]) for gx, gy in d.dk])
+    return Projection(pred, P, J_intr, J_dist)
 
 
 def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=()) -> np.ndarray:
-    """Project scene points into every view.
+    """Project scene points into every view: ``(n_views, n_points, 2)`` pixels.
 
     Parameters
     ----------
@@ -122,22 +219,13 @@ def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=())
     X : (n_points, 3) float
         Scene points, world frame.
     T : (n_views, 3) float
-        Camera translations (camera centre of view i is ``T_i``).
+        Camera centres (translations).
     dist : (k,) float, optional
         OpenCV distortion coefficients.
-
-    Returns
-    -------
-    uv : (n_views, n_points, 2) float
-        Pixel coordinates, ``lam [u, v, 1] = K distort(R (X - T_i))`` (paper eq. 2).
     """
-    Xc = np.einsum("ab,vnb->vna", R, X[None, :, :] - T[:, None, :])
-    xy = Xc[..., :2] / Xc[..., 2:3]
-    if np.asarray(dist).size:
-        xy = distort(xy, dist)
-    u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
-    v = K[1, 1] * xy[..., 1] + K[1, 2]
-    return np.stack([u, v], axis=-1)
+    xc = np.einsum("ab,vnb->avn", R, X[None, :, :] - T[:, None, :])
+    intr = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]])
+    return np.moveaxis(project_camera_frame(intr, pad_dist(dist), xc).pred, 0, -1)
 
 
 def pixels_to_rays(K: np.ndarray, uv: np.ndarray, dist=()) -> np.ndarray:
@@ -168,46 +256,120 @@ def K_from_params(fx: float, fy: float, cx: float, cy: float, skew: float = 0.0)
     return np.array([[fx, skew, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def rq_decompose(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Split ``A = K R`` into upper-triangular ``K`` (positive diagonal, ``K[2,2] = 1``)
-    and a rotation ``R`` (det +1).
+def _frozen(a) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
 
-    Parameters
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A calibrated camera: intrinsics, distortion, orientation in the robot frame.
+
+    Attributes
     ----------
-    A : (3, 3) float
-        The paper's affine matrix, any non-zero scale with ``det A > 0``.
+    K : (3, 3) float
+        ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``, pixels; pixel (0, 0) is the centre of
+        the top-left pixel (OpenCV).
+    R : (3, 3) float
+        Rotation world (robot) -> camera, det +1 (``R_cam_world``).
+    dist : (k,) float
+        Distortion coefficients of ``dist_model`` in OpenCV order.
+    dist_model : {"none", "radial1", "radial2", "opencv5"}
+    image_size : (width, height) or None
+        Pixels, when known.
 
-    Returns
-    -------
-    K, R : (3, 3) float
-
-    Raises
-    ------
-    MirroredError
-        If ``det A < 0``: no rotation can explain the data, the frame is mirrored.
+    >>> cam = Camera(K_from_params(800, 800, 320, 240), image_size=(640, 480))
+    >>> cam.project([[0.0, 0.0, 1000.0]], [[0.0, 0.0, 0.0]]).round(3).tolist()
+    [[[320.0, 240.0]]]
     """
-    A = np.asarray(A, dtype=float)
-    if np.linalg.det(A) <= 0:
-        raise MirroredError(
-            "the data imply a mirrored camera (det(K R) < 0): the robot frame looks "
-            "left-handed relative to the images. Check that the robot axes x, y, z form a "
-            "right-handed frame, that no two pose columns are swapped, and that the "
-            "images are not flipped; then run again."
-        )
-    K, R = scipy.linalg.rq(A)
-    signs = np.sign(np.diag(K))
-    signs[signs == 0] = 1.0
-    K = K * signs[None, :]  # K D, with D = diag(signs) = D^-1
-    R = signs[:, None] * R  # D R
-    R_det = np.linalg.det(R)
-    if R_det < 0:  # only if det A < 0, excluded above; keep the invariant explicit
-        raise MirroredError("RQ decomposition produced det R = -1")
-    return K / K[2, 2], R
 
+    K: np.ndarray
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    dist_model: str = "none"
+    image_size: tuple | None = None
 
-def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle in degrees of rotation matrix ``R`` (3, 3), accurate for tiny angles too:
-    ``atan2(sin, cos)`` with ``sin`` from the skew part and ``cos = (tr R - 1) / 2``."""
-    sin = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    cos = (np.trace(R) - 1.0) / 2.0
-    return float(np.degrees(np.arctan2(sin, cos)))
+    def __post_init__(self):
+        K, R = _frozen(self.K), _frozen(self.R)
+        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise InputError(f"Camera: K must be a finite 3x3 matrix with fx, fy > 0, got {K.tolist()}")
+        if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise InputError(f"Camera: R must be a 3x3 rotation matrix (det +1), got {R.tolist()}")
+        n = dist_size(self.dist_model)
+        dist = _frozen(np.ravel(self.dist))
+        if dist.size != n:
+            raise InputError(f"Camera: distortion model {self.dist_model!r} has {n} coefficient(s) "
+                             f"{DIST_MODELS[self.dist_model]}, got {dist.size}")
+        size = None if self.image_size is None else tuple(int(v) for v in self.image_size)
+        if size is not None and (len(size) != 2 or min(size) <= 0):
+            raise InputError(f"Camera: image_size must be (width, height) > 0, got {self.image_size!r}")
+        for name, value in (("K", K), ("R", R), ("dist", dist), ("image_size", size)):
+            object.__setattr__(self, name, value)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Camera):
+            return NotImplemented
+        return (np.array_equal(self.K, other.K) and np.array_equal(self.R, other.R)
+                and np.array_equal(self.dist, other.dist) and self.dist_model == other.dist_model
+                and self.image_size == other.image_size)
+
+    __hash__ = None
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """``fx, fy, cx, cy, skew`` (5,)."""
+        K = self.K
+        return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]])
+
+    @property
+    def dist5(self) -> np.ndarray:
+        """The five OpenCV coefficients ``k1, k2, p1, p2, k3`` (zeros beyond the model)."""
+        out = np.zeros(5)
+        out[[DIST_NAMES.index(k) for k in DIST_MODELS[self.dist_model]]] = self.dist
+        return out
+
+    def _camera_frame(self, X, T):
+        X = np.asarray(X, dtype=float).reshape(-1, 3)
+        T = np.zeros((1, 3)) if T is None else np.asarray(T, dtype=float).reshape(-1, 3)
+        return np.einsum("ab,vnb->avn", self.R, X[None] - T[:, None])  # (3, V, n)
+
+    def project(self, X, T=None) -> np.ndarray:
+        """Pixels ``(n_views, n_points, 2)`` of world points ``X (n_points, 3)`` seen from
+        camera centres ``T (n_views, 3)`` (default: one view at the origin)."""
+        xc = self._camera_frame(X, T)
+        return np.moveaxis(project_camera_frame(self.intrinsics, self.dist5, xc).pred, 0, -1)
+
+    def project_jacobian(self, X, T=None) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels ``(V, n, 2)`` and their derivative with respect to the points,
+        ``d uv / d X`` ``(V, n, 2, 3)``."""
+        xc = self._camera_frame(X, T)
+        p = project_camera_frame(self.intrinsics, self.dist5, xc, jacobian=True)
+        J = np.einsum("kc...,cd->...kd", p.P, self.R)
+        return np.moveaxis(p.pred, 0, -1), J
+
+    def pixels_to_rays(self, uv) -> np.ndarray:
+        """Camera-frame ray directions ``[x, y, 1]`` (..., 3) of pixels ``uv (..., 2)``,
+        corrected for distortion."""
+        return pixels_to_rays(self.K, np.asarray(uv, dtype=float), self.dist)
+
+    def unproject(self, uv) -> np.ndarray:
+        """Unit ray directions in the **world** (robot) frame (..., 3) of pixels (..., 2):
+        ``R^T [x, y, 1] / |.|``."""
+        rays = self.pixels_to_rays(uv) @ self.R
+        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+    def undistort_points(self, uv) -> np.ndarray:
+        """Pixels (..., 2) the same camera without distortion would see: ``K [x, y, 1]``."""
+        rays = self.pixels_to_rays(uv)
+        return rays[..., :2] @ self.K[:2, :2].T + self.K[:2, 2]
+
+    def undistort_image(self, image: np.ndarray) -> np.ndarray:
+        """The image as the same camera without distortion would take it (``cv2.undistort``)."""
+        import cv2
+
+        return cv2.undistort(np.asarray(image), self.K, self.dist5)
+
+    def to_opencv(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(camera_matrix (3, 3), dist_coeffs (5,))`` for OpenCV functions."""
+        return np.array(self.K), self.dist5
