@@ -17,7 +17,7 @@ import numpy as np
 
 from .. import __version__
 from .. import io as tio
-from ..types import TranscalibError
+from ..types import RansacOptions, RefineOptions, TranscalibError
 
 EXIT_INPUT = 2
 
@@ -148,16 +148,14 @@ def cmd_calibrate(args) -> int:
     def progress(stage, info):
         log(f"  {stage}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in info.items()))
 
+    refinement = RefineOptions(distortion=args.distortion, estimate_skew=args.estimate_skew, sigma_T=args.robot_sigma,
+                               loss=args.loss, loss_scale_px=args.loss_scale_px)
     cal = calibrate(
         uv, poses.T,
         refine=not args.no_refine,
         robust=args.robust,
-        distortion=args.distortion,
-        estimate_skew=args.estimate_skew,
-        sigma_T=args.robot_sigma,
-        loss=args.loss,
-        loss_scale_px=args.loss_scale_px,
-        threshold_px=args.threshold_px,
+        ransac=RansacOptions(threshold_px=args.threshold_px),
+        refinement=refinement if not args.no_refine else None,
         quaternions=poses.quaternions,
         unit=args.unit,
         rng=args.seed,
