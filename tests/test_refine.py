@@ -96,7 +96,7 @@ def test_jacobians_match_finite_differences(view, sessions):
     n_views = scene.n_views
     rng = np.random.default_rng(7)
     E, names = intrinsic_basis({}, True, False)
-    lay = Layout(n_views, E, names, (0, 1, 2, 3, 4), (1, 2, 3), (1, 2, 3), t_free=sessions)
+    lay = Layout(n_views, E, names, (0, 1, 2, 3, 4), (1, 2, 3), (1, 2, 3), t_basis=np.eye(3) if sessions else None)
     K = scene.K
     Q = np.stack([np.eye(3)] + [rotvec_to_matrix(0.01 * rng.normal(size=3)) for _ in range(n_views - 1)])
     F = np.stack([rotvec_to_matrix(0.05 * rng.normal(size=3)) for _ in range(n_views)]) if sessions else None

@@ -27,9 +27,31 @@ from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
 from .covariance import _rot_views, covariance
 
-__all__ = ["refine", "fit_refine", "crlb"]
+__all__ = ["refine", "fit_refine", "FlangeModel", "crlb"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
+
+
+@dataclass(frozen=True, eq=False)
+class FlangeModel:
+    """Known flange orientations of several sessions (the hand-eye model).
+
+    The camera rotation of view ``i`` becomes ``R F_i`` and its centre ``T_i + F_i^T t``
+    (``F_i = R_i^T``, ``R = R_X^T``, ``t = t_X``; :mod:`transcalib.estimate.bundle`).
+
+    Attributes
+    ----------
+    F : (n_views, 3, 3) float
+        World -> flange rotations ``R_i^T`` of the views.
+    t0 : (3,) float
+        Start of the offset ``t`` (robot units).
+    t_basis : (3, k) float
+        Directions of ``t`` the data determine (the others keep ``t0``'s component).
+    """
+
+    F: np.ndarray
+    t0: np.ndarray
+    t_basis: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -95,21 +117,27 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
     return fit_refine(uv, T, initial, opts, progress)
 
 
-def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, progress=None) -> Calibration:
-    """:func:`refine` on validated arrays and options (the pipeline's entry)."""
+def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, progress=None,
+               flange: FlangeModel | None = None) -> Calibration:
+    """:func:`refine` on validated arrays and options (the pipeline's entry); with
+    ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
+    estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined)."""
     t_start = time.perf_counter()
-    pb = _problem(uv, T, initial, opts)
+    pb = _problem(uv, T, initial, opts, flange)
     fitter = _Fitter(pb, progress)
     return _result(pb, fitter, _fit(pb, fitter), initial, t_start)
 
 
-def _problem(uv, T, initial, opts: RefineOptions) -> _Problem:
+def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = None) -> _Problem:
     """Check the start, choose the used points and lay out the parameters."""
     n_views, n_points = uv.shape[:2]
     X0, K0, R0 = _check_initial(initial, n_points)
     seen = np.all(np.isfinite(uv), axis=2)
     usable = np.all(np.isfinite(X0), axis=1) & (seen.sum(axis=0) >= 2)
-    z0 = np.einsum("b,vnb->vn", R0[2], X0[None] - T[:, None])
+    d0 = X0[None] - T[:, None]  # (V, n, 3)
+    if flange is not None:
+        d0 = np.einsum("vab,vnb->vna", flange.F, d0) - flange.t0
+    z0 = d0 @ R0[2]
     in_front = np.all(~seen | (z0 > 0) | ~usable[None], axis=0)
     used_idx = np.flatnonzero(usable & in_front)
     if len(used_idx) < 2:
@@ -121,7 +149,8 @@ def _problem(uv, T, initial, opts: RefineOptions) -> _Problem:
     t_sigma = np.broadcast_to(t_sigma, (n_views,)).copy()
     E, names = intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
     lay = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix),
-                 _rot_views(opts.estimate_view_rotations, n_views), tuple(np.flatnonzero(t_sigma > 0)))
+                 _rot_views(opts.estimate_view_rotations, n_views), tuple(np.flatnonzero(t_sigma > 0)),
+                 None if flange is None else flange.t_basis)
     intr = _start_intrinsics(K0, opts)
     dist5 = pad_dist(getattr(initial, "dist", ()) if isinstance(initial, Calibration) else ())
     keep = np.zeros(5, bool)
@@ -129,7 +158,8 @@ def _problem(uv, T, initial, opts: RefineOptions) -> _Problem:
     dist5 = np.where(keep, dist5, 0.0)
     for k, name in enumerate(("k1", "k2", "p1", "p2", "k3")):
         dist5[k] = opts.fix.get(name, dist5[k])
-    start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy())
+    start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy(),
+                  None if flange is None else flange.F, np.zeros(3) if flange is None else flange.t0.copy())
     n_obs = int(seen[:, used_idx].sum())
     dof = 2 * n_obs - lay.n_global_no_T - 3 * len(used_idx)
     if dof < 0 or (dof == 0 and opts.sigma_px is None):
@@ -304,6 +334,8 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     used_res = residuals[:, pb.used_idx][pb.seen[:, pb.used_idx]]
     info = _info(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)
     info.update(_view_rotation_info(lay, fit.state, cov, n_views))
+    if fit.state.F is not None:
+        info["flange_offset"] = fit.state.t.copy()
     if lay.i_T:
         info["T_std"] = np.zeros((n_views, 3))
         for i, s in lay.i_T.items():
