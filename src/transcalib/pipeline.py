@@ -159,19 +159,20 @@ def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify):
 def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     """Refine on the inliers; then judge every track again with the refined camera (RANSAC
     judged them with the linear, distortion-free one: this matters under strong
-    distortion) and refit if the inlier set changes. Returns ``(cal, inliers, stages)``."""
+    distortion) and refit while the inlier set changes. Returns ``(cal, inliers, stages)``."""
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     cal = fit_refine(uv_fit, T, linear, opts.refinement)
     notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px})
     stages = ["refine"]
-    if inliers is not None:
+    for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
         again = _point_errors(uv, cal, X_all) < opts.ransac.threshold_px  # the rule of the robust stage
-        if np.any(again != inliers) and again.sum() >= 2:
-            inliers = again
-            start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
-            cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, opts.refinement)
-            stages.append("reclassify+refine")
+        if np.array_equal(again, inliers) or again.sum() < 2:
+            break
+        inliers = again
+        start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
+        cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, opts.refinement)
+        stages.append("reclassify+refine")
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
     return cal, inliers, stages
