@@ -20,6 +20,7 @@ from .errors import InputError
 from .estimate.linear import fit_linear
 from .estimate.refine import fit_refine
 from .estimate.robust import fit_robust
+from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold
 from .geometry.camera import Camera, project
 from .geometry.triangulate import triangulate
 from .types import CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
@@ -107,7 +108,7 @@ def calibrate(
     notify = progress or (lambda stage, info: None)
     timings = {}
     t0 = time.perf_counter()
-    linear, inliers, stages = _initial_estimate(uv, T, opts, rng, notify)
+    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify)
     timings[f"{stages[0]}_s"] = time.perf_counter() - t0
     if opts.refine:
         t1 = time.perf_counter()
@@ -144,16 +145,17 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
 
 
 def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify):
-    """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages)``."""
+    """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages, robust
+    estimate or None)``."""
     n_tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
     robust = n_tracked >= ROBUST_MIN_POINTS if opts.robust is None else bool(opts.robust)
     if robust:
         rob = fit_robust(uv, T, opts.ransac, rng=rng)
-        notify("robust", {"inliers": int(rob.inliers.sum()), "trials": rob.trials})
-        return rob.linear, rob.inliers, ["robust"]
+        notify("robust", {"inliers": int(rob.inliers.sum()), "trials": rob.trials, "sigma_px": rob.sigma_px})
+        return rob.linear, rob.inliers, ["robust"], rob
     linear = fit_linear(uv, T)
     notify("linear", {"points": linear.n_used_points})
-    return linear, None, ["linear"]
+    return linear, None, ["linear"], None
 
 
 def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
@@ -164,9 +166,10 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     cal = fit_refine(uv_fit, T, linear, opts.refinement)
     notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px})
     stages = ["refine"]
+    k = np.isfinite(uv[..., 0]).sum(axis=0)
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
-        again = _point_errors(uv, cal, X_all) < opts.ransac.threshold_px  # the rule of the robust stage
+        again = inlier_rule(_track_sse(uv, cal, X_all), k, _rule_sigma(cal, opts), opts.ransac.false_rejection)
         if np.array_equal(again, inliers) or again.sum() < 2:
             break
         inliers = again
@@ -178,13 +181,22 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     return cal, inliers, stages
 
 
-def _point_errors(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
-    """Largest reprojection error (px) of each point over the views that see it (n_points,);
-    inf for points that cannot be triangulated."""
+def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
+    """Sum of squared reprojection errors (px^2) of each track over the views that see it
+    (n_points,); inf for tracks that cannot be triangulated or fall behind the camera."""
+    xc = np.einsum("ab,vnb->vna", cal.R, np.nan_to_num(X)[None] - cal.T[:, None])
     r = uv - cal.camera.project(np.nan_to_num(X), cal.T)
-    e = np.sqrt(np.sum(r**2, axis=2))
-    e = np.where(np.isfinite(e), e, 0.0).max(axis=0)
-    return np.where(np.isfinite(X[:, 0]), e, np.inf)
+    e2 = np.where(np.isfinite(uv[..., 0]), np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)
+    behind = np.any(np.isfinite(uv[..., 0]) & (xc[..., 2] <= 0), axis=0)
+    return np.where(np.isfinite(X[:, 0]) & ~behind, e2.sum(axis=0), np.inf)
+
+
+def _rule_sigma(cal: Calibration, opts: CalibrateOptions) -> float:
+    """The sigma of the inlier rule after refinement: the refined estimate, or the one a
+    user threshold implies."""
+    if opts.ransac.threshold_px is not None:
+        return sigma_from_threshold(opts.ransac.threshold_px, opts.ransac.false_rejection)
+    return max(cal.sigma_px, SIGMA_FLOOR_PX)
 
 
 def _all_residuals(uv, cal: Calibration, inliers) -> np.ndarray:

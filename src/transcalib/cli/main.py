@@ -154,7 +154,7 @@ def cmd_calibrate(args) -> int:
         uv, poses.T,
         refine=not args.no_refine,
         robust=args.robust,
-        ransac=RansacOptions(threshold_px=args.threshold_px),
+        ransac=RansacOptions(threshold_px=args.threshold_px) if args.threshold_px is not None else None,
         refinement=refinement if not args.no_refine else None,
         quaternions=poses.quaternions,
         unit=args.unit,
@@ -265,14 +265,16 @@ def _parser() -> argparse.ArgumentParser:
     rob.add_argument("--robust", dest="robust", action="store_true", default=None,
                      help="RANSAC against mismatched tracks (default: on from 8 points)")
     rob.add_argument("--no-robust", dest="robust", action="store_false")
-    c.add_argument("--threshold-px", type=float, default=2.0, help="RANSAC inlier threshold in pixels (default 2)")
+    c.add_argument("--threshold-px", type=float, default=None,
+                   help="RANSAC inlier threshold in pixels (default: from the pixel noise estimated from the data)")
     c.add_argument("--distortion", choices=["none", "radial2", "opencv5"], default="none",
                    help="lens distortion model (OpenCV convention; default none)")
     c.add_argument("--estimate-skew", action="store_true", help="estimate the skew (default: fixed at 0)")
     c.add_argument("--robot-sigma", type=float, default=None,
                    help="robot translation precision in --unit: treat translations as noisy measurements")
     c.add_argument("--loss", choices=["linear", "huber", "cauchy"], default="linear", help="refinement loss")
-    c.add_argument("--loss-scale-px", type=float, default=1.0, help="scale of a robust loss in pixels")
+    c.add_argument("--loss-scale-px", type=float, default=None,
+                   help="scale of a robust loss in pixels (default: from the estimated pixel noise)")
     c.add_argument("--truth", help="truth.json of a simulated scene: print the errors")
     c.add_argument("--seed", type=int, default=0, help="random seed of RANSAC (default 0: repeatable)")
     c.add_argument("--quiet", action="store_true", help="no progress messages")

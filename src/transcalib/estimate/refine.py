@@ -26,6 +26,7 @@ from ..validate import as_uv_T
 from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
 from .covariance import _rot_views, covariance
+from .scoring import SIGMA_FLOOR_PX
 
 __all__ = ["refine", "fit_refine", "FlangeModel", "crlb"]
 
@@ -215,10 +216,20 @@ class _Fitter:
 
     def __init__(self, pb: _Problem, progress):
         self.pb, self.progress = pb, progress
-        o = pb.opts
-        self.c = float(o.loss_scale_px)
-        self.thr = 3.0 * self.c if o.inlier_threshold_px is None else float(o.inlier_threshold_px)
         self.iterations = 0
+        self.set_scale(pb.opts.loss_scale_px or 1.0)
+
+    def set_scale(self, sigma: float) -> None:
+        """Scale ``c`` of the robust loss and the inlier threshold of an observation's
+        residual norm: given ones, or from the pixel noise ``sigma`` (Huber ``1.345
+        sigma``, Cauchy ``2.385 sigma``: 95 % efficiency under Gaussian noise; threshold
+        ``sqrt(chi2_2(0.999)) sigma = 3.72 sigma``)."""
+        o = self.pb.opts
+        self.c = float(o.loss_scale_px) if o.loss_scale_px is not None else _LOSS_FACTOR[o.loss] * sigma
+        if o.inlier_threshold_px is not None:
+            self.thr = float(o.inlier_threshold_px)
+        else:
+            self.thr = 3.0 * self.c if o.loss_scale_px is not None else _OBS_QUANTILE * sigma
 
     def _lm(self, state, lay, data, loss):
         o = self.pb.opts
@@ -277,10 +288,20 @@ class _Fit:
 
 def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     """The (robust) fit, then for a robust loss the least-squares polish on the inlier
-    observations (points keeping >= 2 of them), repeated until the inlier set settles."""
-    state, fit.cost, fit.reason, data, sigma_T_mode = fit(pb.start, pb.used_idx, pb.seen, pb.opts.loss)
+    observations (points keeping >= 2 of them), repeated until the inlier set settles.
+    A robust loss without a given scale takes it from the noise, estimated robustly
+    (median absolute residual) at the start and again at the robust solution."""
+    state = pb.start
+    if pb.opts.loss != "linear" and pb.opts.loss_scale_px is None:
+        fit.set_scale(_robust_sigma(pb, state))
+    state, fit.cost, fit.reason, data, sigma_T_mode = fit(state, pb.used_idx, pb.seen, pb.opts.loss)
     if pb.opts.loss == "linear":
         return _Fit(state, state, pb.used_idx, pb.seen, data, sigma_T_mode, None)
+    if pb.opts.loss_scale_px is None:
+        sigma = _robust_sigma(pb, state)
+        if abs(sigma * _LOSS_FACTOR[pb.opts.loss] / fit.c - 1) > 0.1:  # the start's residuals misled the scale
+            fit.set_scale(sigma)
+            state, fit.cost, fit.reason, data, sigma_T_mode = fit(state, pb.used_idx, pb.seen, pb.opts.loss)
     last, idx, mask, previous = state, pb.used_idx, pb.seen, None
     for _ in range(3):
         obs_in = _inlier_observations(pb, state, fit.thr)
@@ -298,6 +319,21 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     inliers = np.zeros(pb.uv.shape[1], bool)
     inliers[pb.used_idx] = np.all(obs_in[:, pb.used_idx] | ~pb.seen[:, pb.used_idx], axis=0)
     return _Fit(state, last, idx, mask, data, sigma_T_mode, inliers)
+
+
+#: Scale of a robust loss per unit of pixel noise (95 % efficiency under Gaussian noise).
+_LOSS_FACTOR = {"huber": 1.345, "cauchy": 2.385, "linear": 1.0}
+#: An inlier observation's residual norm stays below this many sigmas with probability 0.999.
+_OBS_QUANTILE = float(np.sqrt(-2.0 * np.log(1e-3)))
+
+
+def _robust_sigma(pb: _Problem, state: State) -> float:
+    """Pixel noise per coordinate from the median absolute residual coordinate, scaled to
+    the residual degrees of freedom (outliers barely move a median)."""
+    res = bundle.all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    r = np.abs(res[np.isfinite(res)])
+    dof = max(r.size - pb.lay.n_global_no_T - 3 * len(pb.used_idx), 1)
+    return max(float(1.4826 * np.median(r) * np.sqrt(r.size / dof)), SIGMA_FLOOR_PX)
 
 
 def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
