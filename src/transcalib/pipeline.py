@@ -18,7 +18,7 @@ import numpy as np
 from .check import diagnose
 from .errors import InputError
 from .estimate.linear import fit_linear
-from .estimate.refine import fit_refine
+from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
 from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold
 from .geometry.camera import Camera, project
@@ -65,8 +65,9 @@ def calibrate(
     robust : bool or None
         RANSAC over 2-point samples before the linear fit. ``None`` (default): on from
         ``ROBUST_MIN_POINTS`` points.
-    distortion : {"none", "radial1", "radial2", "opencv5"}, optional
-        Lens distortion model of the refinement (default ``refinement.distortion``).
+    distortion : {"auto", "none", "radial1", "radial2", "opencv5"}, optional
+        Lens distortion model of the refinement (default ``refinement.distortion``,
+        ``"auto"``: chosen from the data, see :class:`RefineOptions`).
     sigma_T : float or (n_views,) float, optional
         Robot translation precision (user units): translations become measurements.
     fix : mapping, optional
@@ -138,7 +139,7 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
                                    ("square_pixels", square_pixels)) if v is not None}
     if overrides:
         r = replace(r, **overrides)
-    if not refine and r.distortion != "none":
+    if not refine and r.distortion not in ("none", "auto"):
         raise InputError(f"distortion={r.distortion!r} needs refine=True: the linear estimate has no distortion")
     return CalibrateOptions(refine=bool(refine), robust=robust, ransac=ransac or RansacOptions(), refinement=r,
                             check_rotation=bool(check_rotation), unit=str(unit))
@@ -164,8 +165,10 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     distortion) and refit while the inlier set changes. Returns ``(cal, inliers, stages)``."""
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     cal = fit_refine(uv_fit, T, linear, opts.refinement)
-    notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px})
+    notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px, "distortion": cal.dist_model})
     stages = ["refine"]
+    chosen = replace(opts.refinement, distortion=cal.dist_model)  # refits keep the model chosen
+    selection = cal.info.get("distortion_selection", [])
     k = np.isfinite(uv[..., 0]).sum(axis=0)
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
@@ -174,8 +177,11 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
             break
         inliers = again
         start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
-        cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, opts.refinement)
+        cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, chosen)
         stages.append("reclassify+refine")
+    if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
+        cal = climb_distortion(np.where(inliers[None, :, None], uv, np.nan), T, cal, opts.refinement)
+        cal.info["distortion_selection"] = selection + cal.info["distortion_selection"]
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
     return cal, inliers, stages

@@ -101,8 +101,11 @@ class RefineOptions:
 
     Attributes
     ----------
-    distortion : {"none", "radial1", "radial2", "opencv5"}
-        Lens distortion model (OpenCV convention).
+    distortion : {"auto", "none", "radial1", "radial2", "opencv5"}
+        Lens distortion model (OpenCV convention). ``"auto"`` (default): chosen from the
+        data, climbing none -> radial2 -> opencv5 while a score test of the added
+        coefficients is significant at 1 % and they are determined
+        (``Calibration.info["distortion_selection"]`` says why).
     estimate_skew : bool
         Estimate the skew ``K[0, 1]`` (else fixed at its start value, 0 by default).
     fix : mapping of str to float
@@ -134,7 +137,7 @@ class RefineOptions:
         alternative used by the rotation test.
     """
 
-    distortion: str = "none"
+    distortion: str = "auto"
     estimate_skew: bool = False
     fix: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     square_pixels: bool = False
@@ -148,8 +151,8 @@ class RefineOptions:
     estimate_view_rotations: bool | tuple = False
 
     def __post_init__(self):
-        if self.distortion not in DIST_MODELS:
-            raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
+        if self.distortion not in ("auto", *DIST_MODELS):
+            raise InputError(f"distortion must be 'auto' or one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
         if self.loss not in LOSSES:
             raise InputError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         _positive("loss_scale_px", self.loss_scale_px, allow_none=True)

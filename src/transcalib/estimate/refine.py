@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import stats
 
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
@@ -25,10 +26,10 @@ from ..types import CalibrateOptions, Calibration, LinearEstimate, RefineOptions
 from ..validate import as_uv_T
 from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
-from .covariance import _rot_views, covariance
+from .covariance import _rot_views, covariance, linearise, profile_step
 from .scoring import SIGMA_FLOOR_PX
 
-__all__ = ["refine", "fit_refine", "FlangeModel", "crlb"]
+__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
 
@@ -123,6 +124,11 @@ def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, prog
     """:func:`refine` on validated arrays and options (the pipeline's entry); with
     ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
     estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined)."""
+    if opts.distortion == "auto":
+        if flange is not None:
+            raise InputError("distortion='auto' is not available with several sessions yet; choose the model "
+                             "(none, radial1, radial2, opencv5)")
+        return _fit_auto(uv, T, initial, opts, progress)
     t_start = time.perf_counter()
     pb = _problem(uv, T, initial, opts, flange)
     fitter = _Fitter(pb, progress)
@@ -198,6 +204,69 @@ def _start_intrinsics(K0: np.ndarray, opts: RefineOptions) -> np.ndarray:
         f = opts.fix.get("fx", opts.fix.get("fy", 0.5 * (intr[0] + intr[1])))
         intr[:2] = f
     return intr
+
+
+# ----------------------------------------------------------------------------------------
+# Distortion model chosen from the data
+# ----------------------------------------------------------------------------------------
+
+#: Nested distortion models ``distortion="auto"`` climbs, simplest first.
+AUTO_CHAIN = ("none", "radial2", "opencv5")
+#: False-positive rate of each step of the climb (score test of the added coefficients).
+AUTO_ALPHA = 0.01
+
+
+def _fit_auto(uv, T, initial, opts: RefineOptions, progress) -> Calibration:
+    """Refine without distortion, then add coefficients while the data ask for them.
+
+    At the solution of model ``m`` the score test of the coefficients ``m'`` adds
+    (``k`` of them, the others profiled out) gives ``F = (D / k) / ((RSS - D) / (dof - k))``
+    with ``D`` the RSS reduction of one Gauss-Newton step: F(k, dof - k) when ``m``
+    suffices. ``m'`` is taken when ``p < AUTO_ALPHA`` and its refit determines every
+    coefficient (its covariance exists); ``info["distortion_selection"]`` says why.
+    """
+    cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress)
+    return climb_distortion(uv, T, cal, opts, progress)
+
+
+def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None) -> Calibration:
+    """From the refined ``cal`` (a model of :data:`AUTO_CHAIN`), add coefficients while
+    the score test asks for them (:func:`_fit_auto`); ``opts`` are recorded."""
+    steps = []
+    start = AUTO_CHAIN.index(cal.dist_model) if cal.dist_model in AUTO_CHAIN else len(AUTO_CHAIN) - 1
+    for simpler, richer in zip(AUTO_CHAIN[start:], AUTO_CHAIN[start + 1:]):
+        F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer)
+        step = {"model": richer, "F": F, "p_value": p, "alpha": AUTO_ALPHA, "chosen": bool(p < AUTO_ALPHA)}
+        if step["chosen"]:
+            try:
+                richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress)
+            except DegenerateError as exc:  # the added coefficients are not determined
+                step.update(chosen=False, reason=f"not determined: {exc}")
+            else:
+                cal = richer_cal
+        steps.append(step)
+        if not step["chosen"]:
+            break
+    cal.info["distortion_selection"] = steps
+    return replace(cal, options=replace(cal.options, refinement=opts))
+
+
+def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str) -> tuple[float, float]:
+    """Score test at ``cal`` (the ML solution of ``simpler``) of the coefficients that
+    ``richer`` adds: ``(F, p-value)``."""
+    lin = linearise(uv, T, cal, simpler, polish=0)
+    lay = replace(lin.layout, dist_free=dist_indices(richer, simpler.fix))
+    added = [lay.i_dist + m for m, k in enumerate(lay.dist_free) if k not in lin.layout.dist_free]
+    if not added:
+        return 0.0, 1.0
+    S, b, sse = lin.system(lay)
+    nuisance = np.setdiff1d(np.arange(lay.size), added)
+    red = profile_step(S, b, np.array(added), nuisance)[2]
+    k, d = len(added), lin.dof - len(added)
+    if d <= 0:
+        return 0.0, 1.0
+    F = (red / k) / max((sse - red) / d, SIGMA_FLOOR_PX**2)
+    return float(F), float(stats.f.sf(F, k, d))
 
 
 # ----------------------------------------------------------------------------------------
