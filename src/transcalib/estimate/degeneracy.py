@@ -176,7 +176,7 @@ def names_free_intrinsics(names) -> list:
 def _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion):
     """Reduced Fisher information ``S`` and parameter names of a generic configuration
     with the translations ``T``: camera tilted by ``_GENERIC_TILT`` from the plane normal,
-    25 points spread over +-400 px at 5 times the largest translation extent."""
+    25 points spread over +-0.4 f pixels at 5 times the largest translation extent."""
     f0 = float(fix.get("fx", fix.get("fy", 1000.0)))
     intr = np.array([fix.get("fx", f0), fix.get("fy", f0), fix.get("cx", 0.0), fix.get("cy", 0.0),
                      fix.get("skew", 0.0)], dtype=float)
@@ -184,7 +184,8 @@ def _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion)
     R = rotvec_to_matrix(_GENERIC_TILT) @ P.T  # R p3 is tilted from the optical axis
     g = np.random.default_rng(0)
     n = 25
-    pix = np.column_stack([g.uniform(-400, 400, n) + intr[2], g.uniform(-400, 400, n) + intr[3], np.ones(n)])
+    half = 0.4 * min(intr[0], intr[1])  # +-22 degrees of field of view
+    pix = np.column_stack([g.uniform(-half, half, n) + intr[2], g.uniform(-half, half, n) + intr[3], np.ones(n)])
     depth = 5.0 * max(s[0], 1e-12) * g.uniform(0.8, 1.2, n)
     X = (np.linalg.solve(K, pix.T) * depth).T @ R + T.mean(axis=0)
     uv = project(K, R, X, T)
