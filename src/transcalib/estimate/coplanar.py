@@ -50,7 +50,7 @@ import numpy as np
 from ..errors import DegenerateError, InputError
 from ..geometry.triangulate import triangulate
 from ..types import LinearEstimate
-from ..validate import as_uv_T
+from ..validate import SPAN_TOL, as_uv_T
 from .degeneracy import explain_span, translation_basis, translation_rank
 from .minimal import Problem, forms, normalise
 from .scoring import Scorer, msac_cost, point_errors
@@ -192,7 +192,7 @@ def _oriented(K, Ap, P, uv, T, seen):
 
 
 def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                 used: np.ndarray | None = None) -> LinearEstimate:
+                 used: np.ndarray | None = None, tol: float = SPAN_TOL) -> LinearEstimate:
     """Linear calibration from coplanar translations and a known principal point or K.
 
     Parameters
@@ -210,6 +210,10 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
         ``fx = fy``.
     used : (n_points,) bool, optional
         Points to use (default: all seen in >= 2 views).
+    tol : float
+        Relative singular value of ``T_i - T_0`` below which the out-of-plane motion counts
+        as zero (:func:`transcalib.estimate.degeneracy.translation_rank`); raise it (e.g.
+        ``1e-3``) when measured translations jitter off the plane.
 
     Returns
     -------
@@ -232,11 +236,14 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
         raise InputError("fit_coplanar needs the principal point: fix={'cx': ..., 'cy': ...} (or the full K); "
                          f"got fix={fix}. With coplanar translations and a free principal point K is not "
                          "determined")
-    rank = translation_rank(T)
+    rank = translation_rank(T, tol)
     if rank != 2:
         if rank < 2:
-            explain_span(T, fix, square_pixels)  # raises, naming the missing directions
-        raise DegenerateError("the translations span 3-D: use the paper's linear estimator (fit_linear)")
+            explain_span(T, fix, square_pixels, tol=tol)  # raises, naming the missing directions
+        s = translation_basis(T)[1]
+        raise DegenerateError(f"the translations span 3-D (s3 / s1 = {s[2] / s[0]:.2g} > tol = {tol:g}): use the "
+                              "paper's linear estimator (fit_linear), or raise tol if the out-of-plane motion is "
+                              "only measurement jitter")
     seen = np.isfinite(uv[..., 0])
     n_seen = seen.sum(axis=0)
     used = (n_seen >= 2) if used is None else (np.asarray(used, bool) & (n_seen >= 2))
@@ -261,13 +268,13 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
 
 
 def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                        threshold_px: float = 2.0, max_trials: int = 500, rng=None):
+                        threshold_px: float = 2.0, max_trials: int = 500, rng=None, tol: float = SPAN_TOL):
     """RANSAC over pairs of points for coplanar translations, then :func:`fit_coplanar`
     on the inliers.
 
     Parameters
     ----------
-    uv, T, fix, square_pixels
+    uv, T, fix, square_pixels, tol
         As :func:`fit_coplanar`.
     threshold_px : float
         A point is an inlier when its largest reprojection error (after triangulation with
@@ -301,12 +308,12 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
     err = Scorer(pb).errors(A_n)
     best = int(np.argmin(msac_cost(err, threshold_px)))
     inl = err[best] < threshold_px
-    est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl)
+    est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
     for _ in range(3):  # re-judge with the refit until the inliers settle
         e, _ = point_errors(est.A, uv, T)
         new = e < threshold_px
         if np.array_equal(new, inl):
             break
         inl = new
-        est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl)
+        est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
     return est, inl

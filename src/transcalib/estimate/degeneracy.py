@@ -97,7 +97,7 @@ def format_direction(v: np.ndarray) -> str:
 
 
 def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", *,
-                 estimate_skew: bool = False, distortion: str = "none") -> Diagnostic | None:
+                 estimate_skew: bool = False, distortion: str = "none", tol: float = SPAN_TOL) -> Diagnostic | None:
     """Say, before any estimation, what the span of the translations allows.
 
     Parameters
@@ -115,6 +115,10 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
         The skew is a free parameter (default: fixed).
     distortion : str
         Distortion model whose free coefficients count as unknowns.
+    tol : float
+        Relative singular value below which a direction counts as missing
+        (:func:`translation_rank`); e.g. ``1e-3`` treats an XY table whose measured z
+        jitters by robot noise as coplanar.
 
     Returns
     -------
@@ -133,7 +137,7 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
     """
     T = np.asarray(T, dtype=float)
     fix = dict(fix or {})
-    rank = translation_rank(T)
+    rank = translation_rank(T, tol)
     P, s = translation_basis(T)
     if rank == 3:
         return None
@@ -146,7 +150,8 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
             f"directions {format_direction(P[:, 1])} and {format_direction(P[:, 2])} are missing. Even with K "
             "known the rotation about the line of motion is undetermined. Move the robot also along "
             f"{format_direction(P[:, 1])} and {format_direction(P[:, 2])} (e.g. along x, y and z).")
-    S, names = _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion)
+    T_plane = T.mean(axis=0) + (T - T.mean(axis=0)) @ P[:, :2] @ P[:, :2].T  # out-of-plane jitter dropped
+    S, names = _generic_information(T_plane, P, s, fix, square_pixels, estimate_skew, distortion)
     normal = format_direction(P[:, 2])
     head = (f"the robot translations are coplanar (singular values {', '.join(f'{v:.3g}' for v in s)} {unit}): "
             f"the robot direction {normal} (the plane normal, robot axes) is missing. ")
