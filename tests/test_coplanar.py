@@ -209,7 +209,7 @@ def test_camera_along_plane_normal_loses_the_focal_length():
 def test_tilt_about_an_image_axis_needs_square_pixels():
     """Tilted about the camera x axis only: the orthogonality equations give one constraint,
     fx and fy are not both determined (Sturm & Maybank); square pixels suffice."""
-    R_rel = Rotation.from_euler("x", 30, degrees=True).as_matrix() @ Rotation.from_euler("z", 35, degrees=True).as_matrix()
+    R_rel = Rotation.from_euler("zx", [35, 30], degrees=True).as_matrix()  # Rx(30) Rz(35): tilt about camera x
     scene = coplanar_scene(15, R_rel=R_rel, square=True)
     with pytest.raises(DegenerateError, match="image axes"):
         fit_coplanar(scene.uv, scene.T, fix=pp(scene))
@@ -270,6 +270,10 @@ def test_identifiability_hint():
     assert "(0, 0, 1)" in identifiability_hint(["cx"], T)
     assert "--square-pixels" in identifiability_hint(["fx", "fy"], T)
     assert "simpler distortion" in identifiability_hint(["k1", "k2"])
+    assert "skew must be known" in identifiability_hint(["fx", "fy", "skew"], T)
+    with pytest.raises(DegenerateError, match="skew.*skew must be known"):
+        explain_span(T, {"cx": 1.0, "cy": 2.0}, estimate_skew=True)
+    assert explain_span(T, {"cx": 1.0, "cy": 2.0}, distortion="radial2").code == "translations_coplanar_known_params"
     assert "three independent" in identifiability_hint(["rx"], np.outer(np.arange(4), [1.0, 0, 0]))
 
 

@@ -232,7 +232,10 @@ def identifiability_hint(names, T=None, unit: str = "units") -> str:
     out = []
     if rank == 2:
         normal = format_direction(P[:, 2])
-        if names & {"cx", "cy"}:
+        if names & {"skew"}:
+            out.append(f"With coplanar translations the skew must be known: fix it at 0 (do not estimate it), "
+                       f"or move the robot also along {normal}.")
+        elif names & {"cx", "cy"}:
             out.append(f"With coplanar translations {_PP_HOW}, or move the robot also along {normal}.")
         elif names & {"fx", "fy", "f"}:
             out.append(f"The camera looks (nearly) along the plane normal {normal} or is tilted about an image "
@@ -245,7 +248,7 @@ def identifiability_hint(names, T=None, unit: str = "units") -> str:
     if names & {"k1", "k2", "p1", "p2", "k3"}:
         out.append("Use a simpler distortion model (e.g. radial1), fix known coefficients, or track points "
                    "nearer the image corners.")
-    if names & {"skew"}:
+    if names & {"skew"} and rank != 2:
         out.append("Fix the skew at 0 (modern sensors have none).")
     if any(nm.startswith("view") or (nm.startswith("T") and "_" in nm) for nm in names):
         out.append("Per-view rotations or translations need more points per view and a spread of depths.")
