@@ -100,6 +100,30 @@ def test_fully_known_K_gives_R_and_points():
     assert_exact(cal, scene)
 
 
+def test_known_focal_lengths_free_principal_point_start_at_centre():
+    """fx, fy known, cx, cy free is identifiable (2 free intrinsics): start the coplanar
+    estimate at the image centre, let the refinement free the principal point."""
+    scene = coplanar_scene(10)
+    fix = {"fx": float(scene.K[0, 0]), "fy": float(scene.K[1, 1])}
+    assert np.hypot(scene.K[0, 2] - 399.5, scene.K[1, 2] - 299.5) > 20
+    start = fit_coplanar(scene.uv, scene.T, fix=fix | {"cx": 399.5, "cy": 299.5})
+    cal = fit_refine(scene.uv, scene.T, start, RefineOptions(fix=fix, sigma_px=1.0))
+    assert cal.param_names == ("cx", "cy", "rx", "ry", "rz")
+    assert_exact(cal, scene)
+
+
+def test_static_track_is_left_out():
+    """An overlay (the same pixel in every view) has no depth: left out, no crash."""
+    scene = coplanar_scene(22)
+    uv = scene.uv.copy()
+    uv[:, 0] = [100.0, 50.0]
+    for fit in (lambda: fit_coplanar(uv, scene.T, fix=pp(scene)),
+                lambda: fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0)[0]):
+        est = fit()
+        assert not est.used[0] and np.isnan(est.X[0]).all()
+        np.testing.assert_allclose(est.K, scene.K, atol=1e-6)
+
+
 def test_xy_table_with_missing_points_and_robot_plane_offset():
     scene = coplanar_scene(8, normal=[0, 0, 1], n_views=5)
     uv = scene.uv.copy()

@@ -53,7 +53,7 @@ from ..types import LinearEstimate
 from ..validate import SPAN_TOL, as_uv_T
 from .degeneracy import explain_span, translation_basis, translation_rank
 from .minimal import Problem, forms, normalise
-from .scoring import Scorer, msac_cost, point_errors
+from .scoring import Scorer, msac_cost
 
 __all__ = ["fit_coplanar", "fit_coplanar_robust", "solve_plane_affine", "intrinsics_from_plane"]
 
@@ -97,6 +97,20 @@ def _pixel_affine(pb: Problem, a: np.ndarray) -> np.ndarray:
     ``A' ∝ H^-1 A'_n / t_scale`` (the translation scale only rescales)."""
     A = np.linalg.solve(pb.H, a.reshape(-1, 3, 2))
     return A / np.linalg.norm(A, axis=(1, 2))[:, None, None]
+
+
+def _moving(uv: np.ndarray) -> np.ndarray:
+    """(n_points,) bool: the point's pixels are not all identical (an exactly static track,
+    e.g. an overlay, has parallel rays: no depth, a singular 3 x 3 block in the forms)."""
+    with np.errstate(invalid="ignore"):
+        spread = np.nanmax(uv, axis=0) - np.nanmin(uv, axis=0)  # (n, 2); NaN if never seen
+    return np.nan_to_num(spread).max(axis=1) > 0
+
+
+def _plane_to_full(a: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``A = A' P2^T`` (H, 3, 3) from ``vec(A')`` (H, 6): the hypothesis as
+    :class:`Scorer` takes it (only ``A T_i`` matters, so ``A p3 = 0`` is harmless)."""
+    return np.einsum("hak,bk->hab", a.reshape(-1, 3, 2), P[:, :2])
 
 
 def intrinsics_from_plane(Ap: np.ndarray, fix, square_pixels: bool = False) -> np.ndarray:
@@ -209,7 +223,8 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
     square_pixels : bool
         ``fx = fy``.
     used : (n_points,) bool, optional
-        Points to use (default: all seen in >= 2 views).
+        Points to use (default: all seen in >= 2 views; exactly static tracks are always
+        left out).
     tol : float
         Relative singular value of ``T_i - T_0`` below which the out-of-plane motion counts
         as zero (:func:`transcalib.estimate.degeneracy.translation_rank`); raise it (e.g.
@@ -246,7 +261,8 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
                               "only measurement jitter")
     seen = np.isfinite(uv[..., 0])
     n_seen = seen.sum(axis=0)
-    used = (n_seen >= 2) if used is None else (np.asarray(used, bool) & (n_seen >= 2))
+    usable = (n_seen >= 2) & _moving(uv)
+    used = usable if used is None else (np.asarray(used, bool) & usable)
     n_constraints = int(np.sum(2 * n_seen[used] - 3))
     if n_constraints < 5:
         raise DegenerateError(f"the tracks give {n_constraints} constraints on A' = K R [p1 p2] (a point seen in k "
@@ -288,14 +304,15 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
     estimate : LinearEstimate
         :func:`fit_coplanar` on the inliers (``used``).
     inliers : (n_points,) bool
-        Points within ``threshold_px`` of the refit.
+        Points whose largest reprojection error under the refit ``A' P^T`` (the
+        unconstrained plane affine, before K and R are imposed) is below ``threshold_px``.
     """
     uv, T = as_uv_T(uv, T, min_views=3)
     if not threshold_px > 0:
         raise InputError(f"threshold_px must be > 0, got {threshold_px!r}")
     rng = np.random.default_rng(rng)
     seen = np.isfinite(uv[..., 0])
-    cand = np.flatnonzero(seen.sum(axis=0) >= 3)  # 2 x (2k - 3) >= 5 needs k >= 3 for each point of a pair
+    cand = np.flatnonzero((seen.sum(axis=0) >= 3) & _moving(uv))  # a pair gives 2 (2k - 3) >= 5 for k >= 3
     if len(cand) < 2:
         raise DegenerateError("fewer than 2 points are seen in 3 or more views: a pair cannot determine A'")
     P = translation_basis(T)[0]
@@ -304,16 +321,14 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
     second = (first + rng.integers(1, len(cand), max_trials)) % len(cand)
     pairs = cand[np.column_stack([first, second])]
     a, _ = solve_plane_affine(pb, pairs, P[:, :2])
-    A_n = np.einsum("hak,bk->hab", a.reshape(-1, 3, 2), P[:, :2])  # A = A' P^T (normalised)
-    err = Scorer(pb).errors(A_n)
-    best = int(np.argmin(msac_cost(err, threshold_px)))
-    inl = err[best] < threshold_px
-    est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
-    for _ in range(3):  # re-judge with the refit until the inliers settle
-        e, _ = point_errors(est.A, uv, T)
-        new = e < threshold_px
-        if np.array_equal(new, inl):
+    scorer = Scorer(pb)
+    err = scorer.errors(_plane_to_full(a, P))
+    inl = err[int(np.argmin(msac_cost(err, threshold_px)))] < threshold_px
+    for _ in range(10):  # local optimisation: refit A' on the inliers until they settle
+        a, _ = solve_plane_affine(pb, np.flatnonzero(inl), P[:, :2])
+        new = scorer.errors(_plane_to_full(a[None], P))[0] < threshold_px
+        if np.array_equal(new, inl) or new.sum() < 2:
             break
         inl = new
-        est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
+    est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
     return est, inl

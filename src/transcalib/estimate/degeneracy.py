@@ -156,7 +156,7 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
     head = (f"the robot translations are coplanar (singular values {', '.join(f'{v:.3g}' for v in s)} {unit}): "
             f"the robot direction {normal} (the plane normal, robot axes) is missing. ")
     try:
-        check_identifiable(S, names, identifiability_hint(names_free_intrinsics(names), T))
+        check_identifiable(S, names, identifiability_hint(_without_rotation(names), T_plane))
     except DegenerateError as exc:
         raise DegenerateError(head + "With the parameters posed, " + str(exc)) from None
     free = [nm for nm in names if nm in INTRINSIC_NAMES + ("f",)] + ["R"]
@@ -173,8 +173,8 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
         f"points{caveat}. A move along {normal} would make every parameter observable.")
 
 
-def names_free_intrinsics(names) -> list:
-    """The names in ``names`` that are intrinsics or distortion coefficients."""
+def _without_rotation(names) -> list:
+    """``names`` less the camera rotation ``rx, ry, rz`` (always free)."""
     return [nm for nm in names if nm not in ("rx", "ry", "rz")]
 
 
