@@ -32,15 +32,18 @@ A fully known K skips the focal step.
 
 Identifiability (checked with the Fisher information, ``covariance.crlb(scene, fix=...)``;
 ``tests/test_coplanar.py``): with zero skew, ``fx, fy, R`` and the points are determined
-once ``cx, cy`` are known and singular (2 directions) with them free; with ``fx, fy``
-free the system above is singular when the camera is tilted about one of its image axes,
+once ``cx, cy`` are known and singular (2 directions) with them free (so are ``cx, cy``
+once ``fx, fy`` are known: start this estimator at the image centre and let the
+refinement free them); with ``fx, fy`` free the system above is singular when the camera is tilted about one of its image axes,
 and even ``f`` (square pixels) is lost when the camera looks along the plane normal.
 Coplanar data cannot reveal a mirrored robot frame (``r_3``'s sign is chosen for
 ``det R = +1``; a left-handed frame mirrors the points through the plane).
 
 :func:`fit_coplanar_robust` draws pairs of points (a point in ``k`` views gives ``2k - 3``
 constraints on the 5 degrees of freedom of ``A'``), scores ``A = A' P^T`` with
-:class:`transcalib.estimate.scoring.Scorer` and refits :func:`fit_coplanar` on the inliers.
+:class:`transcalib.estimate.scoring.Scorer`, refits ``A'`` on the inliers until they settle
+(judged by the unconstrained ``A'``: imposing K and R first would reject good points when
+the geometry is weak) and ends with :func:`fit_coplanar` on them.
 """
 
 from __future__ import annotations
@@ -234,8 +237,9 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
     -------
     LinearEstimate
         ``method = "coplanar"``; ``A = K R`` (``|A[2]| = 1``); ``X`` triangulated from
-        all views; ``depth`` the camera z of the observations; ``singular_values`` the
-        square roots of the two smallest eigenvalues of the normalised 6 x 6 form.
+        all views; ``depth`` the camera z of the observations; ``singular_values``
+        ``sqrt(w_k / w_max)`` of the two smallest eigenvalues ``w_k`` of the normalised
+        6 x 6 form (``[0]`` is the fit residual, ``[1]`` how well ``A'`` is determined).
 
     Raises
     ------
