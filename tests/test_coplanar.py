@@ -312,9 +312,9 @@ def test_robust_finds_planted_outliers():
     bad = rng.choice(80, 20, replace=False)
     uv = scene.uv.copy()
     uv[:, bad] += rng.uniform(-40, 40, (uv.shape[0], 20, 2))
-    est, inl = fit_coplanar_robust(uv, scene.T, fix=pp(scene), threshold_px=2.0, rng=0)
+    est, inl, sigma = fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0)
     truth = np.ones(80, bool)
     truth[bad] = False
-    assert np.array_equal(inl, truth)
+    assert np.array_equal(inl, truth) and abs(sigma / 0.3 - 1) < 0.2
     assert abs(est.K[0, 0] - scene.K[0, 0]) < 0.02 * scene.K[0, 0]
     np.testing.assert_allclose(est.R, scene.R, atol=0.01)

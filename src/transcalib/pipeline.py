@@ -17,6 +17,8 @@ import numpy as np
 
 from .check import diagnose
 from .errors import InputError
+from .estimate.coplanar import fit_coplanar, fit_coplanar_robust
+from .estimate.degeneracy import explain_span
 from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
@@ -30,6 +32,9 @@ __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
 
 #: ``robust=None`` turns RANSAC on from this many points (2-point samples need spare points).
 ROBUST_MIN_POINTS = 8
+#: Relative singular value of the translations below which they count as coplanar (a
+#: table whose measured height jitters is a 2-axis stage).
+COPLANAR_TOL = 1e-3
 
 
 def calibrate(
@@ -109,7 +114,8 @@ def calibrate(
     notify = progress or (lambda stage, info: None)
     timings = {}
     t0 = time.perf_counter()
-    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify)
+    span = _explain_span(T, opts)  # degeneracy first: raises naming what the motion cannot determine
+    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify, coplanar=span is not None)
     timings[f"{stages[0]}_s"] = time.perf_counter() - t0
     if opts.refine:
         t1 = time.perf_counter()
@@ -125,6 +131,8 @@ def calibrate(
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     found = diagnose(uv_fit, T, result, linear=linear, quaternions=quaternions,
                      check_rotation=opts.check_rotation and opts.refine, unit=unit)
+    if span is not None:  # the coplanar motion was understood: say what it allows instead
+        found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     result.diagnostics.extend(found)
     result.info["diagnostics_s"] = time.perf_counter() - t2
     notify("diagnostics", {"warnings": len(found)})
@@ -145,11 +153,32 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
                             check_rotation=bool(check_rotation), unit=str(unit))
 
 
-def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify):
+def _explain_span(T, opts: CalibrateOptions):
+    """:func:`transcalib.estimate.degeneracy.explain_span` for the problem posed: None for
+    translations spanning 3-D, a Diagnostic for coplanar ones that the known parameters
+    make identifiable; raises :class:`DegenerateError` otherwise."""
+    r = opts.refinement
+    model = "none" if r.distortion == "auto" else r.distortion
+    return explain_span(T, r.fix, r.square_pixels, opts.unit, estimate_skew=r.estimate_skew, distortion=model,
+                        tol=COPLANAR_TOL)
+
+
+def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool = False):
     """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages, robust
-    estimate or None)``."""
+    estimate or None)``; coplanar translations take the known-parameter linear start."""
     n_tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
     robust = n_tracked >= ROBUST_MIN_POINTS if opts.robust is None else bool(opts.robust)
+    if coplanar:
+        r = opts.refinement
+        if robust:
+            linear, inliers, sigma = fit_coplanar_robust(
+                uv, T, fix=r.fix, square_pixels=r.square_pixels, threshold_px=opts.ransac.threshold_px,
+                false_rejection=opts.ransac.false_rejection, rng=rng, tol=COPLANAR_TOL)
+            notify("robust (coplanar)", {"inliers": int(inliers.sum()), "sigma_px": sigma})
+            return linear, inliers, ["robust"], None
+        linear = fit_coplanar(uv, T, fix=r.fix, square_pixels=r.square_pixels, tol=COPLANAR_TOL)
+        notify("linear (coplanar)", {"points": linear.n_used_points})
+        return linear, None, ["linear"], None
     if robust:
         rob = fit_robust(uv, T, opts.ransac, rng=rng)
         notify("robust", {"inliers": int(rob.inliers.sum()), "trials": rob.trials, "sigma_px": rob.sigma_px})

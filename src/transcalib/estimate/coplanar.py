@@ -49,6 +49,7 @@ the geometry is weak) and ends with :func:`fit_coplanar` on them.
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
 from ..errors import DegenerateError, InputError
 from ..geometry.triangulate import triangulate
@@ -56,7 +57,7 @@ from ..types import LinearEstimate
 from ..validate import SPAN_TOL, as_uv_T
 from .degeneracy import explain_span, translation_basis, translation_rank
 from .minimal import Problem, forms, normalise
-from .scoring import Scorer, msac_cost
+from .scoring import Scorer, inlier_rule, median_sigma, sigma_from_threshold, track_dof, truncated_sigma
 
 __all__ = ["fit_coplanar", "fit_coplanar_robust", "solve_plane_affine", "intrinsics_from_plane"]
 
@@ -288,17 +289,21 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
 
 
 def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                        threshold_px: float = 2.0, max_trials: int = 500, rng=None, tol: float = SPAN_TOL):
+                        threshold_px: float | None = None, false_rejection: float = 0.01, max_trials: int = 500,
+                        rng=None, tol: float = SPAN_TOL):
     """RANSAC over pairs of points for coplanar translations, then :func:`fit_coplanar`
-    on the inliers.
+    on the inliers, with the noise-adaptive inlier rule of :mod:`.scoring`.
 
     Parameters
     ----------
     uv, T, fix, square_pixels, tol
         As :func:`fit_coplanar`.
-    threshold_px : float
-        A point is an inlier when its largest reprojection error (after triangulation with
-        the hypothesis) is below this (pixels).
+    threshold_px : float, optional
+        None: the pixel noise is estimated from the data (least median of squares, then
+        the truncated chi-square estimator); a number fixes it as in
+        :class:`transcalib.RansacOptions`.
+    false_rejection : float
+        Probability that the rule rejects a good track.
     max_trials : int
         Number of pairs drawn (all scored in batches).
     rng : seed or Generator
@@ -308,31 +313,41 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
     estimate : LinearEstimate
         :func:`fit_coplanar` on the inliers (``used``).
     inliers : (n_points,) bool
-        Points whose largest reprojection error under the refit ``A' P^T`` (the
-        unconstrained plane affine, before K and R are imposed) is below ``threshold_px``.
+        Tracks that pass the chi-square rule under the refit ``A' P^T`` (the unconstrained
+        plane affine, before K and R are imposed).
+    sigma_px : float
+        The pixel noise of the rule.
     """
     uv, T = as_uv_T(uv, T, min_views=3)
-    if not threshold_px > 0:
-        raise InputError(f"threshold_px must be > 0, got {threshold_px!r}")
     rng = np.random.default_rng(rng)
     seen = np.isfinite(uv[..., 0])
-    cand = np.flatnonzero((seen.sum(axis=0) >= 3) & _moving(uv))  # a pair gives 2 (2k - 3) >= 5 for k >= 3
+    k = seen.sum(axis=0)
+    cand = np.flatnonzero((k >= 3) & _moving(uv))  # a pair gives 2 (2k - 3) >= 5 for k >= 3
     if len(cand) < 2:
         raise DegenerateError("fewer than 2 points are seen in 3 or more views: a pair cannot determine A'")
     P = translation_basis(T)[0]
     pb = normalise(uv, T)
     first = rng.integers(0, len(cand), max_trials)
     second = (first + rng.integers(1, len(cand), max_trials)) % len(cand)
-    pairs = cand[np.column_stack([first, second])]
-    a, _ = solve_plane_affine(pb, pairs, P[:, :2])
+    a, _ = solve_plane_affine(pb, cand[np.column_stack([first, second])], P[:, :2])
     scorer = Scorer(pb)
-    err = scorer.errors(_plane_to_full(a, P))
-    inl = err[int(np.argmin(msac_cost(err, threshold_px)))] < threshold_px
+    sse = scorer.sse(_plane_to_full(a, P))
+    fixed = None if threshold_px is None else sigma_from_threshold(threshold_px, false_rejection)
+    m = stats.chi2.ppf(0.5, track_dof(k))
+    if fixed is None:
+        best = sse[int(np.argmin(np.median(np.where(scorer.ok, sse / m, np.inf), axis=1)))]
+    else:
+        q = fixed**2 * stats.chi2.ppf(1 - false_rejection, track_dof(k))
+        best = sse[int(np.argmin(np.sum(np.minimum(np.nan_to_num(sse, nan=0.0), q), axis=1)))]
+    sigma = fixed or truncated_sigma(best, k, median_sigma(best, k), false_rejection)
+    inl = inlier_rule(best, k, sigma, false_rejection)
     for _ in range(10):  # local optimisation: refit A' on the inliers until they settle
         a, _ = solve_plane_affine(pb, np.flatnonzero(inl), P[:, :2])
-        new = scorer.errors(_plane_to_full(a[None], P))[0] < threshold_px
+        sse = scorer.sse(_plane_to_full(a[None], P))[0]
+        sigma = fixed or truncated_sigma(sse, k, sigma, false_rejection)
+        new = inlier_rule(sse, k, sigma, false_rejection)
         if np.array_equal(new, inl) or new.sum() < 2:
             break
         inl = new
     est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
-    return est, inl
+    return est, inl, float(sigma)

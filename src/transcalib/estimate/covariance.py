@@ -47,8 +47,10 @@ def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=Non
     return S, W, Vinv, det
 
 
-def check_identifiable(S: np.ndarray, names: tuple, hint: str = "") -> tuple[np.ndarray, np.ndarray]:
+def check_identifiable(S: np.ndarray, names: tuple, hint="") -> tuple[np.ndarray, np.ndarray]:
     """Raise :class:`DegenerateError` naming the undetermined parameters if ``S`` is singular.
+
+    ``hint``: what would determine them, a string or a callable of the undetermined names.
 
     Returns the eigen-decomposition ``(evals, evecs)`` of the Jacobi-scaled ``S`` and the
     scaling ``d`` folded into the vectors (``S^-1 = (V / w) V^T`` scaled by ``d``).
@@ -59,6 +61,7 @@ def check_identifiable(S: np.ndarray, names: tuple, hint: str = "") -> tuple[np.
     if weak.any():
         v = np.abs(evecs[:, weak]).max(axis=1)
         involved = [names[k] for k in np.argsort(-v) if v[k] > 0.2 * v.max()]
+        hint = hint(involved) if callable(hint) else hint
         raise DegenerateError(
             "the data do not determine all parameters: the combination of "
             f"{', '.join(involved)} is free (the Fisher information is singular in {int(weak.sum())} "

@@ -27,6 +27,7 @@ from ..validate import as_uv_T
 from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
 from .covariance import _rot_views, covariance, linearise, profile_step
+from .degeneracy import identifiability_hint
 from .scoring import SIGMA_FLOOR_PX
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
@@ -421,7 +422,7 @@ def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
 def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calibration:
     """Covariance at the solution and the :class:`Calibration`."""
     lay, n_views, n_points = pb.lay, *pb.uv.shape[:2]
-    Sinv, var_X, ok = covariance(fit.last, lay, fit.data)
+    Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T))
     dof_fit = 2 * int(fit.mask[:, fit.idx].sum()) - lay.n_global_no_T - 3 * len(fit.idx)
     sigma = _sigma(pb, fit, dof_fit)
     names = lay.names()
