@@ -45,6 +45,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               description="Plan where to move the robot (or --evaluate a poses.csv) and predict "
                                           "the calibration's accuracy before taking any image.")
     p.error = _one_line_error
+    known = p.parse_known_args
+
+    def parse_known_args(args=None, namespace=None):  # unknown options: one line here, not the main usage
+        ns, extra = known(args, namespace)
+        if extra:
+            _one_line_error(f"unrecognized arguments: {' '.join(extra)}")
+        return ns, extra
+
+    p.parse_known_args = parse_known_args
     # "--box -200,200,..." : let values that start with a minus sign and hold only numbers
     # and commas be values, not options (argparse only accepts "-200" alone by default)
     p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eE+-]*$")
