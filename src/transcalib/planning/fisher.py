@@ -108,13 +108,7 @@ def _reduced(options: PlanOptions, Jg, JX, w):
         Ufull[:, q:, q:] = blocks.reshape(B, nt, nt)
         WT = -np.moveaxis(Vm[:, 1:], 1, 2).reshape(B, n, nt, 3)  # rows of T_i: -V_ij
         U, W = Ufull, np.concatenate([W, WT], axis=2)
-    d = 1.0 / np.sqrt(np.maximum(np.einsum("bnii->bni", V), 1e-300))
-    Vs = V * d[..., :, None] * d[..., None, :]
-    det = np.linalg.det(Vs)
-    ok = det > 1e-12
-    Vs[~ok] = np.eye(3)
-    Vinv = np.linalg.inv(Vs) * d[..., :, None] * d[..., None, :]
-    Vinv[~ok] = 0.0
+    Vinv, ok = inv3_spd(V)
     Y = W @ Vinv  # (B, n, p, 3)
     S = U - np.einsum("bnpi,bnqi->bpq", Y, W, optimize=True)
     return 0.5 * (S + np.swapaxes(S, 1, 2)), Vinv, Y, ok
@@ -184,3 +178,21 @@ def _inverse_spd(S: np.ndarray):
     good &= np.linalg.cond(Ss) < 1e13 if len(S) else good
     Ss[~good] = np.eye(S.shape[1])
     return np.linalg.inv(Ss) * d[:, :, None] * d[:, None, :], good
+
+
+def inv3_spd(V: np.ndarray):
+    """Inverses of symmetric 3x3 blocks ``V (..., 3, 3)`` by the Jacobi-scaled adjugate, and
+    which are well determined (scaled determinant > 1e-12, the rule of :func:`transcalib.crlb`);
+    the others get a zero inverse."""
+    d = 1.0 / np.sqrt(np.maximum(np.stack([V[..., 0, 0], V[..., 1, 1], V[..., 2, 2]], -1), 1e-300))
+    A = V * d[..., :, None] * d[..., None, :]
+    a, b, c = A[..., 0, 0], A[..., 0, 1], A[..., 0, 2]
+    e, f, h = A[..., 1, 1], A[..., 1, 2], A[..., 2, 2]
+    c00, c01, c02 = e * h - f * f, c * f - b * h, b * f - c * e
+    c11, c12, c22 = a * h - c * c, b * c - a * f, a * e - b * b
+    det = a * c00 + b * c01 + c * c02
+    ok = det > 1e-12
+    idet = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    inv = np.stack([np.stack([c00, c01, c02], -1), np.stack([c01, c11, c12], -1),
+                    np.stack([c02, c12, c22], -1)], -2) * idet[..., None, None]
+    return inv * d[..., :, None] * d[..., None, :], ok

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .fisher import _jacobians
+from .fisher import _jacobians, inv3_spd
 from .model import CRITERIA, PlanOptions
 
 __all__ = ["Pool", "optimise"]
@@ -69,11 +69,8 @@ def _score(rest: tuple, cand: Pool, crit_idx: np.ndarray) -> np.ndarray:
     W = W0 + cand.W
     V = V0 + cand.V
     used = (n0 + cand.seen) >= 2
-    d = 1.0 / np.sqrt(np.maximum(np.einsum("knii->kni", V), 1e-300))
-    Vs = V * d[..., :, None] * d[..., None, :]
-    ok = used & (np.linalg.det(Vs) > 1e-12)
-    Vs[~ok] = np.eye(3)
-    Vinv = np.linalg.inv(Vs) * d[..., :, None] * d[..., None, :]
+    Vinv, ok = inv3_spd(V)
+    ok &= used
     okf = ok.astype(float)[..., None, None]
     S = np.einsum("knqr->kqr", U * okf) - np.einsum("knqi,knij,knrj->kqr", W * okf, Vinv, W, optimize=True)
     out = np.full(len(S), np.inf)
