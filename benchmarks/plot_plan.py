@@ -18,7 +18,6 @@ import numpy as np  # noqa: E402
 
 import transcalib  # noqa: E402
 from transcalib.planning import PlanOptions, evaluate_plan  # noqa: E402
-from transcalib.planning.patterns import pattern_variants  # noqa: E402
 
 IMG = Path(__file__).resolve().parents[1] / "docs" / "img"
 BASE = dict(image_size=(1280, 1024), focal_px=1000.0, distance=1000.0, depth_range=400.0, n_points=100,

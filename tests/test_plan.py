@@ -9,7 +9,7 @@ import pytest
 
 import transcalib
 from transcalib.cli.main import main
-from transcalib.errors import InputError
+from transcalib.errors import DegenerateError, InputError
 from transcalib.planning import PATTERNS, PlanOptions, evaluate_plan, plan, view_rotation
 from transcalib.planning.bound import crlb
 from transcalib.planning.fisher import predict
@@ -71,6 +71,13 @@ def test_plan_stays_in_box_and_keeps_points_visible(planned):
     np.testing.assert_allclose(planned.evaluation.visible, seen.mean(axis=1))
     d = np.linalg.norm(planned.T[:, None] - planned.T[None], axis=2)[np.triu_indices(5, 1)]
     assert d.min() >= 0.05 * 300 - 1e-9  # no repeated positions
+    for name, ev in planned.patterns.items():
+        assert np.all(ev.T >= b[:, 0] - 1e-9) and np.all(ev.T <= b[:, 1] + 1e-9), name
+
+
+def test_flat_box_cannot_be_planned():
+    with pytest.raises(DegenerateError, match="three axes"):
+        plan((-150, 150, -150, 150, 0, 0), 5, **SCENE)
 
 
 def test_plan_beats_every_standard_pattern(planned):

@@ -3,16 +3,17 @@
 Each pattern has a natural number of positions; with fewer views the first ones are
 used, with more the pattern is repeated at half the size about the same anchor (then a
 quarter, ...), never at a position already used: a repeated position adds no geometry,
-and the linear (TLS) start of the calibration breaks down on exactly repeated positions. Patterns that depend on a choice of corner come in variants (the
-mirror images of the box); the comparison reports the best variant, so a plan is
-compared with the best a user could have done with that pattern.
+and the linear (TLS) start of the calibration breaks down on exactly repeated positions.
+Patterns that depend on a choice of corner come in variants (the mirror images of the
+box); the comparison reports the best variant, so a plan is compared with the best a user
+could have done with that pattern.
 
 * ``tetrahedron`` — axis-aligned: a box corner and the full box edges from it along x, y, z.
 * ``cube_corners`` — the 8 box corners, the two inscribed regular tetrahedra first.
 * ``paper`` — the paper's §3 moves (three orthogonal equal moves, rotated 20° about the
   vertical), scaled to the largest copy that fits the box, centred.
 * ``naive`` — what a user tries first: the box centre and small moves (10 % of the box)
-  along +x, +y, +z, then -x, -y, -z.
+  along +x, +y, +z, then -x, -y, -z; for more views the same moves twice as long, ...
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ def pattern_variants(name: str, box: np.ndarray, n_views: int) -> np.ndarray:
         half = 0.5 * (box[:, 1] - box[:, 0])
         k = np.min(np.where(half > 0, half, np.inf)) if np.any(half > 0) else 0.0
         c0 = box.mean(axis=1)
+        k = np.minimum(k, half)  # a flat axis of the box stays flat
         return np.stack([_cycle(c0 + u * k, n_views, c0) for u in units])
     elif name == "naive":
         f = NAIVE_FRACTION * 2.0

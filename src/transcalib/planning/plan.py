@@ -158,10 +158,11 @@ def _warnings(options: PlanOptions, X, T, p, box) -> list:
                                               f"vs {sv[0]:.3g} along it): move out of the plane too, the focal "
                                               "length and the principal point need 3-D moves"))
     uv = _project(options, X, T)
-    motion = np.nanmedian(np.linalg.norm(uv - uv[:1], axis=2), axis=1) if m >= 2 else np.zeros(1)
-    if np.nanmax(motion) < SMALL_MOTION_SIGMAS * options.noise_px:
+    shift = np.linalg.norm(uv - uv[:1], axis=2)  # (m, n), NaN where unseen in view 0 or i
+    motion = np.array([np.median(r[np.isfinite(r)]) if np.isfinite(r).any() else 0.0 for r in shift[1:]] or [0.0])
+    if motion.max() < SMALL_MOTION_SIGMAS * options.noise_px:
         w.append(Diagnostic("small_moves", f"the moves are too small for the noise: the largest typical image "
-                                           f"motion is {np.nanmax(motion):.3g} px, under {SMALL_MOTION_SIGMAS:g} x "
+                                           f"motion is {motion.max():.3g} px, under {SMALL_MOTION_SIGMAS:g} x "
                                            f"the {options.noise_px:g} px noise; make larger moves"))
     few = np.flatnonzero(p.visible < options.min_visible)
     if len(few):
