@@ -152,13 +152,16 @@ def test_cli_writes_poses_and_plan(tmp_path, capsys):
 
 def _replace(args, option, value):
     out = list(args)
+    if option not in out:
+        return out + [option, value]
     out[out.index(option) + 1] = value
     return out
 
 
 @pytest.mark.parametrize("option,value", [("--focal-px", "abc"), ("--focal-px", "-3"), ("--box", "0,1,0,1,0"),
                                           ("--box", "1,0,0,1,0,1"), ("--views", "2"), ("--image-size", "800"),
-                                          ("--depth-range", "5000"), ("--points", "1.5"), ("--noise-px", "0")])
+                                          ("--depth-range", "5000"), ("--points", "1.5"), ("--noise-px", "0"),
+                                          ("--dist-coeffs", "1,2,3"), ("--view-direction", "up")])
 def test_cli_rejects_bad_options(tmp_path, capsys, option, value):
     code = main(_replace(ARGS, option, value) + ["--out", str(tmp_path / "o")])
     err = capsys.readouterr().err

@@ -27,7 +27,7 @@ EXIT_INPUT = 2
 _OPTION_OF = {"image_size": "--image-size", "focal_px": "--focal-px", "distance": "--distance",
               "depth_range": "--depth-range", "n_points": "--points", "noise_px": "--noise-px",
               "view_direction": "--view-direction", "robot_noise": "--robot-noise",
-              "distortion": "--distortion", "criterion": "--criterion", "min_visible": "--min-visible",
+              "distortion": "--distortion", "dist": "--dist-coeffs", "criterion": "--criterion", "min_visible": "--min-visible",
               "margin_px": "--margin-px", "n_views": "--views", "box": "--box", "min_separation": "--min-separation"}
 _KEYS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz")
 
@@ -69,6 +69,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--view-direction", default="-z", help="optical axis in the robot frame: -z, +x, ... or a,b,c (default -z)")
     a("--robot-noise", default="0", metavar="SIGMA", help="robot precision: std per translation coordinate")
     a("--distortion", default="none", help="distortion model to be estimated: none, radial1, radial2, opencv5")
+    a("--dist-coeffs", default="", metavar="K1,K2,...",
+      help="assumed true distortion coefficients, OpenCV order (default none: 0)")
     a("--criterion", default="focal", help="focal (default: std of fx, fy) or intrinsics (fx, fy, cx, cy)")
     a("--min-visible", default="0.5", metavar="FRACTION", help="each view sees at least this fraction of points")
     a("--margin-px", default="0", help="points nearer the image border than this count as unseen")
@@ -104,6 +106,7 @@ def _options(args):
               depth_range=_numbers(args, "depth_range", 1)[0], n_points=_numbers(args, "points", 1, True)[0],
               noise_px=_numbers(args, "noise_px", 1)[0], view_direction=args.view_direction,
               robot_noise=_numbers(args, "robot_noise", 1)[0], distortion=args.distortion,
+              dist=tuple(_numbers(args, "dist_coeffs")) if args.dist_coeffs.strip() else (),
               criterion=args.criterion, min_visible=_numbers(args, "min_visible", 1)[0],
               margin_px=_numbers(args, "margin_px", 1)[0],
               min_separation=None if args.min_separation is None else _numbers(args, "min_separation", 1)[0])
@@ -131,10 +134,12 @@ def _write_poses(path: Path, T: np.ndarray) -> None:
 
 
 def _table(rows: dict) -> str:
-    head = f"  {'design':<14}" + "".join(f"{k:>9}" for k in _KEYS) + f"{'min seen':>10}"
+    first = next(iter(rows.values())).predicted_std
+    keys = _KEYS[:4] + tuple(k for k in first if k not in _KEYS) + _KEYS[4:]  # distortion after cy
+    head = f"  {'design':<14}" + "".join(f"{k:>9}" for k in keys) + f"{'min seen':>10}"
     lines = [head, "  " + "-" * (len(head) - 2)]
     for name, ev in rows.items():
-        lines.append(f"  {name:<14}" + "".join(f"{ev.predicted_std.get(k, float('nan')):9.3g}" for k in _KEYS)
+        lines.append(f"  {name:<14}" + "".join(f"{ev.predicted_std.get(k, float('nan')):9.3g}" for k in keys)
                      + f"{np.min(ev.visible):10.0%}")
     return "\n".join(lines)
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..errors import InputError
-from ..geometry.camera import DIST_MODELS, K_from_params, pad_dist, project
+from ..geometry.camera import DIST_MODELS, K_from_params, project
 from ..synth.simulate import Scene
 
 __all__ = ["PlanOptions", "CRITERIA", "view_rotation", "scene_points", "design_scene", "check_box", "options_from"]
@@ -105,7 +105,8 @@ class PlanOptions:
             raise InputError(f"n_points must be an integer >= 2, got {self.n_points!r}")
         if self.distortion not in DIST_MODELS:
             raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
-        pad_dist(self.dist)  # validates the count
+        if np.asarray(self.dist, float).size not in (0, 1, 2, 4, 5):
+            raise InputError(f"dist must have 0, 1, 2, 4 or 5 coefficients (OpenCV order), got {self.dist!r}")
         object.__setattr__(self, "dist", tuple(float(d) for d in np.asarray(self.dist, float).ravel()))
         if self.criterion not in CRITERIA:
             raise InputError(f"criterion must be one of {', '.join(CRITERIA)}, got {self.criterion!r}")
