@@ -243,7 +243,7 @@ def plan(box, n_views: int, options: PlanOptions | None = None, *, positions=Non
         arguments (``image_size=(1280, 1024), focal_px=1000, distance=800, ...``).
     positions : (K, 3) float, optional
         Allowed positions (e.g. a robot's taught points): the plan picks ``n_views`` of them
-        (with repetition); by default any position in the box.
+        (no two closer than ``min_separation``); by default any position in the box.
     rng : seed or Generator
         Draws the model's points.
 
@@ -284,7 +284,7 @@ def plan(box, n_views: int, options: PlanOptions | None = None, *, positions=Non
                     min_sep=min_sep)
     ev = _evaluation(options, X, T, b)
     best = min(feasible, key=lambda e: e.criterion, default=None)
-    if best is not None and best.criterion < ev.criterion:  # the search left out the robot noise
+    if positions is None and best is not None and best.criterion < ev.criterion:  # search left out robot noise
         T, ev = best.T.copy(), best
     if not np.isfinite(ev.criterion):
         raise DegenerateError("no design in this box determines the calibration: the box must allow moves "
