@@ -40,6 +40,7 @@ _LAZY = {
     "track_squares": (".images", "track_squares"),
     "Tracks": (".images.frames", "Tracks"),
     "simulate": (".synth.simulate", None),
+    "plan": (".planning", "plan"), "evaluate_plan": (".planning", "evaluate_plan"),
     "render": (".synth.render", None),
 }
 

@@ -18,6 +18,7 @@ import numpy as np
 from .. import __version__
 from .. import io as tio
 from ..types import RansacOptions, RefineOptions, TranscalibError
+from .plan import add_parser as add_plan_parser
 
 EXIT_INPUT = 2
 
@@ -298,6 +299,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--target", choices=["squares"], help="detect the corners of dark squares")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=cmd_track)
+    add_plan_parser(sub)
     return p
 
 
