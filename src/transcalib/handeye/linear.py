@@ -96,11 +96,12 @@ class SessionsLinear:
 
 
 def _flange_moves(T: np.ndarray, grouping: SessionGrouping):
-    """Session-centred flange-frame translations ``T'_i (n_views, 3)`` and the means ``m_s``."""
+    """Session-centred flange-frame translations ``T'_i`` of the views within the tolerance
+    of their session's orientation, and the means ``m_s``."""
     s_of = grouping.session_of_view
     m = np.stack([T[s_of == s].mean(axis=0) for s in range(grouping.n_sessions)])
     Tf = np.einsum("vba,vb->va", grouping.rotations[s_of], T - m[s_of])
-    return Tf, m
+    return Tf[grouping.angle_deg <= grouping.tolerance_deg], m
 
 
 def check_flange_span(T: np.ndarray, grouping: SessionGrouping) -> np.ndarray:
@@ -109,7 +110,7 @@ def check_flange_span(T: np.ndarray, grouping: SessionGrouping) -> np.ndarray:
     Returns the singular values (descending) of the moves ``R_s^T (T_i - m_s)``.
     """
     Tf, _ = _flange_moves(T, grouping)
-    U, s, Vt = np.linalg.svd(Tf, full_matrices=False)
+    _, s, Vt = np.linalg.svd(Tf, full_matrices=False)
     s = np.concatenate([s, np.zeros(3 - s.size)])[:3]
     if s[0] > 0 and s[2] > SPAN_TOL * s[0]:
         return s
@@ -138,8 +139,9 @@ def _stack(uv: np.ndarray, grouping: SessionGrouping) -> np.ndarray:
     """``(n_views, n_sessions * n_points, 2)``: session s's views keep the columns of block s."""
     n_views, n = uv.shape[:2]
     out = np.full((n_views, grouping.n_sessions * n, 2), np.nan)
+    inside = grouping.angle_deg <= grouping.tolerance_deg  # a view off its session: refinement only
     for s in range(grouping.n_sessions):
-        views = grouping.session_of_view == s
+        views = (grouping.session_of_view == s) & inside
         out[views, s * n:(s + 1) * n] = uv[views]
     return out
 
@@ -224,7 +226,9 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
         ``det M < 0``: a left-handed base frame or mirrored images.
     """
     span = check_flange_span(T, grouping)
-    Tf, m = _flange_moves(T, grouping)
+    s_of = grouping.session_of_view
+    m = np.stack([T[s_of == s].mean(axis=0) for s in range(grouping.n_sessions)])
+    Tf = np.einsum("vba,vb->va", grouping.rotations[s_of], T - m[s_of])
     stacked = fit_linear(_stack(uv, grouping), Tf, method)
     n_s, n = grouping.n_sessions, uv.shape[1]
     Y = stacked.X.reshape(n_s, n, 3)

@@ -14,7 +14,7 @@ A **session** is a set of views with one flange orientation. Views are grouped g
 file order: a view joins the first session whose first view's orientation is within
 ``tolerance_deg`` (default :data:`SESSION_TOLERANCE_DEG`), else it opens a new one; an
 optional ``session`` column overrides the grouping. Each session's orientation is the
-chordal mean of its views; a view farther from it than the tolerance is reported with its
+chordal mean of its views near its most central one; a view farther from it than the tolerance is reported with its
 angle. This module reads files on its own (no dependency on :mod:`transcalib.io`).
 """
 
@@ -118,6 +118,16 @@ def _project_so3(M: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 
 
+def _session_rotation(R: np.ndarray, tolerance_deg: float) -> np.ndarray:
+    """Orientation of one session: the chordal mean of the views within the tolerance of
+    its most central view (least median angle to the others), so that a stray view does
+    not pull it."""
+    angles = _angle_deg(R[:, None], R[None, :])  # (k, k)
+    centre = int(np.argmin(np.median(angles, axis=1)))
+    near = angles[centre] <= tolerance_deg
+    return _project_so3(R[near].sum(axis=0))
+
+
 @dataclass(frozen=True, eq=False)
 class SessionGrouping:
     """Views grouped into sessions of one flange orientation.
@@ -196,7 +206,7 @@ def group_sessions(R: np.ndarray, tolerance_deg: float = SESSION_TOLERANCE_DEG, 
                 k = len(firsts) - 1
             of_view[i] = k
         labels = tuple(str(k) for k in range(len(firsts)))
-    rotations = np.stack([_project_so3(R[of_view == s].sum(axis=0)) for s in range(len(labels))])
+    rotations = np.stack([_session_rotation(R[of_view == s], tolerance_deg) for s in range(len(labels))])
     angle = _angle_deg(rotations[of_view], R)
     off = tuple((int(i), float(angle[i])) for i in np.flatnonzero(angle > tolerance_deg))
     return SessionGrouping(of_view, rotations, angle, float(tolerance_deg), off, labels)
