@@ -182,3 +182,48 @@ def test_exports_roundtrip():
     assert np.isclose(tf["translation"]["z"], 0.08)
     y = easy_handeye_yaml(R, t)
     assert "eye_on_hand: true" in y and "transformation:" in y and f"  z: {0.08!r}" in y
+
+
+# ------------------------------------------------------------------- rendered examples
+
+def _make_sessions_module():
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "examples" / "make_sessions.py"
+    spec = importlib.util.spec_from_file_location("make_sessions", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod, path.parent
+
+
+def _ground_truth_tracks(rendered, rng, n_random=400, noise_px=0.3):
+    """Tracks from the renderer's ground truth (cross-session tracking is not on main yet):
+    checkerboard corners and random points on the table and the box tops, seen where the
+    renderer says they are visible (in the image, not occluded), plus pixel noise."""
+    table, boxes = rendered[0].surfaces[0], [sf for sf in rendered[0].surfaces if sf.name.startswith("box")]
+    tops = [sf for sf in boxes if sf.normal[2] > 0.9]
+    pts = [rendered[0].corners, table.point(rng.uniform(0, 1, (n_random, 2)) * table.size)]
+    pts += [sf.point(rng.uniform(0.1, 0.9, (20, 2)) * sf.size) for sf in tops]
+    X = np.concatenate(pts)
+    uv = np.concatenate([np.where(r.visible(X, margin_px=2)[..., None], r.project(X), np.nan) for r in rendered])
+    return uv + rng.normal(0, noise_px, uv.shape), X
+
+
+@pytest.mark.parametrize("n_sessions", [2, 3])
+def test_rendered_examples_end_to_end(n_sessions):
+    mod, root = _make_sessions_module()
+    folder = root / f"sessions{n_sessions}"
+    poses = read_robot_poses(folder / "poses.csv")  # quaternions, session column
+    truth = json.loads((folder / "truth.json").read_text())
+    assert all((folder / name).is_file() for name in poses.images)
+    rendered = mod.rendered_sessions(n_sessions, with_images=False)
+    uv, X = _ground_truth_tracks(rendered, np.random.default_rng(n_sessions))
+    he = calibrate_sessions(uv, poses.T, poses.R, session_of_view=poses.session)
+    K, R_X, t_X = (np.array(truth[k]) for k in ("K", "R_flange_camera", "t_flange_camera"))
+    assert abs(he.K[0, 0] / K[0, 0] - 1) < 0.005 and abs(he.K[1, 1] / K[1, 1] - 1) < 0.005
+    angle = np.degrees(np.linalg.norm(matrix_to_rotvec(he.R_flange_camera.T @ R_X)))
+    assert angle < 0.2
+    B = np.linalg.svd(he.undetermined, full_matrices=True)[0][:, he.undetermined.shape[1]:] \
+        if he.undetermined.shape[1] else np.eye(3)
+    assert he.undetermined.shape[1] == (1 if n_sessions == 2 else 0)
+    assert np.linalg.norm(B.T @ (he.t_flange_camera - t_X)) < 1.0  # mm, determined part
