@@ -227,3 +227,17 @@ def test_rendered_examples_end_to_end(n_sessions):
         if he.undetermined.shape[1] else np.eye(3)
     assert he.undetermined.shape[1] == (1 if n_sessions == 2 else 0)
     assert np.linalg.norm(B.T @ (he.t_flange_camera - t_X)) < 1.0  # mm, determined part
+
+
+def test_robust_finds_planted_outliers():
+    sc = session_scene(6, n_sessions=3, moves="xy", noise_px=0.3, n_points=80)
+    uv = sc.uv.copy()
+    rng = np.random.default_rng(1)
+    bad = rng.choice(80, 8, replace=False)
+    views = np.flatnonzero(sc.session_of_view == 1)
+    uv[views[:, None], bad[None]] += rng.uniform(15, 30, (len(views), 8, 2))  # wrong matches in session 1
+    he = calibrate_sessions(uv, sc.T, sc.R, robust=True, rng=0)
+    seen1 = np.isfinite(sc.uv[views][..., 0]).sum(axis=0) >= 2
+    assert set(np.flatnonzero(~he.inliers[1])) == set(bad[seen1[bad]])
+    assert he.inliers[[0, 2]].all()
+    assert np.linalg.norm(he.t_flange_camera - sc.t_X) < 5 * np.linalg.norm(he.t_flange_camera_std)

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimate.refine import FlangeModel, fit_refine
-from ..types import Calibration, RefineOptions
+from ..types import Calibration, RansacOptions, RefineOptions
 from ..validate import as_uv_T
 from .linear import SessionsLinear, sessions_linear
 from .observability import Observability, offset_observability
@@ -58,6 +58,8 @@ class HandEyeCalibration:
         Scene points in robot base coordinates (absolute).
     notes : tuple of str
         Observability and grouping messages for the user.
+    inliers : (n_sessions, n_points) bool or None
+        With ``robust``: the (point, session) pairs kept.
     """
 
     calibration: Calibration
@@ -72,6 +74,7 @@ class HandEyeCalibration:
     linear: SessionsLinear
     X: np.ndarray
     notes: tuple
+    inliers: np.ndarray | None = None
 
     @property
     def K(self) -> np.ndarray:
@@ -100,7 +103,8 @@ def _check_rotations(R, n_views: int) -> np.ndarray:
 def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, tolerance_deg: float = SESSION_TOLERANCE_DEG,
                        distortion: str = "none", fix=None, square_pixels: bool = False, estimate_skew: bool = False,
                        sigma_T=None, sigma_px=None, loss: str = "linear", loss_scale_px: float = 1.0,
-                       max_iterations: int = 100, rng=None) -> HandEyeCalibration:
+                       max_iterations: int = 100, robust: bool = False, ransac: RansacOptions | None = None,
+                       rng=None) -> HandEyeCalibration:
     """Calibrate K and the camera-to-flange transform from translation sessions.
 
     Parameters
@@ -118,8 +122,14 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, toleran
         Largest orientation difference inside a session (degrees).
     distortion, fix, square_pixels, estimate_skew, sigma_T, sigma_px, loss, loss_scale_px, max_iterations
         As :class:`transcalib.RefineOptions`.
+    robust : bool
+        RANSAC on the stacked sessions (:func:`transcalib.estimate.robust.fit_robust`;
+        options ``ransac``); the observations of a point rejected in a session are left
+        out of that session (``he.inliers``). Combine with ``loss="huber"`` to downweight
+        single bad observations in the refinement.
+    ransac : RansacOptions, optional
     rng : seed or Generator, optional
-        Unused (the estimate is deterministic); accepted for the pipeline's uniform call.
+        For RANSAC (the estimate is otherwise deterministic).
 
     Returns
     -------
@@ -133,14 +143,15 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, toleran
         Moves not spanning 3-D in the flange frame (named, including the SCARA case), too
         few points or views, or intrinsics the data do not determine.
     """
-    del rng
     uv, T = as_uv_T(uv, T, min_views=2)
     R = _check_rotations(flange_rotations, len(T))
     opts = RefineOptions(distortion=distortion, fix=dict(fix or {}), square_pixels=square_pixels,
                          estimate_skew=estimate_skew, sigma_T=sigma_T, sigma_px=sigma_px, loss=loss,
                          loss_scale_px=loss_scale_px, max_iterations=max_iterations)
     grouping = group_sessions(R, tolerance_deg, session_of_view)
-    lin = sessions_linear(uv, T, grouping)
+    lin = sessions_linear(uv, T, grouping, ransac=(ransac or RansacOptions()) if robust else None, rng=rng)
+    if lin.inliers is not None:  # drop the rejected (point, session) observations
+        uv = np.where(lin.inliers[grouping.session_of_view][..., None], uv, np.nan)
     F = np.transpose(R, (0, 2, 1))
     obs = offset_observability(lin.K, np.zeros(5), lin.R_X.T, lin.t_X, lin.X, uv, T, F, grouping.rotations,
                                grouping.labels, fix=opts.fix, estimate_skew=estimate_skew,
@@ -155,4 +166,4 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, toleran
     notes = tuple(m for m in [obs.message, *grouping.messages()] if m)
     return HandEyeCalibration(cal, cal.camera.R.T, np.asarray(cal.info["flange_offset"], float), R_std, cov_t,
                               np.sqrt(np.clip(np.diag(cov_t), 0, None)), obs.undetermined, obs, grouping, lin,
-                              cal.X, notes)
+                              cal.X, notes, lin.inliers)

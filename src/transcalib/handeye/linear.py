@@ -35,7 +35,8 @@ import numpy as np
 
 from ..errors import DegenerateError
 from ..estimate.linear import fit_linear
-from ..types import LinearEstimate
+from ..estimate.robust import fit_robust
+from ..types import LinearEstimate, RansacOptions
 from ..validate import SPAN_TOL
 from .poses import SessionGrouping
 
@@ -79,6 +80,7 @@ class SessionsLinear:
     Y: np.ndarray  # (n_sessions, n_points, 3)
     m: np.ndarray  # (n_sessions, 3)
     rotations: np.ndarray  # (n_sessions, 3, 3)
+    inliers: np.ndarray | None = None  # (n_sessions, n_points) bool with RANSAC
 
     def as_linear_estimate(self) -> LinearEstimate:
         """The start of the refinement: ``K``, ``R = R_X^T``, the base-frame ``X``."""
@@ -92,7 +94,7 @@ class SessionsLinear:
         information determines) and the points with it."""
         t, undet = solve_offset(self.Y, self.m, self.rotations, basis)
         return SessionsLinear(self.K, self.R_X, t, _points(self.Y, self.m, self.rotations, t), self.depth, undet,
-                              self.stacked, self.flange_span, self.Y, self.m, self.rotations)
+                              self.stacked, self.flange_span, self.Y, self.m, self.rotations, self.inliers)
 
 
 def _flange_moves(T: np.ndarray, grouping: SessionGrouping):
@@ -199,7 +201,8 @@ def _points(Y, m, Rs, t) -> np.ndarray:
     return X
 
 
-def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, method: str = "fast") -> SessionsLinear:
+def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, method: str = "fast",
+                    ransac: RansacOptions | None = None, rng=None) -> SessionsLinear:
     """Linear estimate of ``K``, ``R_X``, ``t_X`` and the points from several sessions.
 
     Parameters
@@ -212,6 +215,12 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
         Sessions and their flange rotations (:func:`transcalib.handeye.poses.group_sessions`).
     method : {"fast", "dense"}
         TLS solver (:func:`transcalib.estimate.linear.fit_linear`).
+    ransac : RansacOptions, optional
+        Robust start: :func:`transcalib.estimate.robust.fit_robust` on the stacked
+        problem (a point of one session is one sample); its outliers are NaN in ``Y``
+        and ``inliers`` says which (point, session) pairs survived.
+    rng : seed or Generator
+        For RANSAC.
 
     Returns
     -------
@@ -229,8 +238,16 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
     s_of = grouping.session_of_view
     m = np.stack([T[s_of == s].mean(axis=0) for s in range(grouping.n_sessions)])
     Tf = np.einsum("vba,vb->va", grouping.rotations[s_of], T - m[s_of])
-    stacked = fit_linear(_stack(uv, grouping), Tf, method)
     n_s, n = grouping.n_sessions, uv.shape[1]
+    uv_st = _stack(uv, grouping)
+    inliers = None
+    if ransac is None:
+        stacked = fit_linear(uv_st, Tf, method)
+    else:
+        rob = fit_robust(uv_st, Tf, ransac, rng=rng)
+        stacked = rob.linear
+        seen = np.isfinite(uv_st[..., 0]).sum(axis=0) >= 2
+        inliers = (rob.inliers | ~seen).reshape(n_s, n)
     Y = stacked.X.reshape(n_s, n, 3)
     Rs = grouping.rotations
     t, undet = solve_offset(Y, m, Rs)
@@ -238,4 +255,5 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
     for s in range(n_s):
         views = grouping.session_of_view == s
         depth[views] = stacked.depth[views, s * n:(s + 1) * n]
-    return SessionsLinear(stacked.K, stacked.R.T, t, _points(Y, m, Rs, t), depth, undet, stacked, span, Y, m, Rs)
+    return SessionsLinear(stacked.K, stacked.R.T, t, _points(Y, m, Rs, t), depth, undet, stacked, span, Y, m, Rs,
+                          inliers)
