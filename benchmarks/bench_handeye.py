@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from transcalib.errors import TranscalibError
+from transcalib.errors import DegenerateError, TranscalibError
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
 from transcalib.geometry.camera import project
@@ -129,6 +129,8 @@ def _park_martin(Rg, tg, Rc, tc):
                 betas.append(matrix_to_rotvec(RB))
     M = sum(np.outer(b, a) for a, b in zip(alphas, betas))
     w, V = np.linalg.eigh(M.T @ M)
+    if len(alphas) == 0 or w[0] <= 1e-9 * w[-1]:
+        raise DegenerateError("hand-eye AX = XB: the gripper rotations are all about one axis; R_X undetermined")
     RX = V @ np.diag(w ** -0.5) @ V.T @ M.T
     for RA, tA, RB, tB in pairs:
         A_rows.append(RA - np.eye(3))
@@ -187,12 +189,15 @@ def comparison(trials, seed=100) -> list[str]:
                                 rotation_angle_deg(RX.T @ base.R_X), dt])
         for m, e in errs.items():
             if not e:
-                out.append(f"| {name} | {m} | fails ({fails[m]}/{trials}: K not determined) | | | | | |")
+                out.append(f"| {name} | {m} | fails ({fails[m]}/{trials}: degenerate) | | | | | |")
                 continue
-            r = np.sqrt(np.nanmean(np.array(e, float) ** 2, axis=0))
+            e = np.array(e, float)
+            r = np.sqrt(np.mean(e ** 2, axis=0))  # NaN column: t_X not available
             t_txt = "n/a (not observable)" if np.isnan(r[5]) else f"{r[5]:.3f}"
             if m.startswith("multi") and B.shape[1] < 3:
                 t_txt += f" ({B.shape[1]} of 3 components)"
+            if fails[m]:
+                t_txt += f"; {fails[m]}/{trials} failed"
             out.append(f"| {name} | {m} | {r[0]:.3f} | {r[1]:.3f} | {r[2]:.2f} | {r[3]:.2f} | {r[4]:.4f} | {t_txt} |")
     return out
 
