@@ -241,3 +241,21 @@ def test_robust_finds_planted_outliers():
     assert set(np.flatnonzero(~he.inliers[1])) == set(bad[seen1[bad]])
     assert he.inliers[[0, 2]].all()
     assert np.linalg.norm(he.t_flange_camera - sc.t_X) < 5 * np.linalg.norm(he.t_flange_camera_std)
+
+
+def test_monte_carlo_std_near_the_crlb():
+    """Small Monte Carlo (the full study is benchmarks/bench_handeye.py): with 30 trials
+    the sample std is within ~13 % (1 sigma) of the true std; allow 40 %."""
+    from dataclasses import replace
+
+    from transcalib.handeye.observability import sessions_crlb
+    base = session_scene(21, n_sessions=3, moves="xy", n_points=60)
+    bound = sessions_crlb(replace(base, noise_px=0.5))
+    rng = np.random.default_rng(0)
+    est = []
+    for _ in range(30):
+        uv = np.where(np.isfinite(base.uv), base.uv_true + rng.normal(0, 0.5, base.uv.shape), np.nan)
+        he = calibrate_sessions(uv, base.T, base.R)
+        est.append([he.K[0, 0], he.K[1, 1], *he.t_flange_camera])
+    ratio = np.std(est, axis=0, ddof=1) / np.array([bound[k] for k in ("fx", "fy", "t_x", "t_y", "t_z")])
+    assert np.all((ratio > 0.6) & (ratio < 1.4)), ratio
