@@ -210,7 +210,7 @@ def _ground_truth_tracks(rendered, rng, n_random=400, noise_px=0.3):
 
 
 @pytest.mark.parametrize("n_sessions", [2, 3])
-def test_rendered_examples_end_to_end(n_sessions):
+def test_rendered_examples_ground_truth_tracks(n_sessions):
     mod, root = _make_sessions_module()
     folder = root / f"sessions{n_sessions}"
     poses = read_robot_poses(folder / "poses.csv")  # quaternions, session column
@@ -259,3 +259,56 @@ def test_monte_carlo_std_near_the_crlb():
         est.append([he.K[0, 0], he.K[1, 1], *he.t_flange_camera])
     ratio = np.std(est, axis=0, ddof=1) / np.array([bound[k] for k in ("fx", "fy", "t_x", "t_y", "t_z")])
     assert np.all((ratio > 0.6) & (ratio < 1.4)), ratio
+
+
+def _link_by_truth(blocks, n_views, tol_mm=0.3):
+    """Join per-session tracks into points across sessions by their true 3-D point (the
+    renderer's ``track_truth``): a stand-in for cross-session matching, which is not on
+    main yet. ``blocks``: per session (views, uv (k, m, 2), X (m, 3), junction (m,))."""
+    from scipy.spatial import cKDTree
+    ref_X, cols = np.zeros((0, 3)), []  # cols: per point, {session: track index}
+    for s, (_, _, X, junction) in enumerate(blocks):
+        idx = np.flatnonzero(np.isfinite(X[:, 0]) & ~junction)
+        hit = np.full(len(idx), -1)
+        if len(ref_X):
+            d, m = cKDTree(ref_X).query(X[idx])
+            hit = np.where(d < tol_mm, m, -1)
+        for k, h in zip(idx, hit):
+            if h >= 0 and s not in cols[h]:
+                cols[h][s] = k
+            else:
+                cols.append({s: k})
+                ref_X = np.vstack([ref_X, X[k]])
+    uv = np.full((n_views, len(cols), 2), np.nan)
+    for j, d in enumerate(cols):
+        for s, k in d.items():
+            uv[blocks[s][0], j] = blocks[s][1][:, k]
+    return uv, sum(len(d) > 1 for d in cols)
+
+
+@pytest.mark.parametrize("n_sessions", [2, 3])
+def test_rendered_images_end_to_end(n_sessions):
+    """Images -> calibration: the project's tracker inside each session on the rendered
+    PNGs, tracks linked across sessions by ground truth, robust calibration."""
+    import cv2
+
+    from transcalib import track
+    mod, root = _make_sessions_module()
+    folder = root / f"sessions{n_sessions}"
+    poses = read_robot_poses(folder / "poses.csv")
+    truth = json.loads((folder / "truth.json").read_text())
+    rendered = mod.rendered_sessions(n_sessions, with_images=False)
+    sess = np.array([int(s) for s in poses.session])
+    blocks = []
+    for s in range(n_sessions):
+        views = np.flatnonzero(sess == s)
+        uv_s = track([cv2.imread(str(folder / poses.images[i]), cv2.IMREAD_GRAYSCALE) for i in views]).uv
+        blocks.append((views, uv_s, *rendered[s].track_truth(uv_s)))
+    uv, n_linked = _link_by_truth(blocks, len(poses.T))
+    assert n_linked > 100
+    he = calibrate_sessions(uv, poses.T, poses.R, session_of_view=poses.session, robust=True, loss="huber", rng=0)
+    K, R_X, t_X = (np.array(truth[k]) for k in ("K", "R_flange_camera", "t_flange_camera"))
+    assert abs(he.K[0, 0] / K[0, 0] - 1) < 0.005 and abs(he.K[1, 1] / K[1, 1] - 1) < 0.005
+    assert np.degrees(np.linalg.norm(matrix_to_rotvec(he.R_flange_camera.T @ R_X))) < 0.2
+    P = np.eye(3) - he.undetermined @ he.undetermined.T
+    assert np.linalg.norm(P @ (he.t_flange_camera - t_X)) < 1.0
