@@ -94,6 +94,15 @@ def _fisher(K, dist5, R_cam, t, X, uv, T, F, fix, estimate_skew, square_pixels, 
     return reduced_information(state, lay, data)[0], lay, U
 
 
+def _split(free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases ``(3, k)`` of the span of ``free`` and ``(3, 3 - k)`` of its complement."""
+    if free.shape[1] == 0:
+        return np.zeros((3, 0)), np.eye(3)
+    U = np.linalg.svd(free, full_matrices=True)[0]
+    k = free.shape[1]
+    return U[:, :k], U[:, k:]
+
+
 def _suggestion(undet: np.ndarray, axes: list) -> str:
     k = undet.shape[1]
     if k == 0:
@@ -157,9 +166,7 @@ def offset_observability(K, dist5, R_cam, t, X, uv, T, F, rotations, labels, *, 
     Utt = U_full[np.ix_(it, it)]
     evals, vecs = scipy.linalg.eigh(0.5 * (It + It.T), Utt)
     weak = evals <= T_RTOL
-    undet = np.linalg.qr(vecs[:, weak])[0] if weak.any() else np.zeros((3, 0))
-    U = np.linalg.svd(undet if weak.any() else np.zeros((3, 1)), full_matrices=True)[0]
-    determined = U[:, undet.shape[1]:] if weak.any() else np.eye(3)
+    undet, determined = _split(vecs[:, weak])
     axes = relative_axes(rotations, labels)
     msg = _suggestion(undet, axes)
     if not weak.any() and evals[0] < T_WEAK * evals[-1]:
