@@ -34,6 +34,7 @@ _LAZY = {
     "estimate_robust": (".estimate.robust", "estimate_robust"),
     "RobustEstimate": (".estimate.robust", "RobustEstimate"),
     "refine": (".estimate.refine", "refine"),
+    "calibrate_sessions": (".handeye.calibrate", "calibrate_sessions"),
     "crlb": (".estimate.covariance", "crlb"),
     "diagnose": (".check", "diagnose"),
     "track": (".images", "track"),
