@@ -59,17 +59,19 @@ def test_fast_equals_dense(seed, n_views, missing, noise):
     also where the paper's estimate itself fails (then both fail alike)."""
     scene = simulate.random_scene(40, n_views, noise_px=noise, robot_noise=0.5, missing=missing, rng=seed)
     used = np.isfinite(scene.uv[..., 0]).sum(axis=0) >= 2
-    A_fast, depth_fast, sv_fast = solve_tls(scene.uv, scene.T, used, "fast")
-    A_dense, depth_dense, sv_dense = solve_tls(scene.uv, scene.T, used, "dense")
-    np.testing.assert_allclose(A_fast, A_dense, atol=1e-9 * np.abs(A_dense).max())
-    np.testing.assert_allclose(depth_fast, depth_dense, rtol=1e-8)
-    try:
-        fast = estimate_linear(scene.uv, scene.T)
+    weights = np.random.default_rng(seed).uniform(0.2, 3.0, scene.n_points)  # row weights (depth weighting)
+    for w in (None, weights):
+        A_fast, depth_fast, sv_fast = solve_tls(scene.uv, scene.T, used, "fast", w)
+        A_dense, depth_dense, sv_dense = solve_tls(scene.uv, scene.T, used, "dense", w)
+        np.testing.assert_allclose(A_fast, A_dense, atol=1e-9 * np.abs(A_dense).max())
+        np.testing.assert_allclose(depth_fast, depth_dense, rtol=1e-8)
+    try:  # the paper's TLS as published: one solve, so fast and dense agree to rounding
+        fast = estimate_linear(scene.uv, scene.T, weighting="none")
     except (MirroredError, DegenerateError) as exc:
         with pytest.raises(type(exc)):
-            estimate_linear(scene.uv, scene.T, method="dense")
+            estimate_linear(scene.uv, scene.T, method="dense", weighting="none")
         return
-    dense = estimate_linear(scene.uv, scene.T, method="dense")
+    dense = estimate_linear(scene.uv, scene.T, method="dense", weighting="none")
     assert rel_err_K(fast.K, dense.K) < 1e-9
     np.testing.assert_allclose(fast.R, dense.R, atol=1e-9)
     np.testing.assert_allclose(fast.depth, dense.depth, rtol=1e-8)

@@ -277,7 +277,10 @@ class LinearEstimate:
     used : (n_points,) bool
         Which points entered the estimate.
     method : str
-        ``"fast"`` (O(n) block elimination) or ``"dense"`` (SVD of the whole system).
+        ``"fast"`` (O(n) block elimination), ``"dense"`` (SVD of the whole system) or
+        ``"coplanar"`` (the 2-axis start with known parameters).
+    static : (n_points,) bool or None
+        Tracks left out because they do not move between views (no depth information).
     """
 
     K: np.ndarray
@@ -289,6 +292,7 @@ class LinearEstimate:
     n_used_points: int
     used: np.ndarray
     method: str = "fast"
+    static: np.ndarray | None = None
 
     def __eq__(self, other) -> bool:
         return isinstance(other, LinearEstimate) and _same_fields(self, other)

@@ -107,6 +107,7 @@ class _Group:
     D00: np.ndarray  # (m,)
     D0k: np.ndarray  # (V_g - 1, m)
     Dkk: np.ndarray  # (V_g - 1, m)
+    s: np.ndarray  # (m,) translation scale of each point (its row weight, see fit_linear)
 
 
 class _Arrowhead:
@@ -124,8 +125,9 @@ class _Arrowhead:
         y_0 = (b_0 - sum_k q_k b_k) / s,    y_k = (b_k - D_0k y_0) / delta_k
     """
 
-    def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
+    def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights: np.ndarray | None = None):
         self.uv, self.norm = uv, norm
+        self.weights = np.ones(uv.shape[1]) if weights is None else weights
         # the used points grouped by visibility pattern: [(seen views, point indices)]
         seen = np.isfinite(uv[..., 0])
         if uv.shape[0] <= 62:  # pattern as an integer, bit v set: seen in view v
@@ -162,7 +164,7 @@ class _Arrowhead:
                 Z[:, 1] = x[..., 1] * H[1, 1] + H[1, 2]
                 Z[:, 2] = 1.0
                 yield _Group(
-                    points=members[c], views=views, Z=Z, tt=tt,
+                    points=members[c], views=views, Z=Z, tt=tt, s=self.weights[members[c]],
                     D00=(views.size - 1) * np.einsum("am,am->m", Z[0], Z[0]),
                     D0k=-np.einsum("kam,am->km", Z[1:], Z[0]),
                     Dkk=np.einsum("kam,kam->km", Z[1:], Z[1:]),
@@ -199,9 +201,10 @@ class _Arrowhead:
             if parts is None:
                 return None
             q, inv_s, inv_delta = parts
-            E3 += len(g.points) * g.tt[1:].T @ g.tt[1:]
-            # w_j = sum_i qhat_i kron(z_i, tt_i), as columns (9, m)
-            qz = g.Z.copy()
+            s2 = g.s * g.s
+            E3 += np.sum(s2) * g.tt[1:].T @ g.tt[1:]
+            # w_j = s_j sum_i qhat_i kron(z_i, tt_i), as columns (9, m)
+            qz = g.Z * g.s
             qz[1:] *= -q[:, None, :]
             w = np.tensordot(g.tt, qz, axes=(0, 0)).transpose(1, 0, 2).reshape(9, -1)
             G1 += (w * inv_s) @ w.T
@@ -209,24 +212,26 @@ class _Arrowhead:
             for k in range(1, len(g.views)):
                 zk, t, d1 = g.Z[k], g.tt[k], inv_delta[k - 1]
                 tt_outer = np.outer(t, t)
-                G1 += np.kron((zk * d1) @ zk.T, tt_outer)
-                G2 += np.kron((zk * (d1 * d1)) @ zk.T, tt_outer)
-                X = (zk * (q[k - 1] * inv_s * d1)) @ w.T  # (3, 9)
+                G1 += np.kron((zk * (d1 * s2)) @ zk.T, tt_outer)
+                G2 += np.kron((zk * (d1 * d1 * s2)) @ zk.T, tt_outer)
+                X = (zk * (q[k - 1] * inv_s * d1 * g.s)) @ w.T  # (3, 9)
                 cross = np.einsum("am,b->abm", X, t).reshape(9, 9)
                 G2 -= cross + cross.T
         self.E = np.kron(np.eye(3), E3)
         return G1, G2
 
     def depths(self, mu: float, a: np.ndarray) -> np.ndarray:
-        """Depths ``y_j = -(D_j - mu I)^-1 B_j a`` (V, n_points), NaN where unseen or unused."""
+        """Depths ``lam_j = -(D_j - mu I)^-1 B_j a / s_j`` (V, n_points), NaN where unseen or
+        unused."""
         A = a.reshape(3, 3)
         y = np.full(self.uv.shape[:2], np.nan)
         for g in self.groups():
-            b = np.einsum("iam,ia->im", g.Z, g.tt @ A.T)  # B_j a = z_i^T A tt_i
+            b = np.einsum("iam,ia->im", g.Z, g.tt @ A.T) * g.s  # B_j a = s_j z_i^T A tt_i
             q, inv_s, inv_delta = self._inverse(g, mu)
             y0 = (b[0] - np.einsum("km,km->m", q, b[1:])) * inv_s
-            y[g.views[0], g.points] = -y0
-            y[g.views[1:, None], g.points[None, :]] = -(b[1:] - g.D0k * y0) * inv_delta
+            # the unknowns are s_j lam_ij: divide the weight out
+            y[g.views[0], g.points] = -y0 / g.s
+            y[g.views[1:, None], g.points[None, :]] = -(b[1:] - g.D0k * y0) * inv_delta / g.s
         return y
 
 
@@ -266,7 +271,7 @@ class _TaylorModel:
         return nu
 
 
-def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
+def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=None):
     """Smallest right singular vector of ``C`` via the arrowhead structure, O(n).
 
     Returns ``(a (9,), depths (V, n_points), mu, eigenvalues of S(mu) (9,))``.
@@ -277,7 +282,7 @@ def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
     passes from ``mu = 0`` leave a truncation error below rounding (noise-free data
     need one).
     """
-    arrow = _Arrowhead(uv, used, norm)
+    arrow = _Arrowhead(uv, used, norm, weights)
     G = arrow.taylor(0.0)
     if G is None:
         raise DegenerateError(
@@ -288,15 +293,16 @@ def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
     good, hi = 0.0, np.inf
     model = _TaylorModel(arrow.E, 0.0, G)
     mu = model.root(0.0, hi)
-    for _ in range(50):
-        if model.truncation(mu) <= tol:
-            break
-        G = arrow.taylor(mu)
+    for _ in range(60):
+        G = arrow.taylor(mu)  # also checks mu is below every pole (a near-static track's)
         if G is None:  # past a pole: retreat halfway
             hi, mu = mu, 0.5 * (good + mu)
             continue
         good = mu
-        model = _TaylorModel(arrow.E, mu, G)
+        converged = model.truncation(mu) <= tol
+        model = _TaylorModel(arrow.E, mu, G)  # exact at mu
+        if converged:
+            break
         mu = model.root(0.0, hi)
     w, v = np.linalg.eigh(model.S(mu))
     a = v[:, 0]
@@ -308,8 +314,10 @@ def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
 # --------------------------------------------------------------------------------------
 
 
-def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
-    """The paper's formulation: build ``C`` and take its SVD (reference, small n).
+def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=None):
+    """The paper's formulation: build ``C`` and take its SVD (reference, small n); with
+    ``weights`` ``s_j`` point j's rows are scaled by ``s_j`` and its depths by ``1 / s_j``
+    (the unknowns are ``s_j lam_ij``).
 
     Returns ``(a (9,), depths (V, n_points), mu = sigma_min^2, eigenvalues of S(mu) (9,))``.
     """
@@ -322,17 +330,18 @@ def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
     n_lam = int(seen.sum())
     ref = np.argmax(seen, axis=0)
     pairs = np.argwhere((seen & (np.arange(V)[:, None] != ref[None, :])).T)  # (j, v)
+    w = np.ones(n) if weights is None else weights[used]
     C = np.zeros((3 * len(pairs), n_lam + 9))
     for p, (j, v) in enumerate(pairs):  # reference code: clarity over speed
         r = ref[j]
         rows = slice(3 * p, 3 * p + 3)
         C[rows, col[r, j]] = U[r, j]
         C[rows, col[v, j]] = -U[v, j]
-        C[rows, n_lam:] = -np.kron(np.eye(3), norm.T[v] - norm.T[r])
+        C[rows, n_lam:] = -np.kron(np.eye(3), norm.T[v] - norm.T[r]) * w[j]
     _, s, Vt = np.linalg.svd(C, full_matrices=False)
     b = Vt[-1]
     depths = np.full(uv.shape[:2], np.nan)
-    depths[:, used] = np.where(seen, b[col], np.nan)
+    depths[:, used] = np.where(seen, b[col] / w[None, :], np.nan)
     # S(mu): the Schur complement of C^T C - mu I over the depths
     mu = s[-1] ** 2
     M = C.T @ C - mu * np.eye(C.shape[1])
@@ -345,7 +354,7 @@ def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation):
 # --------------------------------------------------------------------------------------
 
 
-def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, method: str = "fast"):
+def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, method: str = "fast", weights=None):
     """Total-least-squares ``A`` and depths from validated data (no further checks).
 
     Parameters
@@ -357,6 +366,10 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, met
     used : (n_points,) bool, optional
         Points to use, each seen in at least 2 views (default: all).
     method : {"fast", "dense"}
+    weights : (n_points,) float, optional
+        Row weights ``s_j`` (default ones: the paper's TLS). Scaling point j's equations
+        by ``s_j`` and its depths by ``1 / s_j`` leaves the exact solution unchanged and
+        equalises the points' noise when ``s_j ~ 1 / depth_j`` (see :func:`fit_linear`).
 
     Returns
     -------
@@ -372,7 +385,7 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, met
     """
     used = np.ones(uv.shape[1], bool) if used is None else used
     norm = _normalisation(uv, used, T)
-    a, depths, mu, w = (_tls_fast if method == "fast" else _tls_dense)(uv, used, norm)
+    a, depths, mu, w = (_tls_fast if method == "fast" else _tls_dense)(uv, used, norm, weights)
     # reduced singular values sqrt(mu + eig_k(S(mu))): sigma_1, then the best residuals
     # of the second and third alternative A
     sv = np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
@@ -390,7 +403,7 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, met
     return A * c, depths * c, sv
 
 
-def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
+def estimate_linear(uv, T, *, method: str = "fast", weighting: str = "depth") -> LinearEstimate:
     """Calibrate linearly from tracked points and known translations (paper §2).
 
     Parameters
@@ -423,35 +436,89 @@ def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
     """
     if method not in ("fast", "dense"):
         raise InputError(f"method must be 'fast' or 'dense', got {method!r}")
+    if weighting not in ("depth", "none"):
+        raise InputError(f"weighting must be 'depth' or 'none', got {weighting!r}")
     uv, T = as_uv_T(uv, T)
-    return fit_linear(uv, T, method)
+    return fit_linear(uv, T, method, weighting)
 
 
-def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> LinearEstimate:
+def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast", weighting: str = "depth") -> LinearEstimate:
     """:func:`estimate_linear` on validated arrays (the pipeline's entry: no input checks,
-    only the checks that the data determine the camera)."""
-    n_seen = np.isfinite(uv[..., 0]).sum(axis=0)
-    used = n_seen >= 2
+    only the checks that the data determine the camera).
+
+    ``weighting="depth"``: in the paper's equations a point's residual is its depth times
+    its pixel error, so far points (small image motion) weigh as much as their depth
+    squared and can dominate the TLS. Their rows are scaled by ``s_j ~ 1 / depth_j``
+    instead: first from the image motion per unit of translation (pixels / length, which
+    is proportional to ``1 / depth``), then from the TLS depths of that first pass. Noise-
+    free data give the same exact solution. Tracks that do not move at all (a static
+    overlay, dust on the lens) determine nothing and are left out (``LinearEstimate.static``).
+    ``weighting="none"`` is the paper's TLS as published.
+    """
+    seen = np.isfinite(uv[..., 0])
+    used = seen.sum(axis=0) >= 2
+    motion = _motion_per_length(uv, T)
+    static = used & ~(motion > 1e-9 * max(float(np.nanmedian(motion[used])) if used.any() else 0.0, 1e-300))
+    used &= ~static
     if used.sum() < 2:
         raise DegenerateError(
-            f"only {int(used.sum())} point(s) are seen in at least 2 views; the linear "
-            "estimate needs at least 2 points tracked through the views (more is better)"
-        )
+            f"only {int(used.sum())} point(s) are seen in at least 2 views and move between views "
+            f"({int(static.sum())} do not move at all); the linear estimate needs at least 2 points tracked "
+            "through the views (more is better)")
     active_views = np.isfinite(uv[:, used, 0]).any(axis=1)
     if active_views.sum() < 4:
-        raise DegenerateError(
-            f"only {int(active_views.sum())} views observe tracked points; at least 4 are needed"
-        )
+        raise DegenerateError(f"only {int(active_views.sum())} views observe tracked points; at least 4 are needed")
     check_translations_span(T[active_views])
     if method == "dense" and used.sum() > DENSE_MAX_POINTS:
         raise InputError(
             f"method='dense' is a reference for small problems (at most {DENSE_MAX_POINTS} points, "
-            f"got {int(used.sum())}); use method='fast', which gives the same result in O(n)"
-        )
-    A, depth, sv = solve_tls(uv, T, used, method)
+            f"got {int(used.sum())}); use method='fast', which gives the same result in O(n)")
+    if weighting == "depth":
+        A, depth, sv = solve_tls(uv, T, used, method, _relative(motion, used))
+        A, depth, sv = solve_tls(uv, T, used, method, _relative(1.0 / _point_depth(depth, motion), used))
+    else:
+        A, depth, sv = solve_tls(uv, T, used, method)
     K, R = rq_decompose(A)
     X = triangulate(A, uv, T, depth, passes=1)  # NaN for unused points (no finite depth)
     return LinearEstimate(
         K=K, R=R, A=K @ R, X=X, depth=depth, singular_values=sv,
-        n_used_points=int(used.sum()), used=used, method=method,
-    )
+        n_used_points=int(used.sum()), used=used, method=method, static=static)
+
+
+def _motion_per_length(uv: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Median over a track's views of ``|uv_i - uv_r| / |T_i - T_r|`` (pixels per unit of
+    translation, ``r`` its first view): proportional to ``1 / depth`` (n_points,); NaN for
+    tracks seen once."""
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    cols = np.arange(uv.shape[1])
+    d = np.hypot(*(uv - uv[ref, cols][None]).transpose(2, 0, 1))  # (V, n)
+    t = np.linalg.norm(T[:, None, :] - T[ref][None], axis=2)  # (V, n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(seen & (t > 0), d / t, np.nan)
+    ratio[ref, cols] = np.nan
+    out = np.full(uv.shape[1], np.nan)
+    ok = np.isfinite(ratio).any(axis=0)
+    out[ok] = np.nanmedian(ratio[:, ok], axis=0)
+    return out
+
+
+def _point_depth(depth: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """Median TLS depth of each point; where it is not positive, the depth the image motion
+    implies (scaled to the TLS depths' units)."""
+    with np.errstate(invalid="ignore"):
+        positive = np.where(depth > 0, depth, np.nan)
+    z = np.full(depth.shape[1], np.nan)
+    has = np.isfinite(positive).any(axis=0)
+    z[has] = np.nanmedian(positive[:, has], axis=0)
+    good = np.isfinite(z) & (z > 0) & (motion > 0)
+    scale = np.median(z[good] * motion[good]) if good.any() else 1.0
+    return np.where(good, z, scale / np.where(motion > 0, motion, np.nan))
+
+
+def _relative(w: np.ndarray, used: np.ndarray, cap: float = 10.0) -> np.ndarray:
+    """Row weights scaled to median 1 over the used points, capped at ``cap`` (one near
+    point must not dominate either); 1 where undefined."""
+    m = np.nanmedian(w[used])
+    out = np.where(np.isfinite(w) & (w > 0), w / m, 1.0)
+    return np.minimum(out, cap)
