@@ -13,11 +13,11 @@ from dataclasses import replace
 import numpy as np
 
 from ..types import DegenerateError, InputError
-from .features import epipole_ransac, track_features
+from .features import RotatedViewsError, epipole_ransac, track_features
 from .frames import Tracks, load_images
 from .target import track_squares
 
-__all__ = ["Tracks", "track", "track_squares", "load_images", "epipole_ransac"]
+__all__ = ["Tracks", "track", "track_squares", "load_images", "epipole_ransac", "RotatedViewsError"]
 
 
 def track(
@@ -115,6 +115,8 @@ def track(
     # falls back to the target mode when that tracks more points through 3+ views
     try:
         tracks, failure = track_features(images, **options), None
+    except RotatedViewsError:
+        raise  # the target mode would track the corners, but the views are not pure translations
     except DegenerateError as exc:
         tracks, failure = None, exc
     n_features = 0 if tracks is None else _n_long(tracks.uv)
