@@ -307,7 +307,7 @@ def _local_rho_linear(seeds_x, seeds_rho, query, k=10, keep=0.7):
     y = seeds_rho[nn]
     reg = 1e-6 * np.eye(3)
     n_nb = np.maximum((w > 0).sum(1), 1)  # neighbours actually there (few seeds: fewer than k)
-    rank = np.clip(np.maximum(2, (keep * np.minimum(n_nb, k)).astype(int)) - 1, 0, kk - 1)
+    rank = np.clip(np.maximum(3, (keep * np.minimum(n_nb, k)).astype(int)) - 1, 0, kk - 1)
     for _ in range(2):
         Aw = A * w[..., None]
         coef = np.linalg.solve(np.einsum("nka,nkb->nab", Aw, A) + reg, np.einsum("nka,nk->na", Aw, y)[..., None])[..., 0]
