@@ -195,7 +195,9 @@ def degrade_view(radiance: np.ndarray, opt: Degradations, view: int, effects: Vi
         img = img * _vignetting_gain(opt.vignetting, w, h)
     if opt.specular > 0:
         img = img + _specular(effects.specular_uv[view], opt.specular, opt.specular_sigma_px, w, h)
-    img = np.clip(img, 0.0, 1.0) * 255.0  # the sensor saturates
+    # the sensor saturates before its noise (without degradations: the legacy order,
+    # clip only at the end, so existing renders stay byte-identical)
+    img = (np.clip(img, 0.0, 1.0) if opt.active() else img) * 255.0
     if blur_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
     var = np.full(img.shape, noise_std**2 + opt.read_noise_dn**2)
