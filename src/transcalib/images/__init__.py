@@ -15,9 +15,11 @@ import numpy as np
 from ..types import DegenerateError, InputError
 from .features import RotatedViewsError, epipole_ransac, track_features
 from .frames import Tracks, load_images
+from .sessions import track_sessions
 from .target import track_squares
 
-__all__ = ["Tracks", "track", "track_squares", "load_images", "epipole_ransac", "RotatedViewsError"]
+__all__ = ["Tracks", "track", "track_squares", "load_images", "epipole_ransac", "RotatedViewsError",
+           "track_sessions"]
 
 
 def track(
