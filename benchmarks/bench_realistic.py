@@ -4,7 +4,8 @@
 
 Renders the ``mixed`` scene (the ``repetitive`` scene for that row) with 5 views of
 640 x 480, one degradation of :mod:`transcalib.synth.degrade` at a time (``all``:
-every one plus lens distortion, on the mixed and on the repetitive scene), tracks with ``track()`` and calibrates with the **default**
+every one plus lens distortion, on the mixed and on the repetitive scene; rows ``+ T``
+track with the robot translations, ``track(images, T=T)``), tracks with ``track()`` and calibrates with the **default**
 options of ``calibrate(tracks.uv, T)``. Columns: relative error of fx, fy (%), error
 of cx, cy (px), rotation error (deg), the distortion model chosen (``cal.dist_model``),
 the number of tracks, how many of them do not move (the burnt-in overlay's; should be
@@ -46,7 +47,10 @@ CASES = {
     "overlay": ("mixed", (), Degradations(overlay=REALISTIC.overlay)),
     "all": ("mixed", DIST, REALISTIC),
     "all, repetitive": ("repetitive", DIST, REALISTIC),
+    "repetitive + T": ("repetitive", (), Degradations()),
+    "all, repetitive + T": ("repetitive", DIST, REALISTIC),
 }
+#: rows named ``... + T`` give the tracker the robot translations: ``track(images, T=T)``
 
 
 def static_left(uv, px: float = 1.0) -> int:
@@ -77,15 +81,19 @@ def track_error(rendered, uv) -> np.ndarray:
     return err[other & np.isfinite(err)]
 
 
-def run_case(name: str, *, image_size=(640, 480), n_views: int = 5, rng=0, **calibrate_options) -> dict:
-    """Render, track and calibrate one case of :data:`CASES`; a row of the table."""
+def run_case(name: str, *, image_size=(640, 480), n_views: int = 5, rng=0, track_with_T: bool = False,
+             **calibrate_options) -> dict:
+    """Render, track and calibrate one case of :data:`CASES`; a row of the table.
+
+    ``track_with_T``: give the tracker the robot translations (``track(images, T=T)``)."""
     kind, dist, opt = CASES[name]
+    track_with_T = track_with_T or name.endswith("+ T")
     if image_size[0] != 640:  # text scaled with the image
         opt = replace(opt, overlay_scale=opt.overlay_scale * image_size[0] / 640)
     rendered = render.render_scene(kind, n_views=n_views, image_size=image_size, dist=dist, degrade=opt,
                                    noise_std=0.0 if opt.active() else 1.0, rng=rng)
     t0 = time.perf_counter()
-    tracks = track(rendered.images)
+    tracks = track(rendered.images, T=rendered.T if track_with_T else None)
     cal = calibrate(tracks.uv, rendered.T, **calibrate_options)
     seconds = time.perf_counter() - t0
     K, Kt = cal.K, rendered.K
@@ -124,7 +132,8 @@ def main(argv: list[str] = ()) -> list[dict]:
         rows.append(run_case(name, image_size=size, rng=1))
         print(f"  {name}: {rows[-1]['seconds']:.1f} s", file=sys.stderr, flush=True)
     text = (f"Realistic renders, 5 views of {size[0]}x{size[1]}, scene `mixed` (`repetitive` where named), "
-            "default `calibrate(track(images).uv, T)`; `python benchmarks/bench_realistic.py`\n\n" + table(rows))
+            "default `calibrate(track(images).uv, T)` (`+ T`: `track(images, T=T)`); "
+            "`python benchmarks/bench_realistic.py`\n\n" + table(rows))
     print(text)
     if not quick:
         out = Path(__file__).resolve().parent / "results" / "realistic.md"

@@ -542,7 +542,7 @@ class _Timer:
 
 def track_features(images, *, method, max_features, max_corners, corner_quality, ratio, threshold_px, refine,
                     window_radius, min_ncc, final_threshold_px, smooth_px, min_views, min_tracks, max_tracks,
-                    progress, rng, static_px=STATIC_PX) -> Tracks:
+                    progress, rng, static_px=STATIC_PX, T=None) -> Tracks:
     """Feature tracking (the body of :func:`track`; options as there)."""
     rng = np.random.default_rng(rng)
     report = _progress_fn(progress)
@@ -558,6 +558,9 @@ def track_features(images, *, method, max_features, max_corners, corner_quality,
     with timer("verify"):
         epi, found, repaired, bad_pairs = _verify_pairs(feats, raw, n, threshold_px, rng, report)
         _check_pure_translation(feats, raw, found, threshold_px)
+        replaced = []
+        if T is not None:
+            epi, found, replaced = _enforce_translations(epi, found, feats, raw, T, threshold_px, w, h, rng)
         edges, scores, n_verified = _pair_edges(feats, raw, epi, found, nodes, method, threshold_px)
     with timer("chain"):
         uv, n_conflicts, counts = _chain(edges, scores, nodes, n, n_verified, max_tracks, w, h)
@@ -581,6 +584,7 @@ def track_features(images, *, method, max_features, max_corners, corner_quality,
         "n_static_dropped": n_static,
         "inconsistent_pairs": [f"{i}-{j}" for i, j in bad_pairs],
         "repaired_pairs": [f"{i}-{j}" for i, j in repaired],
+        "pairs_set_by_translations": [f"{i}-{j}" for i, j in replaced],
     }
     return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
 
@@ -769,6 +773,93 @@ def _keep_tracks(uv, min_views, max_tracks, w, h):
     if max_tracks is not None and uv.shape[1] > max_tracks:
         uv = _select_spread(uv, max_tracks, w, h)
     return uv
+
+
+# --------------------------------------------------------------------------- known translations
+def _span_basis(T, tol=1e-3):
+    """Orthonormal basis ``(3, k)`` of the span of the relative translations ``T - T_0``."""
+    D = np.asarray(T, float) - np.asarray(T, float)[0]
+    if len(D) < 2 or not np.any(D):
+        return np.zeros((3, 0))
+    _, s, Vt = np.linalg.svd(D, full_matrices=False)
+    return Vt[: int(np.sum(s > tol * s[0]))].T
+
+
+def _fit_A(epi_list, t_list, scale):
+    """Least-squares ``M`` (3, k) with ``e_p x (M b_p) = 0`` for normalised epipoles
+    ``e_p`` and translation coordinates ``b_p``: DLT, right singular vector."""
+    k = t_list.shape[1]
+    Hn = np.array([1.0 / scale, 1.0 / scale, 1.0])
+    rows = []
+    for e, b in zip(epi_list, t_list):
+        en = e * Hn
+        en = en / np.linalg.norm(en)
+        ex = np.array([[0, -en[2], en[1]], [en[2], 0, -en[0]], [-en[1], en[0], 0]])
+        rows.append(ex @ np.kron(np.eye(3), b[None]))  # M b = (I3 kron b^T) vec_row(M)
+    M = np.linalg.svd(np.vstack(rows))[2][-1].reshape(3, k)
+    return M / Hn[:, None]  # back to pixels: e = Hn^-1 M_n b
+
+
+def _support(e, x, y, thr):
+    """Matches ``x -> y`` consistent with the epipole ``e``: on its line, positive rho."""
+    dist, rho = _epi_residual(e, x, y)
+    moving = np.linalg.norm(y - x, axis=1) >= 0.5
+    return (dist < thr) & ((rho > 0) | ~moving)
+
+
+def _enforce_translations(epi, found, feats, raw, T, threshold_px, w, h, rng, trials=200):
+    """Known robot translations: every epipole is ``e_ij ~ A (T_j - T_i)`` with one
+    ``A = K R``. Fit ``A`` (restricted to the span of the translations) robustly to
+    the pairs' epipoles, scoring a hypothesis by the matches of **all** pairs that its
+    predicted epipoles explain; pairs whose own epipole disagrees (a repetitive texture
+    can make a wrong epipole win a pair, consistently for one view, which the triplet
+    test cannot see) get the predicted epipole and its inliers.
+
+    Returns the updated ``epi`` and ``found`` and the pairs replaced.
+    """
+    B = _span_basis(T)
+    k = B.shape[1]
+    pairs = sorted(epi)
+    if k < 2 or len(pairs) < k + 2:
+        return epi, found, []
+    coords = {p: B.T @ (np.asarray(T[p[1]], float) - T[p[0]]) for p in raw}
+    scale = float(max(w, h))
+    xy = {p: _matched_xy(feats, raw, *p) for p in raw}
+    n_min = int(np.ceil((3 * k - 1) / 2))
+    best, best_M = -1, None
+    subsets = [rng.choice(len(pairs), n_min, replace=False) for _ in range(trials)]
+    for sub in subsets:
+        M = _fit_A([epi[pairs[s]] for s in sub], np.array([coords[pairs[s]] for s in sub]), scale)
+        score = 0
+        for p in raw:
+            e = M @ coords[p]
+            score += int(max(_support(e, *xy[p], threshold_px).sum(), _support(-e, *xy[p], threshold_px).sum()))
+        if score > best:
+            best, best_M = score, M
+    consistent = [p for p in pairs if _agrees(best_M @ coords[p], epi[p], *xy[p], found[p][1], threshold_px)]
+    if len(consistent) >= n_min:
+        best_M = _fit_A([epi[p] for p in consistent], np.array([coords[p] for p in consistent]), scale)
+    replaced = []
+    for p in raw:
+        if p in consistent:
+            continue
+        e = best_M @ coords[p]
+        e = e / np.linalg.norm(e)
+        inl_pos, inl_neg = _support(e, *xy[p], threshold_px), _support(-e, *xy[p], threshold_px)
+        e, inl = (e, inl_pos) if inl_pos.sum() >= inl_neg.sum() else (-e, inl_neg)
+        if inl.sum() >= 4:
+            epi[p], found[p] = e, (e, inl)
+            replaced.append(p)
+    return epi, found, replaced
+
+
+def _agrees(e_pred, e, x, y, inliers, thr, min_fraction=0.8):
+    """The pair's own RANSAC inliers are (mostly) explained by the predicted epipole."""
+    if inliers.sum() == 0:
+        return False
+    e_pred = e_pred / np.linalg.norm(e_pred)
+    s = max(_support(e_pred, x[inliers], y[inliers], thr).mean(), _support(-e_pred, x[inliers], y[inliers], thr).mean())
+    return s >= min_fraction
 
 
 def _union_find(E, node_view, n_nodes):
