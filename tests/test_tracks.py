@@ -251,7 +251,7 @@ def test_track_sessions_links_two_orientations():
     Q = Rotation.from_rotvec(np.deg2rad(15) * ax).as_matrix()
     a = render.render(r.surfaces, r.K, r.R, r.T[:4], r.image_size, supersample=1, noise_std=1.0, rng=0)
     b = render.render(r.surfaces, r.K, Q @ r.R, r.T[4:], r.image_size, supersample=1, noise_std=1.0, rng=1)
-    tr = tracks.track_sessions(np.concatenate([a, b]), ["up"] * 4 + ["turned"] * 4)
+    tr = tracks.track_sessions(np.concatenate([a, b]), ["up"] * 4 + ["turned"] * 4, T=r.T)
     assert tr.uv.shape[0] == 8 and tr.info["links"]["up-turned"] >= 100
     in_a, in_b = (np.isfinite(tr.uv[v, :, 0]).any(0) for v in (slice(0, 4), slice(4, 8)))
     both = in_a & in_b

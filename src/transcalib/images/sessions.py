@@ -27,7 +27,7 @@ __all__ = ["track_sessions"]
 
 
 def track_sessions(images, session_of_view, *, link_ratio: float = 0.8, link_threshold_px: float = 1.5,
-                   snap_px: float = 1.5, min_links: int = 8, rng=0, **track_options) -> Tracks:
+                   snap_px: float = 1.5, min_links: int = 8, T=None, rng=0, **track_options) -> Tracks:
     """Track views taken in several sessions (orientations) and link the sessions.
 
     Parameters
@@ -46,6 +46,9 @@ def track_sessions(images, session_of_view, *, link_ratio: float = 0.8, link_thr
     min_links : int
         A session pair with fewer verified links is not linked (its points stay apart);
         if no pair links, :class:`DegenerateError`.
+    T : (n_views, 3) float, optional
+        Robot translations of all views; each session's rows go to its tracker
+        (``track(..., T=)``: epipoles checked against the known translations).
     rng : seed or Generator
         For the pure-translation tracker of each session.
     **track_options
@@ -71,10 +74,15 @@ def track_sessions(images, session_of_view, *, link_ratio: float = 0.8, link_thr
     t0 = time.perf_counter()
     grey, rgb, names = load_images(images)
     labels, groups = _sessions(session_of_view, len(grey))
+    if T is not None:
+        T = np.asarray(T, float)
+        if T.shape != (len(grey), 3):
+            raise InputError(f"track_sessions: T must be ({len(grey)}, 3), got {T.shape}")
     per = []
     for s, views in enumerate(groups):
         try:
-            per.append(track([grey[v] for v in views], rng=rng, **track_options))
+            T_s = None if T is None else T[views]
+            per.append(track([grey[v] for v in views], T=T_s, rng=rng, **track_options))
         except DegenerateError as exc:
             raise DegenerateError(f"session {labels[s]!r} (views {views}): {exc}") from exc
     feats = [_sift(grey[views[0]]) for views in groups]
