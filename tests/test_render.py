@@ -80,3 +80,80 @@ def test_noise_gain_and_blur_options():
     assert 1.5 < np.std(b[0] - a[0]) < 2.5
     c = render.render([sf], K, np.eye(3), T[:1], (80, 60), dtype="float", blur_sigma=2.0)
     assert np.abs(np.diff(c[0], axis=1)).max() < np.abs(np.diff(a[0], axis=1)).max()
+
+
+# --------------------------------------------------------------------------- degradations
+from transcalib.errors import InputError  # noqa: E402
+from transcalib.synth.degrade import REALISTIC, Degradations  # noqa: E402
+
+
+def _flat(opt, n=3, size=(120, 90), value=0.5, rng=0):
+    """Views of a uniform grey plane filling the image, degraded by ``opt``."""
+    sf = render.plane([0, 0, 100.0], np.eye(3), (1e4, 1e4), render.Constant(value))
+    K = K_from_params(100.0, 100.0, size[0] / 2 - 0.5, size[1] / 2 - 0.5)
+    return render.render([sf], K, np.eye(3), np.zeros((n, 3)), size, supersample=1, degrade=opt, rng=rng,
+                         return_effects=True)
+
+
+def test_vignetting_exposure_and_noise_follow_their_models():
+    img, _ = _flat(Degradations(vignetting=0.4), n=1)
+    centre, corner = img[0, 44:46, 59:61].mean(), img[0, 0, 0]
+    assert centre == pytest.approx(0.5 * 255, abs=0.6) and corner == pytest.approx(0.6 * 0.5 * 255, abs=0.6)
+    img, eff = _flat(Degradations(exposure=0.3), n=4)
+    assert np.allclose(img.mean(axis=(1, 2)), np.clip(np.rint(0.5 * 255 * eff.gain), 0, 255), atol=0.01)
+    assert np.ptp(eff.gain) > 0 and np.all(np.abs(eff.gain - 1) <= 0.3)
+    # shot + read noise: variance I * 255 / full_well + read^2 (grey levels), within 10 %
+    img, _ = _flat(Degradations(full_well_e=1000.0, read_noise_dn=2.0), n=2, size=(200, 150))
+    expected = 0.5 * 255 * 255 / 1000.0 + 4.0
+    assert np.var(img.astype(float)) == pytest.approx(expected + 1 / 12, rel=0.1)
+
+
+def test_overlay_is_static_and_specular_moves_with_the_camera():
+    sf, _ = render.checker_board([0, 0, 100.0], np.eye(3), 10.0, 8, 8)
+    K = K_from_params(200.0, 200.0, 80.0, 60.0)
+    T = np.array([[0, 0, 0], [5.0, 0, 0], [0, 5.0, 0]])
+    opt = Degradations(overlay="CAM 1 {view:02d}", overlay_scale=0.5)
+    img = render.render([sf], K, np.eye(3), T, (160, 120), degrade=opt)
+    from transcalib.synth.degrade import overlay_box
+    u0, v0, u1, v1 = overlay_box(opt, (160, 120))
+    white = img[:, v0:v1, u0:u1] == 255
+    assert white[0].sum() > 20 and (white[0] & white[1]).sum() > 0.6 * white[0].sum()  # same pixels
+    img, eff = _flat(Degradations(specular=0.4, specular_sigma_px=5.0, specular_drift_px=20.0), n=3)
+    peaks = np.array([np.unravel_index(np.argmax(v), v.shape)[::-1] for v in img], float)
+    assert np.allclose(peaks, eff.specular_uv, atol=1.0)
+    assert np.ptp(eff.specular_uv, axis=0).max() > 2.0  # it moves, though the camera does not
+
+
+def test_jpeg_and_truth_unchanged():
+    r0 = render.render_scene("natural", n_views=2, image_size=(160, 120), noise_std=0.0, supersample=1, rng=4)
+    r1 = render.render_scene("natural", n_views=2, image_size=(160, 120), noise_std=0.0, supersample=1, rng=4,
+                             degrade=REALISTIC)
+    assert np.array_equal(r0.K, r1.K) and np.array_equal(r0.T, r1.T) and np.array_equal(r0.R, r1.R)
+    d = np.abs(r0.images.astype(float) - r1.images)
+    assert 2.0 < d.mean() < 60.0
+    j = render.render_scene("natural", n_views=1, image_size=(160, 120), noise_std=0.0, supersample=1, rng=4,
+                            degrade=Degradations(jpeg_quality=30))
+    e = np.abs(j.images[0].astype(float) - r0.images[0])
+    assert 0.3 < e.mean() < 8.0  # lossy, but the same picture
+    assert set(r1.meta["degrade"]) == {"vignetting", "exposure", "full_well_e", "read_noise_dn", "jpeg_quality",
+                                       "specular", "overlay"}
+
+
+def test_bad_degradation_options_raise():
+    with pytest.raises(InputError, match="vignetting"):
+        Degradations(vignetting=1.5)
+    with pytest.raises(InputError, match="jpeg_quality"):
+        Degradations(jpeg_quality=0)
+    with pytest.raises(InputError, match="uint8"):
+        render.render([], np.eye(3), np.eye(3), np.zeros((1, 3)), (20, 20), dtype="float",
+                      degrade=Degradations(vignetting=0.1))
+
+
+def test_repetitive_scene_has_identical_tiles():
+    r = render.render_scene("repetitive", n_views=1, image_size=(320, 240), noise_std=0.0, supersample=1, rng=0)
+    wall = r.surfaces[0]
+    tex = wall.texture
+    s = np.linspace(0.1, 0.5, 50) * tex.period
+    a = tex(s, s, 0 * s, 0 * s)
+    b = tex(s + 3 * tex.period, s - 2 * tex.period, 0 * s, 0 * s)
+    assert np.allclose(a, b, atol=1e-5) and np.ptp(a) > 0.1

@@ -13,17 +13,20 @@ from dataclasses import replace
 import numpy as np
 
 from ..types import DegenerateError, InputError
-from .features import epipole_ransac, track_features
+from .features import RotatedViewsError, epipole_ransac, track_features
 from .frames import Tracks, load_images
+from .sessions import track_sessions
 from .target import track_squares
 
-__all__ = ["Tracks", "track", "track_squares", "load_images", "epipole_ransac"]
+__all__ = ["Tracks", "track", "track_squares", "load_images", "epipole_ransac", "RotatedViewsError",
+           "track_sessions"]
 
 
 def track(
     images,
     *,
     method: str = "auto",
+    T=None,
     target: str | None = None,
     max_features: int = 2000,
     max_corners: int = 2000,
@@ -47,6 +50,11 @@ def track(
     ----------
     images : sequence of path or array, or array (n_views, h, w[, 3])
         The views, in order (the order of the robot poses). Arrays: grey or RGB.
+    T : (n_views, 3) float, optional
+        The robot translations, if known. Every epipole is then ``e_ij ~ A (T_j - T_i)``
+        for one ``A = K R``: pairs whose epipole disagrees with the others' (a repetitive
+        texture can make a wrong epipole win, consistently for all pairs of one view)
+        get the predicted one (``info["pairs_set_by_translations"]``). Recommended.
     method : {"auto", "sift", "corners"}
         Features: ``"sift"`` descriptors only, ``"corners"`` Shi-Tomasi corners matched
         through the epipoles (epipoles still come from SIFT), ``"auto"`` both - and when
@@ -108,13 +116,15 @@ def track(
                    corner_quality=corner_quality, ratio=ratio, threshold_px=threshold_px, refine=refine,
                    window_radius=window_radius, min_ncc=min_ncc, final_threshold_px=final_threshold_px,
                    smooth_px=smooth_px, min_views=min_views, min_tracks=min_tracks, max_tracks=max_tracks,
-                   progress=progress, rng=rng)
+                   progress=progress, rng=rng, T=_check_T(T, images))
     if method != "auto":
         return track_features(images, **options)
     # auto: features; a scene that is only a board of dark squares (too little texture)
     # falls back to the target mode when that tracks more points through 3+ views
     try:
         tracks, failure = track_features(images, **options), None
+    except RotatedViewsError:
+        raise  # the target mode would track the corners, but the views are not pure translations
     except DegenerateError as exc:
         tracks, failure = None, exc
     n_features = 0 if tracks is None else _n_long(tracks.uv)
@@ -137,3 +147,13 @@ AUTO_MIN_LONG_TRACKS = 30
 def _n_long(uv: np.ndarray) -> int:
     """Number of tracks seen in at least 3 views."""
     return int((np.isfinite(uv[..., 0]).sum(axis=0) >= 3).sum())
+
+def _check_T(T, images):
+    """``T`` as ``(n_views, 3)`` float, or None; :class:`InputError` if malformed."""
+    if T is None:
+        return None
+    T = np.asarray(T, float)
+    n = len(images)
+    if T.shape != (n, 3) or not np.all(np.isfinite(T)):
+        raise InputError(f"track: T must be finite (n_views, 3) = ({n}, 3) robot translations, got shape {T.shape}")
+    return T

@@ -53,7 +53,12 @@ from scipy.spatial import cKDTree
 from ..types import DegenerateError, InputError
 from .frames import Tracks, _progress_fn, load_images
 
-__all__ = ["track_features", "epipole_ransac"]
+__all__ = ["track_features", "epipole_ransac", "RotatedViewsError"]
+
+
+class RotatedViewsError(DegenerateError):
+    """Some view pairs were taken with a rotation between them: the pure-translation
+    tracker cannot track them (a :class:`DegenerateError`; the message names the pairs)."""
 
 log = logging.getLogger("transcalib.tracks")
 
@@ -301,12 +306,14 @@ def _local_rho_linear(seeds_x, seeds_rho, query, k=10, keep=0.7):
     A = np.concatenate([np.ones(d.shape[:2] + (1,)), d / scale], axis=-1)
     y = seeds_rho[nn]
     reg = 1e-6 * np.eye(3)
+    n_nb = np.maximum((w > 0).sum(1), 1)  # neighbours actually there (few seeds: fewer than k)
+    rank = np.clip(np.maximum(3, (keep * np.minimum(n_nb, k)).astype(int)) - 1, 0, kk - 1)
     for _ in range(2):
         Aw = A * w[..., None]
         coef = np.linalg.solve(np.einsum("nka,nkb->nab", Aw, A) + reg, np.einsum("nka,nk->na", Aw, y)[..., None])[..., 0]
         r = np.abs(np.einsum("nka,na->nk", A, coef) - y)
         r = np.where(w > 0, r, np.inf)
-        cut = np.sort(r, axis=1)[:, max(2, int(keep * k)) - 1][:, None]
+        cut = np.take_along_axis(np.sort(r, axis=1), rank[:, None], axis=1)
         w = w * (r <= cut)
     return coef[:, 0]
 
@@ -479,70 +486,156 @@ def _wncc(I, T, w):
 
 
 # --------------------------------------------------------------------------- main
+#: A view pair whose matches a general fundamental matrix explains (at least this
+#: fraction of the matches, ``ROTATION_MIN_F_FRACTION``) far better than a pure
+#: translation (fewer than ``ROTATION_MAX_E_RATIO`` of the F-inliers) was taken with a
+#: rotation between the views. Measured (5-view renders, 640 x 480): pure translations,
+#: also with lens distortion, JPEG and noise, give ratios >= 0.97; repetitive textures
+#: give low ratios but F then explains < 75 % of the matches; 10-20 deg rotations give
+#: 0.3-0.9 with F explaining > 98 %.
+ROTATION_MIN_F_FRACTION = 0.85
+ROTATION_MAX_E_RATIO = 0.85
+#: A track moving less than this (px) in every view while the median track of the same
+#: view pairs moves ``STATIC_MIN_MEDIAN_FACTOR`` times more is static (a burnt-in
+#: overlay, dust on the lens, a point at infinity): it carries no information on K.
+STATIC_PX = 1.0
+STATIC_MIN_MEDIAN_FACTOR = 10.0
+
+
+@dataclass
+class _Nodes:
+    """All features of all views numbered consecutively: per view SIFT then corners."""
+
+    offsets: list
+    view: np.ndarray  # (n_nodes,) view of each node
+    pos: np.ndarray  # (n_nodes, 2) pixel of each node
+    is_corner: np.ndarray  # (n_nodes,) bool
+
+    @classmethod
+    def of(cls, feats):
+        offsets, pos, kind, off = [], [], [], 0
+        for f in feats:
+            offsets.append(off)
+            pos.append(np.vstack([f["sift"], f["corners"]]))
+            kind.append(np.r_[np.zeros(len(f["sift"]), bool), np.ones(len(f["corners"]), bool)])
+            off += len(f["sift"]) + len(f["corners"])
+        view = np.concatenate([np.full(len(p), i) for i, p in enumerate(pos)]).astype(int)
+        return cls(offsets, view, np.vstack(pos) if off else np.zeros((0, 2)), np.concatenate(kind))
+
+
+class _Timer:
+    """``with timer("stage"):`` adds the stage's wall time to ``times[stage]``."""
+
+    def __init__(self):
+        self.times = {}
+
+    def __call__(self, stage):
+        self._stage = stage
+        return self
+
+    def __enter__(self):
+        self._t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.times[self._stage] = self.times.get(self._stage, 0.0) + time.perf_counter() - self._t0
+
+
 def track_features(images, *, method, max_features, max_corners, corner_quality, ratio, threshold_px, refine,
                     window_radius, min_ncc, final_threshold_px, smooth_px, min_views, min_tracks, max_tracks,
-                    progress, rng) -> Tracks:
+                    progress, rng, static_px=STATIC_PX, T=None) -> Tracks:
     """Feature tracking (the body of :func:`track`; options as there)."""
     rng = np.random.default_rng(rng)
     report = _progress_fn(progress)
-    times = {}
+    timer = _Timer()
     grey, rgb, names = load_images(images)
-    n = len(grey)
-    h, w = grey[0].shape
+    n, (h, w) = len(grey), grey[0].shape
+    with timer("detect"):
+        feats = _detect_all(grey, method, max_features, max_corners, corner_quality)
+        report("detect", n, n)
+    nodes = _Nodes.of(feats)
+    with timer("match"):
+        raw = _match_all(feats, ratio, report)
+    with timer("verify"):
+        epi, found, repaired, bad_pairs = _verify_pairs(feats, raw, n, threshold_px, rng, report)
+        _check_pure_translation(feats, raw, found, threshold_px)
+        replaced = []
+        if T is not None:
+            epi, found, replaced = _enforce_translations(epi, found, feats, raw, T, threshold_px, w, h, rng)
+        edges, scores, n_verified = _pair_edges(feats, raw, epi, found, nodes, method, threshold_px)
+    with timer("chain"):
+        uv, n_conflicts, counts = _chain(edges, scores, nodes, n, n_verified, max_tracks, w, h)
+        report("chain", 1, 1)
+    with timer("refine"):
+        if refine and uv.shape[1]:
+            uv = _refine(grey, uv, epi, window_radius, min_ncc, report)
+    with timer("final"):
+        thr = final_threshold_px if refine else threshold_px
+        uv, epi_final, n_static = _final_checks(uv, epi, n, thr, smooth_px, static_px, rng, counts)
+        uv = _keep_tracks(uv, min_views, max_tracks, w, h)
+    if uv.shape[1] < min_tracks:
+        raise DegenerateError(_too_few_msg(uv.shape[1], n_verified, min_tracks))
+    info = {
+        "time_s": timer.times,
+        "n_matches_raw": {f"{i}-{j}": int(len(v)) for (i, j), v in raw.items()},
+        "n_matches_verified": {f"{i}-{j}": v for (i, j), v in n_verified.items()},
+        "epipoles": {f"{i}-{j}": e.tolist() for (i, j), e in epi_final.items()},
+        "n_conflicts_dropped": n_conflicts,
+        "n_observations": counts,
+        "n_static_dropped": n_static,
+        "inconsistent_pairs": [f"{i}-{j}" for i, j in bad_pairs],
+        "repaired_pairs": [f"{i}-{j}" for i, j in repaired],
+        "pairs_set_by_translations": [f"{i}-{j}" for i, j in replaced],
+    }
+    return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
 
-    t0 = time.perf_counter()
-    feats = _detect(grey, max_features, max_corners if method != "sift" else 0, corner_quality) \
-        if method != "sift" else _detect(grey, max_features, 1, corner_quality)
+
+def _detect_all(grey, method, max_features, max_corners, corner_quality):
+    """Stage 1: SIFT (+ corners unless ``method == "sift"``) of every view."""
+    feats = _detect(grey, max_features, 1 if method == "sift" else max_corners, corner_quality)
     if method == "sift":
         for f in feats:
             f["corners"] = np.zeros((0, 2))
-    report("detect", n, n)
-    times["detect"] = time.perf_counter() - t0
+    return feats
 
-    # node numbering: per view, SIFT keypoints then corners
-    offsets, pos, kind = [], [], []
-    off = 0
-    for f in feats:
-        offsets.append(off)
-        pos.append(np.vstack([f["sift"], f["corners"]]))
-        kind.append(np.r_[np.zeros(len(f["sift"]), int), np.ones(len(f["corners"]), int)])
-        off += len(f["sift"]) + len(f["corners"])
-    n_nodes = off
-    node_view = np.concatenate([np.full(len(p), i) for i, p in enumerate(pos)]).astype(int)
-    node_pos = np.vstack(pos) if n_nodes else np.zeros((0, 2))
 
-    t0 = time.perf_counter()
+def _match_all(feats, ratio, report):
+    """Stage 2: SIFT matches ``{(i, j): (k, 2) index pairs}`` of every view pair ``i < j``."""
+    n = len(feats)
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     raw = {}
     for k, (i, j) in enumerate(pairs):
         raw[(i, j)] = _match_pair(feats[i]["desc"], feats[j]["desc"], ratio)
         report("match", k + 1, len(pairs))
-    times["match"] = time.perf_counter() - t0
+    return raw
 
-    t0 = time.perf_counter()
-    edges, scores = [], []
-    n_verified = {}
+
+def _matched_xy(feats, raw, i, j):
+    m = raw[(i, j)]
+    return feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
+
+
+def _verify_pairs(feats, raw, n, threshold_px, rng, report):
+    """Stage 3a: epipole of every pair (2-point RANSAC), then the pairs inconsistent
+    with the others (``e_ik`` on the line ``e_ij e_jk``) re-estimated on that line.
+
+    Returns ``epi {(i, j): e}``, ``found {(i, j): (e or None, inliers)}``, the repaired
+    pairs and the pairs whose epipole could not be trusted.
+    """
     found = {}
-    for k, (i, j) in enumerate(pairs):
-        m = raw[(i, j)]
-        xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
+    for k, (i, j) in enumerate(raw):
+        xi, xj = _matched_xy(feats, raw, i, j)
         e, inl, _ = epipole_ransac(xi, xj, threshold_px=threshold_px, rng=rng, detrend=True)
         found[(i, j)] = (e, inl)
-        if e is None and len(m) and np.median(np.linalg.norm(xj - xi, axis=1)) < 0.5:
-            edges.append(np.column_stack([offsets[i] + m[:, 0], offsets[j] + m[:, 1]]))  # no motion
-            scores.append(np.linalg.norm(xj - xi, axis=1))
-        report("verify", k + 1, len(pairs))
+        report("verify", k + 1, len(raw))
     epi = {p: e for p, (e, inl) in found.items() if e is not None and inl.sum() >= 8}
-    # all epipoles must be consistent: e_ik on the line e_ij e_jk; repair the odd ones
-    # (repetitive textures can make a wrong epipole win a pair's RANSAC)
+    # repetitive textures can make a wrong epipole win a pair's RANSAC: repair the odd ones
     bad_pairs = _inconsistent_pairs(epi, n)
     good = {p: e for p, e in epi.items() if p not in bad_pairs}
     repaired = []
-    for (i, j) in pairs:
+    for (i, j) in raw:
         if (i, j) in good:
             continue
-        m = raw[(i, j)]
-        xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
+        xi, xj = _matched_xy(feats, raw, i, j)
         e, inl = _repair_pair(i, j, good, xi, xj, threshold_px)
         epi.pop((i, j), None)
         if e is not None and inl.sum() >= 4:
@@ -551,85 +644,222 @@ def track_features(images, *, method, max_features, max_corners, corner_quality,
             repaired.append((i, j))
     if bad_pairs:
         log.info("view pairs with inconsistent epipoles: %s; repaired: %s", bad_pairs, repaired)
-    for (i, j) in pairs:
+    bad_pairs = [p for p in raw if p not in epi and found[p][0] is not None]
+    return epi, found, repaired, bad_pairs
+
+
+def _check_pure_translation(feats, raw, found, threshold_px, min_matches=50):
+    """Stage 3b: raise :class:`DegenerateError` when some view pair was taken with a
+    rotation: a general fundamental matrix (``cv2.USAC_MAGSAC``) explains almost all of
+    its matches, a pure translation (``F = [e]x``) clearly fewer."""
+    rotated = []
+    for (i, j), (e, inl) in found.items():
+        xi, xj = _matched_xy(feats, raw, i, j)
+        if len(xi) < min_matches or np.median(np.linalg.norm(xj - xi, axis=1)) < 2.0:
+            continue
+        F, mask = cv2.findFundamentalMat(xi.astype(np.float64), xj.astype(np.float64), cv2.USAC_MAGSAC,
+                                         threshold_px, 0.999, 2000)
+        n_f = 0 if mask is None or F is None else int(mask.sum())
+        n_e = int(inl.sum()) if e is not None else 0
+        if n_f >= max(min_matches, ROTATION_MIN_F_FRACTION * len(xi)) and n_e < ROTATION_MAX_E_RATIO * n_f:
+            rotated.append(f"{i}-{j} (general epipolar geometry: {n_f} of {len(xi)} matches, "
+                           f"pure translation: {n_e})")
+    if rotated:
+        raise RotatedViewsError(
+            "the views are not related by pure translations: the camera rotated between views "
+            + "; ".join(rotated[:6]) + ("; ..." if len(rotated) > 6 else "")
+            + ". The pure-translation tracker needs one camera orientation for all views. If the robot turned "
+            "the wrist between groups of views, track each group (session) alone, or use "
+            "transcalib.images.track_sessions(images, session_of_view); otherwise check that the robot "
+            "did not rotate")
+
+
+def _pair_edges(feats, raw, epi, found, nodes, method, threshold_px):
+    """Stage 3c: verified SIFT matches and epipole-guided corner matches of every pair
+    as node edges, each with its epipolar distance as a score (smaller is better)."""
+    edges, scores, n_verified = [], [], {}
+    for (i, j) in raw:
+        xi, xj = _matched_xy(feats, raw, i, j)
+        e, inl = found[(i, j)]
+        if e is None and len(xi) and np.median(np.linalg.norm(xj - xi, axis=1)) < 0.5:
+            m = raw[(i, j)]  # no motion between these views: keep the matches as they are
+            edges.append(np.column_stack([nodes.offsets[i] + m[:, 0], nodes.offsets[j] + m[:, 1]]))
+            scores.append(np.linalg.norm(xj - xi, axis=1))
         if (i, j) not in epi:
             n_verified[(i, j)] = 0
             continue
-        e, inl = found[(i, j)]
-        m = raw[(i, j)]
-        xi, xj = feats[i]["sift"][m[:, 0]], feats[j]["sift"][m[:, 1]]
         n_verified[(i, j)] = int(inl.sum())
-        mi = m[inl]
-        edges.append(np.column_stack([offsets[i] + mi[:, 0], offsets[j] + mi[:, 1]]))
+        mi = raw[(i, j)][inl]
+        edges.append(np.column_stack([nodes.offsets[i] + mi[:, 0], nodes.offsets[j] + mi[:, 1]]))
         scores.append(_epi_residual(e, xi[inl], xj[inl])[0])
         if method != "sift":
-            cp = _guided_corners(feats[i]["corners"], feats[j]["corners"], e, xi[inl], xj[inl], threshold_px)
+            ci, cj = feats[i]["corners"], feats[j]["corners"]
+            cp = _guided_corners(ci, cj, e, xi[inl], xj[inl], threshold_px)
             ns_i, ns_j = len(feats[i]["sift"]), len(feats[j]["sift"])
-            edges.append(np.column_stack([offsets[i] + ns_i + cp[:, 0], offsets[j] + ns_j + cp[:, 1]]))
-            scores.append(_epi_residual(e, feats[i]["corners"][cp[:, 0]], feats[j]["corners"][cp[:, 1]])[0])
-    bad_pairs = [p for p in pairs if p not in epi and found[p][0] is not None]
-    times["verify"] = time.perf_counter() - t0
+            edges.append(np.column_stack([nodes.offsets[i] + ns_i + cp[:, 0], nodes.offsets[j] + ns_j + cp[:, 1]]))
+            scores.append(_epi_residual(e, ci[cp[:, 0]], cj[cp[:, 1]])[0])
+    return edges, scores, n_verified
 
-    # chain: union-find over verified matches
-    t0 = time.perf_counter()
+
+def _chain(edges, scores, nodes, n, n_verified, max_tracks, w, h):
+    """Stage 4: union-find over the edges, best first -> ``uv (n, n_tracks, 2)``."""
     E = np.vstack(edges) if edges else np.zeros((0, 2), int)
     score = np.concatenate(scores) if scores else np.zeros(0)
     if len(E) == 0:
         raise DegenerateError(_too_few_msg(0, n_verified))
-    label, n_conflicts = _union_find(E[np.argsort(score, kind="stable")], node_view, n_nodes)
+    label, n_conflicts = _union_find(E[np.argsort(score, kind="stable")], nodes.view, len(nodes.view))
     used = np.flatnonzero(label >= 0)
     comp, comp_idx = np.unique(label[used], return_inverse=True)
-    views = node_view[used]
     uv = np.full((n, len(comp), 2), np.nan)
-    is_corner = np.zeros(len(comp), bool)
-    uv[views, comp_idx] = node_pos[used]
-    is_corner[comp_idx[np.concatenate(kind)[used] == 1]] = True
-    nseen = np.isfinite(uv[..., 0]).sum(0)
-    uv = uv[:, nseen >= 2]
-    is_corner = is_corner[nseen >= 2]
+    uv[nodes.view[used], comp_idx] = nodes.pos[used]
+    uv = uv[:, np.isfinite(uv[..., 0]).sum(0) >= 2]
     counts = {"chained": _n_obs(uv)}
     if max_tracks is not None and uv.shape[1] > int(1.3 * max_tracks):
-        keep = _select_spread(uv, int(1.3 * max_tracks), w, h, return_index=True)
-        uv, is_corner = uv[:, keep], is_corner[keep]
-    times["chain"] = time.perf_counter() - t0
-    report("chain", 1, 1)
+        uv = uv[:, _select_spread(uv, int(1.3 * max_tracks), w, h, return_index=True)]
+    return uv, n_conflicts, counts
 
-    # sub-pixel refinement against each track's reference (first) view
-    t0 = time.perf_counter()
-    if refine and uv.shape[1]:
-        uv = _refine(grey, uv, epi, window_radius, min_ncc, report)
-    times["refine"] = time.perf_counter() - t0
 
-    # final check with epipoles re-estimated from the refined points
-    t0 = time.perf_counter()
+def _final_checks(uv, epi, n, thr, smooth_px, static_px, rng, counts):
+    """Stage 6: depth smoothness, epipoles re-estimated from the refined points,
+    multi-view depth consistency, static tracks. Fills ``counts`` (observations left
+    after each check); returns ``uv``, the final epipoles and the number of static
+    tracks dropped."""
     counts["refined"] = _n_obs(uv)
     uv = _smoothness_check(uv, epi, smooth_px)
     counts["smooth"] = _n_obs(uv)
-    uv, epi_final = _final_check(uv, n, final_threshold_px if refine else threshold_px, rng)
+    uv, epi_final = _final_check(uv, n, thr, rng)
     counts["epipolar"] = _n_obs(uv)
-    uv = _multiview_check(uv, epi_final, 3.0 * (final_threshold_px if refine else threshold_px))
+    uv = _multiview_check(uv, epi_final, 3.0 * thr)
     counts["multiview"] = _n_obs(uv)
+    uv, n_static = _drop_static(uv, static_px)
+    counts["static"] = _n_obs(uv)
+    return uv, epi_final, n_static
+
+
+def _drop_static(uv, static_px=STATIC_PX, factor=STATIC_MIN_MEDIAN_FACTOR):
+    """Drop tracks that do not move while the epipolar geometry says they should.
+
+    A static point (a burnt-in timestamp, dust on the lens) is consistent with every
+    epipole (``rho = 0``), so the epipolar tests pass it. Under pure translation only a
+    point at infinity stays put, and such a point carries no information on K. A track
+    is dropped when its largest displacement from its reference view is below
+    ``static_px`` while the median displacement of all tracks between the same views is
+    at least ``factor * static_px``.
+
+    Returns the kept ``uv`` and the number of tracks dropped.
+    """
+    n_views, n_pts = uv.shape[:2]
+    if n_pts == 0:
+        return uv, 0
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    disp = np.linalg.norm(uv - uv[ref, np.arange(n_pts)][None], axis=-1)  # (n_views, n_pts), NaN unseen
+    expected = np.zeros(n_pts)
+    for r in range(n_views):
+        mine = ref == r
+        for j in range(n_views):
+            both = mine & seen[j]
+            if j != r and both.sum() >= 5:  # median motion of the pair r -> j
+                expected[both] = np.maximum(expected[both], np.median(disp[j, both]))
+    moved = np.max(np.where(seen, disp, 0.0), axis=0)
+    static = (moved < static_px) & (expected >= factor * static_px)
+    return uv[:, ~static], int(static.sum())
+
+
+def _keep_tracks(uv, min_views, max_tracks, w, h):
+    """Deduplicate, keep tracks seen in ``min_views``+ views, at most ``max_tracks``."""
     uv = _dedupe(uv, w, h)
-    nseen = np.isfinite(uv[..., 0]).sum(0)
-    uv = uv[:, nseen >= min_views]
+    uv = uv[:, np.isfinite(uv[..., 0]).sum(0) >= min_views]
     if max_tracks is not None and uv.shape[1] > max_tracks:
         uv = _select_spread(uv, max_tracks, w, h)
-    times["final"] = time.perf_counter() - t0
-    n_pts = uv.shape[1]
-    if n_pts < min_tracks:
-        raise DegenerateError(_too_few_msg(n_pts, n_verified, min_tracks))
-    colors = _colors(rgb, uv)
-    info = {
-        "time_s": times,
-        "n_matches_raw": {f"{i}-{j}": int(len(v)) for (i, j), v in raw.items()},
-        "n_matches_verified": {f"{i}-{j}": v for (i, j), v in n_verified.items()},
-        "epipoles": {f"{i}-{j}": e.tolist() for (i, j), e in epi_final.items()},
-        "n_conflicts_dropped": n_conflicts,
-        "n_observations": counts,
-        "inconsistent_pairs": [f"{i}-{j}" for i, j in bad_pairs],
-        "repaired_pairs": [f"{i}-{j}" for i, j in repaired],
-    }
-    return Tracks(uv=uv, ids=np.arange(n_pts), colors=colors, view_names=names, info=info)
+    return uv
+
+
+# --------------------------------------------------------------------------- known translations
+def _span_basis(T, tol=1e-3):
+    """Orthonormal basis ``(3, k)`` of the span of the relative translations ``T - T_0``."""
+    D = np.asarray(T, float) - np.asarray(T, float)[0]
+    if len(D) < 2 or not np.any(D):
+        return np.zeros((3, 0))
+    _, s, Vt = np.linalg.svd(D, full_matrices=False)
+    return Vt[: int(np.sum(s > tol * s[0]))].T
+
+
+def _fit_A(epi_list, t_list, scale):
+    """Least-squares ``M`` (3, k) with ``e_p x (M b_p) = 0`` for normalised epipoles
+    ``e_p`` and translation coordinates ``b_p``: DLT, right singular vector."""
+    k = t_list.shape[1]
+    Hn = np.array([1.0 / scale, 1.0 / scale, 1.0])
+    rows = []
+    for e, b in zip(epi_list, t_list):
+        en = e * Hn
+        en = en / np.linalg.norm(en)
+        ex = np.array([[0, -en[2], en[1]], [en[2], 0, -en[0]], [-en[1], en[0], 0]])
+        rows.append(ex @ np.kron(np.eye(3), b[None]))  # M b = (I3 kron b^T) vec_row(M)
+    M = np.linalg.svd(np.vstack(rows))[2][-1].reshape(3, k)
+    return M / Hn[:, None]  # back to pixels: e = Hn^-1 M_n b
+
+
+def _support(e, x, y, thr):
+    """Matches ``x -> y`` consistent with the epipole ``e``: on its line, positive rho."""
+    dist, rho = _epi_residual(e, x, y)
+    moving = np.linalg.norm(y - x, axis=1) >= 0.5
+    return (dist < thr) & ((rho > 0) | ~moving)
+
+
+def _enforce_translations(epi, found, feats, raw, T, threshold_px, w, h, rng, trials=200):
+    """Known robot translations: every epipole is ``e_ij ~ A (T_j - T_i)`` with one
+    ``A = K R``. Fit ``A`` (restricted to the span of the translations) robustly to
+    the pairs' epipoles, scoring a hypothesis by the matches of **all** pairs that its
+    predicted epipoles explain; pairs whose own epipole disagrees (a repetitive texture
+    can make a wrong epipole win a pair, consistently for one view, which the triplet
+    test cannot see) get the predicted epipole and its inliers.
+
+    Returns the updated ``epi`` and ``found`` and the pairs replaced.
+    """
+    B = _span_basis(T)
+    k = B.shape[1]
+    pairs = sorted(epi)
+    if k < 2 or len(pairs) < k + 2:
+        return epi, found, []
+    coords = {p: B.T @ (np.asarray(T[p[1]], float) - T[p[0]]) for p in raw}
+    scale = float(max(w, h))
+    xy = {p: _matched_xy(feats, raw, *p) for p in raw}
+    n_min = int(np.ceil((3 * k - 1) / 2))
+    best, best_M = -1, None
+    subsets = [rng.choice(len(pairs), n_min, replace=False) for _ in range(trials)]
+    for sub in subsets:
+        M = _fit_A([epi[pairs[s]] for s in sub], np.array([coords[pairs[s]] for s in sub]), scale)
+        score = 0
+        for p in raw:
+            e = M @ coords[p]
+            score += int(max(_support(e, *xy[p], threshold_px).sum(), _support(-e, *xy[p], threshold_px).sum()))
+        if score > best:
+            best, best_M = score, M
+    consistent = [p for p in pairs if _agrees(best_M @ coords[p], epi[p], *xy[p], found[p][1], threshold_px)]
+    if len(consistent) >= n_min:
+        best_M = _fit_A([epi[p] for p in consistent], np.array([coords[p] for p in consistent]), scale)
+    replaced = []
+    for p in raw:
+        if p in consistent:
+            continue
+        e = best_M @ coords[p]
+        e = e / np.linalg.norm(e)
+        inl_pos, inl_neg = _support(e, *xy[p], threshold_px), _support(-e, *xy[p], threshold_px)
+        e, inl = (e, inl_pos) if inl_pos.sum() >= inl_neg.sum() else (-e, inl_neg)
+        if inl.sum() >= 4:
+            epi[p], found[p] = e, (e, inl)
+            replaced.append(p)
+    return epi, found, replaced
+
+
+def _agrees(e_pred, e, x, y, inliers, thr, min_fraction=0.8):
+    """The pair's own RANSAC inliers are (mostly) explained by the predicted epipole."""
+    if inliers.sum() == 0:
+        return False
+    e_pred = e_pred / np.linalg.norm(e_pred)
+    s = max(_support(e_pred, x[inliers], y[inliers], thr).mean(), _support(-e_pred, x[inliers], y[inliers], thr).mean())
+    return s >= min_fraction
 
 
 def _union_find(E, node_view, n_nodes):
@@ -802,6 +1032,11 @@ def _pair_epipole(epi, i, j):
     return None
 
 
+#: Largest smooth misfit (px) of the multi-view depth prediction attributed to lens
+#: distortion (k1 = -0.12 at 640 x 480 gives under 2 px); beyond it, a mismatch.
+MAX_TREND_PX = 4.0
+
+
 def _multiview_check(uv, epi, thr_px, passes=3):
     """Depth consistency of tracks seen in 3+ views.
 
@@ -859,7 +1094,11 @@ def _multiview_check(uv, epi, thr_px, passes=3):
                 R = pred - out[j, sel]
                 fin = np.isfinite(R).all(1)
                 if fin.sum() >= 12:  # remove the smooth part (lens distortion), keep isolated misfits
-                    R = R - np.column_stack([_local_rho_linear(xr[fin], R[fin, c], xr, k=10) for c in range(2)])
+                    trend = np.column_stack([_local_rho_linear(xr[fin], R[fin, c], xr, k=10) for c in range(2)])
+                    # lens distortion bends the prediction by a few px; a larger "trend" is a
+                    # region of consistent mismatches (one tile off on a repetitive texture)
+                    tn = np.linalg.norm(trend, axis=1, keepdims=True)
+                    R = R - trend * np.minimum(1.0, MAX_TREND_PX / np.maximum(tn, 1e-12))
                 res[j] = np.where(np.isfinite(q[j]), np.linalg.norm(R, axis=1), 0.0)
             res = np.nan_to_num(res, nan=0.0)
             worst = np.argmax(res, axis=0)

@@ -29,15 +29,19 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..errors import InputError
 from ..geometry.camera import K_from_params, project, undistort
+from .degrade import Degradations, ViewEffects, degrade_view, draw_view_effects, overlay_box
 from .simulate import Scene
-from ..types import InputError
+from .textures import Checker, Constant, Noise, Squares, Tiled, _Framed
 
 __all__ = [
     "Checker",
     "Squares",
     "Noise",
     "Constant",
+    "Tiled",
+    "Degradations",
     "Surface",
     "plane",
     "box",
@@ -49,140 +53,6 @@ __all__ = [
     "robot_translations",
     "SCENE_KINDS",
 ]
-
-
-# --------------------------------------------------------------------------- textures
-def _box_integral_periodic(x: np.ndarray, a: float) -> np.ndarray:
-    """Integral from 0 to x of the square wave that is 1 on [a, 2a) mod 2a, else 0."""
-    period = 2.0 * a
-    k = np.floor(x / period)
-    return a * k + np.clip(x - k * period - a, 0.0, a)
-
-
-def _filtered(F, x: np.ndarray, w: np.ndarray, direct) -> np.ndarray:
-    """Box filter of width ``w`` centred at ``x`` of the function with integral ``F``."""
-    w = np.asarray(w)
-    tiny = w < 1e-9
-    w_safe = np.where(tiny, 1.0, w)
-    out = (F(x + 0.5 * w_safe) - F(x - 0.5 * w_safe)) / w_safe
-    if np.any(tiny):
-        out = np.where(tiny, direct(x), out)
-    return out
-
-
-@dataclass(frozen=True)
-class Checker:
-    """Checkerboard of square cells of side ``cell`` (surface units).
-
-    The cell whose lower corner is the surface origin is ``light``.
-    """
-
-    cell: float
-    dark: float = 0.08
-    light: float = 0.92
-
-    def __call__(self, s, t, ws, wt):
-        a = self.cell
-        F = lambda x: _box_integral_periodic(x, a)  # noqa: E731
-        direct = lambda x: (np.floor(x / a) % 2 == 1).astype(float)  # noqa: E731
-        fs, ft = _filtered(F, s, ws, direct), _filtered(F, t, wt, direct)
-        odd = fs + ft - 2.0 * fs * ft  # box filter of xor, exact since separable
-        return self.light + (self.dark - self.light) * odd
-
-
-@dataclass(frozen=True, eq=False)
-class Squares:
-    """Dark axis-aligned rectangles on a light ground (the paper's target board).
-
-    ``rects`` is ``(n, 4)``: ``s0, t0, s1, t1`` in surface units.
-    """
-
-    rects: np.ndarray
-    dark: float = 0.06
-    light: float = 0.9
-
-    def __call__(self, s, t, ws, wt):
-        cover = np.zeros(np.shape(s))
-        for s0, t0, s1, t1 in np.asarray(self.rects, float):  # few rectangles; vectorised over pixels
-            Fs = lambda x, lo=s0, hi=s1: np.clip(x - lo, 0.0, hi - lo)  # noqa: E731
-            Ft = lambda x, lo=t0, hi=t1: np.clip(x - lo, 0.0, hi - lo)  # noqa: E731
-            ds = lambda x, lo=s0, hi=s1: ((x >= lo) & (x < hi)).astype(float)  # noqa: E731
-            dt = lambda x, lo=t0, hi=t1: ((x >= lo) & (x < hi)).astype(float)  # noqa: E731
-            cover += _filtered(Fs, s, ws, ds) * _filtered(Ft, t, wt, dt)
-        return self.light + (self.dark - self.light) * np.clip(cover, 0.0, 1.0)
-
-
-@dataclass(frozen=True, eq=False)
-class Noise:
-    """Natural-looking texture: multi-scale smoothed Gaussian noise (1/f-like).
-
-    A grid of ``texel``-spaced values covering ``extent`` (surface units), the sum of
-    white noise smoothed at ``texel * 2**k`` for ``k = 0..octaves-1``, then
-    interpolated bicubically. Choose ``texel`` so that it spans at least ~1 pixel in
-    the images (the texture is band-limited at that scale, hence alias-free).
-    """
-
-    texel: float
-    extent: tuple[float, float]
-    seed: int = 0
-    octaves: int = 5
-    mean: float = 0.5
-    contrast: float = 0.18
-    _grid: np.ndarray = field(default=None, repr=False)
-
-    def __post_init__(self):
-        rng = np.random.default_rng(self.seed)
-        nw = int(np.ceil(self.extent[0] / self.texel)) + 8
-        nh = int(np.ceil(self.extent[1] / self.texel)) + 8
-        acc = np.zeros((nh, nw))
-        for k in range(self.octaves):
-            sigma = 1.0 * 2.0**k
-            layer = cv2.GaussianBlur(rng.normal(size=(nh, nw)).astype(np.float32), (0, 0), sigma,
-                                     borderType=cv2.BORDER_REFLECT).astype(float)
-            acc += layer / layer.std() * 0.8**k
-        acc = self.mean + self.contrast * acc / acc.std()
-        # prefiltered levels (Gaussian sigma 0, 1, 2, 4, 8 texels) against aliasing where a
-        # sample's footprint spans several texels (grazing views, far surfaces)
-        acc = acc.astype(np.float32)
-        levels = [acc] + [cv2.GaussianBlur(acc, (0, 0), 2.0**k, borderType=cv2.BORDER_REPLICATE) for k in range(4)]
-        object.__setattr__(self, "_grid", levels)
-
-    def __call__(self, s, t, ws, wt):
-        x = (np.asarray(s) / self.texel + 4.0).astype(np.float32).ravel()
-        y = (np.asarray(t) / self.texel + 4.0).astype(np.float32).ravel()
-        foot = np.maximum(np.asarray(ws), np.asarray(wt)).ravel() / self.texel
-        level = np.clip(np.rint(np.log2(np.maximum(foot, 1e-9))) + 1, 0, len(self._grid) - 1).astype(int)
-        out = np.empty(x.size)
-        for k in np.unique(level):  # a handful of levels, vectorised within each
-            m = level == k
-            out[m] = _remap_points(self._grid[k], x[m], y[m])
-        return out.reshape(np.shape(s))
-
-
-@dataclass(frozen=True)
-class Constant:
-    """Uniform grey ``value``."""
-
-    value: float = 0.5
-
-    def __call__(self, s, t, ws, wt):
-        return np.full(np.shape(s), float(self.value))
-
-
-def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, interp=cv2.INTER_CUBIC) -> np.ndarray:
-    """Sample ``img`` at float32 points ``x, y`` (1-D) with cv2.remap (any count)."""
-    n = x.size
-    width = 1024
-    rows = max(1, -(-n // width))
-    pad = rows * width - n
-    mx = np.concatenate([x, np.zeros(pad, np.float32)]).reshape(rows, width)
-    my = np.concatenate([y, np.zeros(pad, np.float32)]).reshape(rows, width)
-    out = np.empty((rows, width), np.float32)
-    step = 30000  # cv2 map dimensions must stay below 32767
-    for r0 in range(0, rows, step):
-        out[r0:r0 + step] = cv2.remap(img, mx[r0:r0 + step], my[r0:r0 + step], interp,
-                                      borderMode=cv2.BORDER_REPLICATE)
-    return out.ravel()[:n]
 
 
 # --------------------------------------------------------------------------- geometry
@@ -300,25 +170,6 @@ def checker_board(center, rot, cell: float, cols: int, rows: int, margin: float 
     return surf, surf.point(st)
 
 
-@dataclass(frozen=True)
-class _Framed:
-    """A texture inside ``[m, s1] x [m, t1]`` and ``light`` outside (box-filtered)."""
-
-    inner: Checker
-    m: float
-    s1: float
-    t1: float
-
-    def __call__(self, s, t, ws, wt):
-        Fs = lambda x: np.clip(x - self.m, 0.0, self.s1 - self.m)  # noqa: E731
-        Ft = lambda x: np.clip(x - self.m, 0.0, self.t1 - self.m)  # noqa: E731
-        ds = lambda x: ((x >= self.m) & (x < self.s1)).astype(float)  # noqa: E731
-        dt = lambda x: ((x >= self.m) & (x < self.t1)).astype(float)  # noqa: E731
-        inside = _filtered(Fs, s, ws, ds) * _filtered(Ft, t, wt, dt)
-        # shift so that the checker's cell grid starts at the frame's corner
-        v = self.inner(s - self.m, t - self.m, ws, wt)
-        return self.inner.light + inside * (v - self.inner.light)
-
 
 # --------------------------------------------------------------------------- rendering
 def _rays(K, R, dist, image_size, S):
@@ -420,9 +271,11 @@ def render(
     blur_sigma: float = 0.0,
     gain=None,
     offset=None,
+    degrade: Degradations | None = None,
     dtype: str = "uint8",
     rng=None,
-) -> np.ndarray:
+    return_effects: bool = False,
+):
     """Render grey images of ``surfaces`` from the camera at each translation.
 
     Parameters
@@ -445,36 +298,64 @@ def render(
         Gaussian blur (pixels) applied after integration (optics defocus).
     gain, offset : (n_views,) float or None
         Brightness change per view: ``I' = gain * I + offset`` (offset in 0..1 units).
+    degrade : Degradations or None
+        Camera effects (vignetting, exposure, shot/read noise, JPEG, specular highlight,
+        overlay; :mod:`transcalib.synth.degrade`). Needs ``dtype="uint8"``.
     dtype : {"uint8", "float"}
         ``uint8`` (rounded 0..255) or ``float64`` in 0..255 units.
     rng : seed or Generator
-        For the noise.
+        For the noise and the per-view draws of ``degrade``.
+    return_effects : bool
+        Also return the :class:`~transcalib.synth.degrade.ViewEffects` drawn.
 
     Returns
     -------
     images : (n_views, height, width) uint8 or float
+    effects : ViewEffects
+        Only with ``return_effects``.
     """
     rng = np.random.default_rng(rng)
+    K, R = np.asarray(K, float), np.asarray(R, float)
     T = np.atleast_2d(np.asarray(T, float))
     w, h = (int(image_size[0]), int(image_size[1]))
-    if T.shape[1] != 3 or w < 2 or h < 2 or supersample < 1:
-        raise InputError(f"render: need T (n_views, 3), image_size >= 2 and supersample >= 1; got T {T.shape}, "
-                         f"image_size {image_size}, supersample {supersample}")
-    d = _rays(np.asarray(K, float), np.asarray(R, float), dist, (w, h), int(supersample))
+    _check_render_args(T, w, h, supersample, degrade, dtype)
+    S = int(supersample)
+    d = _rays(K, R, dist, (w, h), S)
     n = len(T)
     gain = np.ones(n) if gain is None else np.broadcast_to(np.asarray(gain, float), (n,))
     offset = np.zeros(n) if offset is None else np.broadcast_to(np.asarray(offset, float), (n,))
+    opt = Degradations() if degrade is None else degrade
+    effects = draw_view_effects(opt, n, (w, h), rng)
     out = np.empty((n, h, w), np.uint8 if dtype == "uint8" else float)
     for i in range(n):
-        img = _render_view(surfaces, d, T[i], int(supersample), background, np.asarray(K, float),
-                           np.asarray(R, float), dist, (w, h))
-        img = (gain[i] * img + offset[i]) * 255.0
-        if blur_sigma > 0:
-            img = cv2.GaussianBlur(img, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
-        if noise_std > 0:
-            img = img + rng.normal(0.0, noise_std, img.shape)
-        out[i] = np.clip(np.rint(img), 0, 255) if dtype == "uint8" else img
-    return out
+        radiance = gain[i] * _render_view(surfaces, d, T[i], S, background, K, R, dist, (w, h)) + offset[i]
+        if dtype == "uint8":
+            out[i] = degrade_view(radiance, opt, i, effects, blur_sigma=blur_sigma, noise_std=noise_std, rng=rng)
+        else:
+            out[i] = _float_view(radiance, blur_sigma, noise_std, rng)
+    return (out, effects) if return_effects else out
+
+
+def _check_render_args(T, w, h, supersample, degrade, dtype):
+    if T.shape[1] != 3 or w < 2 or h < 2 or supersample < 1:
+        raise InputError(f"render: need T (n_views, 3), image_size >= 2 and supersample >= 1; got T {T.shape}, "
+                         f"image_size {(w, h)}, supersample {supersample}")
+    if dtype not in ("uint8", "float"):
+        raise InputError(f"render: dtype must be 'uint8' or 'float', got {dtype!r}")
+    if degrade is not None and not isinstance(degrade, Degradations):
+        raise InputError(f"render: degrade must be a Degradations or None, got {type(degrade).__name__}")
+    if degrade is not None and degrade.active() and dtype != "uint8":
+        raise InputError("render: degradations model an 8-bit camera; use dtype='uint8'")
+
+
+def _float_view(radiance, blur_sigma, noise_std, rng):
+    """Unquantised view (0..255 floats): the exact radiance plus optional blur and noise."""
+    img = radiance * 255.0
+    if blur_sigma > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
+    if noise_std > 0:
+        img = img + rng.normal(0.0, noise_std, img.shape)
+    return img
 
 
 # --------------------------------------------------------------------------- scenes
@@ -595,7 +476,7 @@ class Rendered:
                      meta={"preset": "rendered", **self.meta})
 
 
-SCENE_KINDS = ("checker", "natural", "board", "mixed")
+SCENE_KINDS = ("checker", "natural", "board", "mixed", "repetitive")
 
 
 def robot_translations(n_views: int, length: float, rng) -> np.ndarray:
@@ -625,6 +506,7 @@ def render_scene(
     noise_std: float = 1.0,
     blur_sigma: float = 0.0,
     brightness: float = 0.0,
+    degrade: Degradations | None = None,
     supersample: int = 2,
     rng=None,
 ) -> Rendered:
@@ -632,11 +514,13 @@ def render_scene(
 
     Parameters
     ----------
-    kind : {"checker", "natural", "board", "mixed"}
+    kind : {"checker", "natural", "board", "mixed", "repetitive"}
         ``checker``: a large checkerboard and a checkered box in front of a plain wall;
         ``natural``: a noise-textured wall and two textured boxes at other depths;
         ``board``: the paper's six black squares on a white board in front of a textured
-        wall; ``mixed``: textured wall, checkerboard, paper board and a textured box.
+        wall; ``mixed``: textured wall, checkerboard, paper board and a textured box;
+        ``repetitive``: a wall of identical tiles, a tilted tiled panel in front of it
+        and a small textured box (descriptors match the wrong tile easily).
     n_views : int
         Number of views (>= 2).
     image_size : (width, height)
@@ -651,7 +535,11 @@ def render_scene(
     noise_std, blur_sigma : float
         See :func:`render`.
     brightness : float
-        Relative gain change between views: gains ``1 + U(-b, b)``.
+        Relative gain change between views: gains ``1 + U(-b, b)`` (the same as
+        ``degrade.exposure``; kept for existing callers).
+    degrade : Degradations or None
+        Camera effects, see :mod:`transcalib.synth.degrade`. Where the overlay and the
+        highlights are drawn is in ``meta["overlay_box"]`` and ``meta["specular_uv"]``.
     supersample : int
     rng : seed or Generator
 
@@ -663,87 +551,120 @@ def render_scene(
         raise InputError(f"unknown scene kind {kind!r}; expected one of {SCENE_KINDS}")
     rng = np.random.default_rng(rng)
     w, h = image_size
+    K, R, T = _default_camera(K, R, T, (w, h), n_views, baseline * distance, rng)
+    seed = int(rng.integers(2**31))
+    surfaces_c, corners_c, kinds = _SCENE_BUILDERS[kind](distance, K, (w, h), seed)
+    surfaces, corners = _camera0_to_world(surfaces_c, corners_c, R, T[0])
+    gain = 1.0 + rng.uniform(-brightness, brightness, len(T)) if brightness > 0 else None
+    images, effects = render(surfaces, K, R, T, (w, h), dist=dist, supersample=supersample, noise_std=noise_std,
+                             blur_sigma=blur_sigma, gain=gain, degrade=degrade, rng=rng, return_effects=True)
+    opt = Degradations() if degrade is None else degrade
+    meta = {"kind": kind, "noise_std": noise_std, "blur_sigma": blur_sigma, "degrade": opt.active(),
+            "overlay_box": overlay_box(opt, (w, h)), "specular_uv": effects.specular_uv,
+            "exposure_gain": effects.gain}
+    return Rendered(images=images, K=K, R=R, dist=np.asarray(dist, float), T=T, surfaces=surfaces,
+                    corners=corners, corner_kind=np.array(kinds, dtype=object), image_size=(int(w), int(h)),
+                    meta=meta)
+
+
+def _default_camera(K, R, T, image_size, n_views, length, rng):
+    """``K``, ``R``, ``T`` as given, or the defaults of :func:`render_scene`."""
+    w, h = image_size
     if K is None:
         fx = 0.95 * w
         K = K_from_params(fx, 1.04 * fx, w / 2 - 0.5 + 0.04 * w, h / 2 - 0.5 - 0.03 * h)
-    K = np.asarray(K, float)
     if R is None:
         R = Rotation.from_euler("xyz", rng.uniform(-180, 180, 3), degrees=True).as_matrix()
-    R = np.asarray(R, float)
     if T is None:
-        T = robot_translations(n_views, baseline * distance, rng)
-    T = np.asarray(T, float)
-    D = distance
-    # half-extent of the field of view at distance D (camera-0 frame)
-    fov_w = D * w / K[0, 0]
-    fov_h = D * h / K[1, 1]
+        T = robot_translations(n_views, length, rng)
+    return np.asarray(K, float), np.asarray(R, float), np.asarray(T, float)
 
-    def tilt(ax, ay):
-        return Rotation.from_euler("xy", [ax, ay], degrees=True).as_matrix()
 
-    surfaces_c: list[Surface] = []  # built in the camera-0 frame, moved to the world below
-    corners_c, kinds = [], []
-    wall_z = 1.35 * D
-    wall_size = (3.0 * fov_w * 1.35, 3.0 * fov_h * 1.35)
-    seed = int(rng.integers(2**31))
-    if kind == "checker":
-        surfaces_c.append(plane([0, 0, wall_z], tilt(0, 0), wall_size, Constant(0.55), "wall"))
-        cell = fov_w / 16
-        sb, cb = checker_board([0.05 * fov_w, 0.02 * fov_h, D], tilt(12, -18), cell, 13, 9, margin=0.6)
-        surfaces_c.append(sb)
-        corners_c.append(cb)
-        kinds += ["checker"] * len(cb)
-        cell2 = fov_w / 30
-        faces = box([-0.25 * fov_w, 0.2 * fov_h, 0.8 * D], tilt(25, 30), [5 * cell2, 5 * cell2, 5 * cell2],
-                    Checker(cell2), "cbox")
-        surfaces_c += faces
-    elif kind == "natural":
-        texel = D / K[0, 0] * 1.4
-        surfaces_c.append(plane([0, 0, wall_z], tilt(8, -6), wall_size,
-                                Noise(texel * 1.35, wall_size, seed), "wall"))
-        for b, (c, dims, rot) in enumerate([
-            ([-0.18 * fov_w, 0.1 * fov_h, 0.85 * D], [0.3 * fov_w] * 3, tilt(20, 35)),
-            ([0.2 * fov_w, -0.12 * fov_h, 0.7 * D], [0.22 * fov_w, 0.3 * fov_h, 0.2 * fov_w], tilt(-15, -25)),
-        ]):
-            ext = (max(dims) * 1.1, max(dims) * 1.1)
-            tex = [Noise(texel * 0.9, ext, seed + 10 * b + f) for f in range(6)]
-            surfaces_c += box(c, rot, dims, tex, f"box{b}")
-    elif kind == "board":
-        texel = D / K[0, 0] * 1.4
-        surfaces_c.append(plane([0, 0, wall_z], tilt(5, 5), wall_size, Noise(texel * 1.35, wall_size, seed), "wall"))
-        sq = fov_w / 9
-        sb, cb = paper_board([0, 0, D], tilt(15, -10), square=sq, gap=0.66 * sq, margin=0.8 * sq)
-        surfaces_c.append(sb)
-        corners_c.append(cb)
-        kinds += ["board"] * len(cb)
-    else:  # mixed
-        texel = D / K[0, 0] * 1.4
-        surfaces_c.append(plane([0, 0, wall_z], tilt(6, -4), wall_size, Noise(texel * 1.35, wall_size, seed), "wall"))
-        cell = fov_w / 24
-        sb, cb = checker_board([-0.2 * fov_w, -0.17 * fov_h, 0.95 * D], tilt(10, 20), cell, 8, 6, margin=0.5)
-        surfaces_c.append(sb)
-        corners_c.append(cb)
-        kinds += ["checker"] * len(cb)
-        sq = fov_w / 20
-        pb, pc = paper_board([0.22 * fov_w, 0.2 * fov_h, 0.9 * D], tilt(-12, -15), square=sq, gap=0.66 * sq,
-                             margin=0.8 * sq)
-        surfaces_c.append(pb)
-        corners_c.append(pc)
-        kinds += ["board"] * len(pc)
-        dims = [0.2 * fov_w] * 3
-        tex = [Noise(texel * 0.9, (0.25 * fov_w,) * 2, seed + f + 1) for f in range(6)]
-        surfaces_c += box([0.22 * fov_w, -0.2 * fov_h, 0.8 * D], tilt(25, 35), dims, tex, "box")
-
-    # camera-0 frame -> world: X_w = R^T X_c (+ T_0); axes rotate likewise
+def _camera0_to_world(surfaces_c, corners_c, R, T0):
+    """Move surfaces and corners built in the camera-0 frame to the world:
+    ``X_w = R^T X_c + T_0`` (axes rotate likewise)."""
     Rt = R.T
-    T0 = T[0]
     surfaces = [Surface(Rt @ sf.origin + T0, Rt @ sf.axis_s, Rt @ sf.axis_t, sf.size, sf.texture, sf.name,
                         sf.cull_back) for sf in surfaces_c]
     corners = (np.vstack(corners_c) @ R + T0) if corners_c else np.zeros((0, 3))
-    n = len(T)
-    gain = 1.0 + rng.uniform(-brightness, brightness, n) if brightness > 0 else None
-    images = render(surfaces, K, R, T, (w, h), dist=dist, supersample=supersample, noise_std=noise_std,
-                    blur_sigma=blur_sigma, gain=gain, rng=rng)
-    return Rendered(images=images, K=K, R=R, dist=np.asarray(dist, float), T=T, surfaces=surfaces,
-                    corners=corners, corner_kind=np.array(kinds, dtype=object), image_size=(int(w), int(h)),
-                    meta={"kind": kind, "noise_std": noise_std, "blur_sigma": blur_sigma})
+    return surfaces, corners
+
+
+def _tilt(ax, ay):
+    return Rotation.from_euler("xy", [ax, ay], degrees=True).as_matrix()
+
+
+def _frame(D, K, image_size):
+    """Field of view at distance ``D`` (camera-0 frame), the wall's depth and size."""
+    w, h = image_size
+    fov_w, fov_h = D * w / K[0, 0], D * h / K[1, 1]
+    return fov_w, fov_h, 1.35 * D, (3.0 * fov_w * 1.35, 3.0 * fov_h * 1.35)
+
+
+def _scene_checker(D, K, image_size, seed):
+    fov_w, fov_h, wall_z, wall_size = _frame(D, K, image_size)
+    surfaces = [plane([0, 0, wall_z], _tilt(0, 0), wall_size, Constant(0.55), "wall")]
+    cell = fov_w / 16
+    sb, cb = checker_board([0.05 * fov_w, 0.02 * fov_h, D], _tilt(12, -18), cell, 13, 9, margin=0.6)
+    surfaces.append(sb)
+    cell2 = fov_w / 30
+    surfaces += box([-0.25 * fov_w, 0.2 * fov_h, 0.8 * D], _tilt(25, 30), [5 * cell2] * 3, Checker(cell2), "cbox")
+    return surfaces, [cb], ["checker"] * len(cb)
+
+
+def _scene_natural(D, K, image_size, seed):
+    fov_w, fov_h, wall_z, wall_size = _frame(D, K, image_size)
+    texel = D / K[0, 0] * 1.4
+    surfaces = [plane([0, 0, wall_z], _tilt(8, -6), wall_size, Noise(texel * 1.35, wall_size, seed), "wall")]
+    for b, (c, dims, rot) in enumerate([
+        ([-0.18 * fov_w, 0.1 * fov_h, 0.85 * D], [0.3 * fov_w] * 3, _tilt(20, 35)),
+        ([0.2 * fov_w, -0.12 * fov_h, 0.7 * D], [0.22 * fov_w, 0.3 * fov_h, 0.2 * fov_w], _tilt(-15, -25)),
+    ]):
+        ext = (max(dims) * 1.1, max(dims) * 1.1)
+        tex = [Noise(texel * 0.9, ext, seed + 10 * b + f) for f in range(6)]
+        surfaces += box(c, rot, dims, tex, f"box{b}")
+    return surfaces, [], []
+
+
+def _scene_board(D, K, image_size, seed):
+    fov_w, fov_h, wall_z, wall_size = _frame(D, K, image_size)
+    texel = D / K[0, 0] * 1.4
+    surfaces = [plane([0, 0, wall_z], _tilt(5, 5), wall_size, Noise(texel * 1.35, wall_size, seed), "wall")]
+    sq = fov_w / 9
+    sb, cb = paper_board([0, 0, D], _tilt(15, -10), square=sq, gap=0.66 * sq, margin=0.8 * sq)
+    surfaces.append(sb)
+    return surfaces, [cb], ["board"] * len(cb)
+
+
+def _scene_mixed(D, K, image_size, seed):
+    fov_w, fov_h, wall_z, wall_size = _frame(D, K, image_size)
+    texel = D / K[0, 0] * 1.4
+    surfaces = [plane([0, 0, wall_z], _tilt(6, -4), wall_size, Noise(texel * 1.35, wall_size, seed), "wall")]
+    cell = fov_w / 24
+    sb, cb = checker_board([-0.2 * fov_w, -0.17 * fov_h, 0.95 * D], _tilt(10, 20), cell, 8, 6, margin=0.5)
+    sq = fov_w / 20
+    pb, pc = paper_board([0.22 * fov_w, 0.2 * fov_h, 0.9 * D], _tilt(-12, -15), square=sq, gap=0.66 * sq,
+                         margin=0.8 * sq)
+    surfaces += [sb, pb]
+    tex = [Noise(texel * 0.9, (0.25 * fov_w,) * 2, seed + f + 1) for f in range(6)]
+    surfaces += box([0.22 * fov_w, -0.2 * fov_h, 0.8 * D], _tilt(25, 35), [0.2 * fov_w] * 3, tex, "box")
+    return surfaces, [cb, pc], ["checker"] * len(cb) + ["board"] * len(pc)
+
+
+def _scene_repetitive(D, K, image_size, seed):
+    fov_w, fov_h, wall_z, wall_size = _frame(D, K, image_size)
+    texel = D / K[0, 0] * 1.4
+    tile = fov_w / 7  # ~7 identical tiles across the image
+    wall_tex = Tiled(Noise(texel * 1.35, (tile, tile), seed), tile, grout=0.06 * tile)
+    surfaces = [plane([0, 0, wall_z], _tilt(6, -8), wall_size, wall_tex, "wall")]
+    tile2 = fov_w / 12
+    panel_tex = Tiled(Noise(texel * 0.9, (tile2, tile2), seed + 1), tile2, grout=0.08 * tile2)
+    surfaces.append(plane([-0.12 * fov_w, 0.05 * fov_h, 0.9 * D], _tilt(15, 25), (0.55 * fov_w, 0.5 * fov_h),
+                          panel_tex, "panel"))
+    tex = [Noise(texel * 0.9, (0.2 * fov_w,) * 2, seed + f + 2) for f in range(6)]
+    surfaces += box([0.25 * fov_w, -0.15 * fov_h, 0.75 * D], _tilt(-20, 30), [0.15 * fov_w] * 3, tex, "box")
+    return surfaces, [], []
+
+
+_SCENE_BUILDERS = {"checker": _scene_checker, "natural": _scene_natural, "board": _scene_board,
+                   "mixed": _scene_mixed, "repetitive": _scene_repetitive}

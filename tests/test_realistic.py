@@ -1,0 +1,90 @@
+"""Realistic images end to end: every camera degradation on, tracked and calibrated.
+
+Renders of the ``mixed`` scene, 5 views of 480 x 360, with lens distortion (k1 = -0.12),
+vignetting, per-view exposure, shot + read noise, JPEG (q 85), a specular highlight and
+a burnt-in timestamp (:data:`transcalib.synth.degrade.REALISTIC`). Bars derived from
+measurements (``benchmarks/bench_realistic.py`` and seeds 1, 2 at this size):
+
+- with the radial2 model, fx, fy within 0.009 %, cx, cy within 0.2 px, R within
+  0.035 deg were measured; the bars are 0.1 %, 1 px, 0.15 deg;
+- no static track survives (the overlay's), and some were dropped (7 and 33 measured);
+- tracking errors > 1 px: 0.03-0.06 % of observations measured; bar 0.5 %; none of
+  them within two highlight radii of the specular highlight.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from transcalib import calibrate
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_realistic import run_case, track_error  # noqa: E402
+
+SIZE = (480, 360)
+
+
+@pytest.fixture(scope="module")
+def all_on():
+    return run_case("all", image_size=SIZE, rng=1, distortion="radial2")
+
+
+def test_all_degradations_calibrate(all_on):
+    r = all_on
+    assert abs(r["fx_pct"]) < 0.1 and abs(r["fy_pct"]) < 0.1, (r["fx_pct"], r["fy_pct"])
+    assert abs(r["cx_px"]) < 1.0 and abs(r["cy_px"]) < 1.0, (r["cx_px"], r["cy_px"])
+    assert r["R_deg"] < 0.15
+    assert r["tracks"] >= 500  # 1285 measured
+
+
+def test_all_degradations_default_options(all_on):
+    """Default ``calibrate``: within 0.5 % in fx, fy once the default picks a distortion
+    model (issue 9 item 6); with the model fixed at ``none`` the k1 = -0.12 lens costs
+    0.4-0.6 % (measured), which is the estimation side's to fix."""
+    r = all_on
+    cal = calibrate(r["tracks_obj"].uv, r["rendered"].T)
+    if cal.dist_model == "none":
+        pytest.xfail("the default distortion model is 'none' (issue 9 item 6 not merged yet)")
+    K, Kt = cal.K, r["rendered"].K
+    assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.005 and abs(K[1, 1] / Kt[1, 1] - 1) < 0.005
+
+
+def test_overlay_and_highlight_tracks_removed(all_on):
+    r, rendered, tracks = all_on, all_on["rendered"], all_on["tracks_obj"]
+    uv = tracks.uv
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    moved = np.max(np.where(seen, np.linalg.norm(uv - uv[ref, np.arange(uv.shape[1])][None], axis=-1), 0), axis=0)
+    assert np.all(moved >= 1.0), np.sort(moved)[:5]  # no static (overlay) track left
+    assert tracks.info["n_static_dropped"] >= 3
+    err = track_error(rendered, uv)
+    assert np.mean(err > 1.0) < 0.005
+    # observations near the highlight: none grossly wrong
+    X, ghost = rendered.track_truth(uv)
+    e = np.linalg.norm(rendered.project(X) - uv, axis=-1)
+    c = rendered.meta["specular_uv"]
+    near = np.linalg.norm(uv - c[:, None, :], axis=-1) < 24.0
+    assert not np.any((np.nan_to_num(e) > 1.0) & near & ~ghost[None])
+
+
+def test_overlay_alone_leaves_no_static_track():
+    r = run_case("overlay", image_size=SIZE, rng=2)
+    uv = r["tracks_obj"].uv
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    moved = np.max(np.where(seen, np.linalg.norm(uv - uv[ref, np.arange(uv.shape[1])][None], axis=-1), 0), axis=0)
+    assert np.all(moved >= 1.0) and r["static_dropped"] >= 5  # 26 dropped (measured)
+    assert abs(r["fx_pct"]) < 0.1 and abs(r["cx_px"]) < 1.0
+
+
+def test_repetitive_texture_with_known_translations():
+    """A wall of identical tiles: one view's epipoles lose to a one-tile shift (7.6 % of
+    the observations off by a tile without ``T``, measured, seed 4); given the robot
+    translations the tracker replaces those epipoles by ``A (T_j - T_i)`` (0 %
+    measured). Bar: under 0.5 % off by more than 1 px."""
+    r = run_case("repetitive", image_size=SIZE, rng=4, track_with_T=True, distortion="radial2")
+    assert r["tracks_obj"].info["pairs_set_by_translations"]
+    assert r["gross_pct"] < 0.5 and r["tracks"] >= 1000, (r["gross_pct"], r["tracks"])
+    assert abs(r["fx_pct"]) < 0.1 and abs(r["cx_px"]) < 1.0
