@@ -40,13 +40,12 @@ def test_all_degradations_calibrate(all_on):
 
 
 def test_all_degradations_default_options(all_on):
-    """Default ``calibrate``: within 0.5 % in fx, fy once the default picks a distortion
-    model (issue 9 item 6); with the model fixed at ``none`` the k1 = -0.12 lens costs
-    0.4-0.6 % (measured), which is the estimation side's to fix."""
+    """Default ``calibrate``: the k1 = -0.12 lens is detected (distortion chosen from the
+    data) and fx, fy are within 0.5 % (with the model fixed at ``none`` the lens costs
+    0.4-0.6 %, measured)."""
     r = all_on
     cal = calibrate(r["tracks_obj"].uv, r["rendered"].T)
-    if cal.dist_model == "none":
-        pytest.xfail("the default distortion model is 'none' (issue 9 item 6 not merged yet)")
+    assert cal.dist_model != "none"
     K, Kt = cal.K, r["rendered"].K
     assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.005 and abs(K[1, 1] / Kt[1, 1] - 1) < 0.005
 
