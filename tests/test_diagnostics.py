@@ -238,7 +238,7 @@ def test_diagnose_silent_after_robust_pipeline():
     cal = replace(refine(masked, scene.T, r.linear), inliers=r.inliers)
     assert diagnose(uv, scene.T, cal, linear=r.linear) == []
     # without the robust step the same data are flagged
-    lin = estimate_linear(uv, scene.T)
+    lin = estimate_linear(uv, scene.T, weighting="none")  # the paper's TLS on 30 % outliers
     assert "points_behind_camera" in _codes(diagnose(uv, scene.T, lin, check_rotation=False))
     codes = _codes(diagnose(uv, scene.T, refine(uv, scene.T, lin)))
     assert "outliers" in codes and "points_behind_camera" in codes

@@ -130,7 +130,7 @@ def calibrate(
     t2 = time.perf_counter()
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     found = diagnose(uv_fit, T, result, linear=linear, quaternions=quaternions,
-                     check_rotation=opts.check_rotation and opts.refine, unit=unit)
+                     check_rotation=opts.check_rotation and opts.refine, unit=unit, robust=rob, all_uv=uv)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     result.diagnostics.extend(found)

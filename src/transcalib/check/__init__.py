@@ -17,6 +17,11 @@ code                       meaning
 ``outliers``               gross outliers left in the residuals (mismatched tracks)
 ``view_rotation``          model violation: the camera rotated between views
 ``pose_orientation``       robot poses whose orientation differs from view 0's
+``static_tracks``          tracks that do not move at all (left out)
+``low_parallax``           tracks whose motion is below 5 x the pixel noise
+``inliers_few``            fewer than half of the tracked points are inliers
+``threshold_small``        a user inlier threshold too small for the noise the data show
+``implausible_intrinsics`` intrinsics no real camera has (usually wrong tracks)
 ``check_skipped``          a check that could not run, and why (never silent by omission)
 =========================  ==============================================================
 """
@@ -33,6 +38,7 @@ from .linear import check_null_space
 from .points import check_outliers, check_points_behind, check_views
 from .poses import check_pose_orientations
 from .rotation import check_view_rotations, locate_view_rotation, view_rotation_test
+from .tracks import check_inliers, check_intrinsics, check_parallax, check_threshold
 from .translations import check_translations
 
 __all__ = ["diagnose", "check_translations", "check_null_space", "check_points_behind", "check_views",
@@ -46,7 +52,7 @@ def skipped(check: str, reason) -> Diagnostic:
 
 
 def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quaternions=None,
-             check_rotation: bool = True, unit: str = "units") -> list:
+             check_rotation: bool = True, unit: str = "units", robust=None, all_uv=None) -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
     Parameters
@@ -65,6 +71,10 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         Run the model-violation (rotation) test (a refined calibration only).
     unit : str
         Length unit named in the messages.
+    robust : RobustEstimate, optional
+        The robust stage's result: its noise estimate against a user threshold.
+    all_uv : (n_views, n_points, 2) float, optional
+        Every track (outliers included), for the parallax and inlier-fraction checks.
 
     Returns
     -------
@@ -86,6 +96,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         out += check_null_space(linear)
     out += _behind(uv, T, calibration)
     if isinstance(calibration, Calibration):
+        out += _track_checks(uv if all_uv is None else all_uv, calibration, linear, robust)
         out += check_views(uv, calibration.residuals_px, used=calibration.inliers)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
         if check_rotation:
@@ -109,3 +120,20 @@ def _behind(uv, T, calibration) -> list:
         f"{n_excluded} point(s) were left out of the refinement because they lie behind the camera: these "
         "tracks are almost certainly mismatches. Remove them or run the robust estimator "
         "(calibrate(..., robust=True), CLI --robust).")]
+
+
+def _track_checks(uv, calibration: Calibration, linear, robust) -> list:
+    """Static and low-parallax tracks, the inlier fraction, a threshold small for the
+    noise, implausible intrinsics."""
+    out = []
+    sigma = calibration.sigma_px if calibration.sigma_px else (robust.sigma_px if robust is not None else None)
+    if sigma:
+        out += check_parallax(uv, sigma)
+    else:
+        out.append(skipped("parallax check", "no estimate of the pixel noise (refine the calibration)"))
+    out += check_inliers(calibration.inliers, uv)
+    if robust is not None:
+        out += check_threshold(robust.sigma_px, robust.rule_sigma_px, robust.options.threshold_px,
+                               robust.options.false_rejection)
+    out += check_intrinsics(calibration.K, calibration.image_size)
+    return out

@@ -1,0 +1,127 @@
+"""Checks of the tracks themselves: tracks that do not move, low parallax, few inliers, a
+threshold too small for the noise, implausible intrinsics.
+
+Thresholds are in units of the pixel noise ``sigma`` estimated from the data, never in
+pixels: a track whose largest image motion from its first view is below
+``LOW_PARALLAX_SIGMAS * sigma`` carries (almost) no information about the depth and so
+about K (a static overlay, dust on the lens, a far background).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from ..errors import Diagnostic
+from .common import fmt_list
+
+__all__ = ["check_parallax", "check_inliers", "check_threshold", "check_intrinsics", "track_motion_px",
+           "LOW_PARALLAX_SIGMAS", "MIN_INLIER_FRACTION"]
+
+#: Tracks moving less than this many noise sigmas are low-parallax.
+LOW_PARALLAX_SIGMAS = 5.0
+#: Warn when fewer of the tracked points are inliers.
+MIN_INLIER_FRACTION = 0.5
+
+
+def track_motion_px(uv: np.ndarray) -> np.ndarray:
+    """Largest image motion (pixels) of each track from its first view (n_points,); NaN
+    for tracks seen once."""
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    d = np.hypot(*(uv - uv[ref, np.arange(uv.shape[1])][None]).transpose(2, 0, 1))
+    out = np.where(seen, d, -np.inf).max(axis=0)
+    return np.where(seen.sum(axis=0) >= 2, out, np.nan)
+
+
+def check_parallax(uv: np.ndarray, sigma_px: float) -> list:
+    """Warn about tracks that do not move at all (they are left out: their depth is
+    undetermined) and tracks with low parallax.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+    sigma_px : float
+        Pixel noise per coordinate (estimated).
+
+    Returns
+    -------
+    list of Diagnostic
+        ``static_tracks``, ``low_parallax``.
+    """
+    out = []
+    motion = track_motion_px(uv)
+    moving = np.isfinite(motion) & (motion > 0)
+    scale = float(np.median(motion[moving])) if moving.any() else 0.0
+    static = np.isfinite(motion) & (motion <= 1e-9 * scale)
+    if static.any():
+        idx = np.flatnonzero(static)
+        out.append(Diagnostic(
+            "static_tracks",
+            f"{len(idx)} track(s) do not move at all between views (points {fmt_list(idx)}): a static overlay "
+            "(timestamp, logo), dust on the lens or a reflection. They were left out; mask them in the images "
+            "if there are many."))
+    low = np.isfinite(motion) & (motion < LOW_PARALLAX_SIGMAS * sigma_px) & ~static
+    if low.any():
+        idx = np.flatnonzero(low)
+        out.append(Diagnostic(
+            "low_parallax",
+            f"{len(idx)} track(s) move less than {LOW_PARALLAX_SIGMAS:g} x the pixel noise ({sigma_px:.2g} px) "
+            f"between views (points {fmt_list(idx)}): they carry almost no information on K and R (far "
+            "background, static overlays, dust); the linear estimate weights them down. Larger robot moves "
+            "or nearer points make them count."))
+    return out
+
+
+def check_inliers(inliers, uv: np.ndarray) -> list:
+    """Warn when few of the tracked points are inliers (``inliers_few``)."""
+    if inliers is None:
+        return []
+    tracked = np.isfinite(uv[..., 0]).sum(axis=0) >= 2
+    frac = float(np.sum(inliers & tracked) / max(tracked.sum(), 1))
+    if frac >= MIN_INLIER_FRACTION:
+        return []
+    return [Diagnostic(
+        "inliers_few",
+        f"only {100 * frac:.0f} % of the tracked points are inliers (at most {100 * (1 - MIN_INLIER_FRACTION):.0f} "
+        "% outliers are expected of a tracker): the tracks are mostly wrong (repetitive texture, moving objects) "
+        "or the camera rotated; check the tracks, or the robot's orientation.")]
+
+
+def check_threshold(sigma_px: float, rule_sigma_px: float, threshold_px, alpha: float) -> list:
+    """Warn when a user threshold is small for the noise the data show (``threshold_small``):
+    the rule then rejects good tracks far more often than ``alpha``."""
+    if threshold_px is None or not sigma_px > 1.2 * rule_sigma_px:
+        return []
+    q = stats.chi2.ppf(1 - alpha, 2)
+    rejected = float(stats.chi2.sf(q * (rule_sigma_px / sigma_px) ** 2, 2))
+    return [Diagnostic(
+        "threshold_small",
+        f"the inlier threshold {threshold_px:g} px is small for the pixel noise the data show ({sigma_px:.2g} px "
+        f"per coordinate): it rejects about {100 * rejected:.0f} % of the good observations instead of "
+        f"{100 * alpha:g} %. Leave the threshold out (the noise then sets it) or raise it to about "
+        f"{np.sqrt(q) * sigma_px:.2g} px.")]
+
+
+def check_intrinsics(K: np.ndarray, image_size=None) -> list:
+    """Warn about intrinsics no real camera has (``implausible_intrinsics``): very unequal
+    focal lengths, or (with the image size) a focal length far from the image size or a
+    principal point outside the image. Usually the tracks are wrong."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    problems = []
+    if not 0.5 < fx / fy < 2.0:
+        problems.append(f"fx / fy = {fx / fy:.2f}")
+    if image_size is not None:
+        w, h = image_size
+        diag = float(np.hypot(w, h))
+        if not 0.1 * diag < 0.5 * (fx + fy) < 20 * diag:
+            problems.append(f"focal length {0.5 * (fx + fy):.0f} px for a {w}x{h} image")
+        if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
+            problems.append(f"principal point ({cx:.0f}, {cy:.0f}) outside the image")
+    if not problems:
+        return []
+    return [Diagnostic(
+        "implausible_intrinsics",
+        f"the intrinsics are implausible ({'; '.join(problems)}): the tracks are probably wrong (repetitive "
+        "texture matched one period off, moving objects) or the poses do not belong to the images. Check "
+        "the tracks and the order of the poses.")]
