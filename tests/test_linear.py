@@ -260,3 +260,19 @@ def test_many_views():
     scene = simulate.random_scene(40, 70, missing=0.5, noise_px=0.3, rng=2)
     fast, dense = estimate_linear(scene.uv, scene.T), estimate_linear(scene.uv, scene.T, method="dense")
     assert rel_err_K(fast.K, dense.K) < 1e-9
+
+
+def test_repeated_robot_positions():
+    """Two views at the same robot position give equations without A; the weighted TLS
+    and the pipeline still recover the camera (regression: the O(n) solver crashed)."""
+    from transcalib import calibrate
+    from transcalib.synth.simulate import _make_scene
+
+    base = simulate.random_scene(100, 6, rng=3)
+    T = base.T_true.copy()
+    T[4], T[5] = T[0], T[1]
+    scene = _make_scene(base.K, base.R, base.dist, T, base.X, base.image_size, 0.5, 0.0, 0.0, 3, meta={})
+    lin = estimate_linear(scene.uv, scene.T)
+    assert abs(lin.K[0, 0] / base.K[0, 0] - 1) < 0.02
+    cal = calibrate(scene.uv, scene.T, rng=0, check_rotation=False)
+    assert abs(cal.K[0, 0] - base.K[0, 0]) < 4 * cal.std["fx"]
