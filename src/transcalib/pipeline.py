@@ -22,7 +22,7 @@ from .estimate.degeneracy import explain_span
 from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
-from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold
+from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
 from .geometry.camera import Camera, project
 from .geometry.triangulate import triangulate
 from .types import CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
@@ -213,7 +213,19 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
         cal.info["distortion_selection"] = selection + cal.info["distortion_selection"]
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
+    if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
+        cal = _untruncated(cal, k[inliers], opts.ransac.false_rejection)
     return cal, inliers, stages
+
+
+def _untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
+    """Undo the bias of a noise estimated on chi-square-selected inliers: the rule drops
+    the largest ``alpha`` of the good tracks' errors, so ``sigma^2`` (and every variance
+    scaled by it) comes out low by :func:`truncation_factor` (about 2 %)."""
+    c = truncation_factor(k, alpha)
+    return replace(cal, sigma_px=cal.sigma_px / np.sqrt(c), cov=cal.cov / c,
+                   std={name: v / np.sqrt(c) for name, v in cal.std.items()}, X_std=cal.X_std / np.sqrt(c),
+                   info={**cal.info, "sigma_truncation_factor": c})
 
 
 def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
