@@ -32,6 +32,9 @@ __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
 
 #: ``robust=None`` turns RANSAC on from this many points (2-point samples need spare points).
 ROBUST_MIN_POINTS = 8
+#: The refined camera's verdict refits only when it changes more than this fraction of
+#: the inliers (borderline tracks trading places at the false-rejection rate do not count).
+REJUDGE_FRACTION = 0.005
 #: Relative singular value of the translations below which they count as coplanar (a
 #: table whose measured height jitters is a 2-axis stage).
 COPLANAR_TOL = 1e-3
@@ -202,7 +205,8 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
         again = inlier_rule(_track_sse(uv, cal, X_all), k, _rule_sigma(cal, opts), opts.ransac.false_rejection)
-        if np.array_equal(again, inliers) or again.sum() < 2:
+        # a few borderline tracks trading places change nothing: refit only for more
+        if np.sum(again != inliers) <= max(2, REJUDGE_FRACTION * inliers.sum()) or again.sum() < 2:
             break
         inliers = again
         start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))

@@ -96,7 +96,7 @@ def _reduced_system(uv, T, calibration: Calibration) -> _Reduced:
     linearised at the ML solution."""
     opts = _refinement(calibration)
     try:
-        lin = linearise(uv, T, calibration, opts)
+        lin = linearise(uv, T, calibration, opts, polish=0)  # the refined calibration is the ML solution
     except DegenerateError as exc:
         raise DegenerateError(f"too few observations to test for a rotation between views ({exc})") from None
     lay = replace(lin.layout, rot_views=tuple(range(1, uv.shape[0])))

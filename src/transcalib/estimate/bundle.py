@@ -256,14 +256,16 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     y2 = state.R @ y
     Q = state.Q[i]
     xc = Q @ y2 if lay.rot_views else y2
-    p = project_camera_frame(state.intr, state.dist5, xc, jacobian=jacobian, valid=valid)
+    p = project_camera_frame(state.intr, state.dist5, xc, jacobian=jacobian, valid=valid,
+                             dist_jacobian=bool(lay.dist_free))
     if not jacobian:
         return p.pred, xc[2], None, None
     n = y.shape[1]
     q = lay.n_common + 3 * (i in lay.i_vrot) + 3 * (i in lay.i_T)
     Jg = np.empty((q, 2, n))
-    Jg[: lay.n_intr] = np.einsum("kcn,kp->pcn", p.J_intr, lay.intr_basis)
-    Jg[lay.i_dist: lay.i_rot] = p.J_dist[list(lay.dist_free)]
+    Jg[: lay.n_intr] = p.intrinsic_jacobian(lay.intr_basis)
+    if lay.dist_free:
+        Jg[lay.i_dist: lay.i_rot] = p.J_dist[list(lay.dist_free)]
     PQ = np.einsum("kcn,cd->kdn", p.P, Q) if lay.rot_views else p.P  # d pred / d y2
     # R <- exp([w]x) R: d y2 / dw = -[y2]x, and a^T (-[y2]x) = (y2 x a)^T
     _cross_rows(y2, PQ, Jg[lay.i_rot: lay.i_rot + 3])

@@ -68,9 +68,9 @@ def pad_dist(dist) -> np.ndarray:
 class Distortion(NamedTuple):
     """Distorted normalised coordinates and, on request, their derivatives.
 
-    ``dx``, ``dy`` are ``(d x'/dx, d x'/dy)`` and ``(d y'/dx, d y'/dy)``; ``dk`` has one
-    ``(d x'/dk, d y'/dk)`` pair per coefficient, in OpenCV order (5 pairs). All entries
-    have the shape of the input coordinates.
+    ``dx``, ``dy`` are ``(d x'/dx, d x'/dy)`` and ``(d y'/dx, d y'/dy)`` (None without
+    distortion: the identity); ``dk`` has one ``(d x'/dk, d y'/dk)`` pair per coefficient,
+    in OpenCV order (5 pairs). All entries have the shape of the input coordinates.
     """
 
     xd: np.ndarray
@@ -80,7 +80,8 @@ class Distortion(NamedTuple):
     dk: tuple | None = None
 
 
-def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool = False) -> Distortion:
+def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool = False,
+            coefficients: bool = True) -> Distortion:
     """OpenCV distortion of normalised coordinates ``(x, y)`` (arrays of any one shape).
 
     Parameters
@@ -90,7 +91,10 @@ def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool =
     dist5 : (5,) float
         ``k1, k2, p1, p2, k3`` (:func:`pad_dist`).
     jacobian : bool
-        Also return the derivatives with respect to ``x, y`` and the coefficients.
+        Also return the derivatives with respect to ``x, y`` (None for the pinhole,
+        where they are the identity) ...
+    coefficients : bool
+        ... and, with ``jacobian``, with respect to the coefficients.
 
     Returns
     -------
@@ -108,17 +112,17 @@ def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool =
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     if not jacobian:
         return Distortion(xd, yd)
-    if radial is None:
-        one, zero = np.ones_like(x), np.zeros_like(x)
-        dx, dy = (one, zero), (zero, one)
-    else:
+    dx = dy = None
+    if radial is not None:
         dR = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
         a12 = 2.0 * x * y * dR + 2.0 * p1 * x + 2.0 * p2 * y
         dx = (radial + 2.0 * x * x * dR + 2.0 * p1 * y + 6.0 * p2 * x, a12)
         dy = (a12, radial + 2.0 * y * y * dR + 6.0 * p1 * y + 2.0 * p2 * x)
-    r4 = r2 * r2
-    dk = ((x * r2, y * r2), (x * r4, y * r4), (2.0 * x * y, r2 + 2.0 * y * y),
-          (r2 + 2.0 * x * x, 2.0 * x * y), (x * r4 * r2, y * r4 * r2))
+    dk = None
+    if coefficients:
+        r4 = r2 * r2
+        dk = ((x * r2, y * r2), (x * r4, y * r4), (2.0 * x * y, r2 + 2.0 * y * y),
+              (r2 + 2.0 * x * x, 2.0 * x * y), (x * r4 * r2, y * r4 * r2))
     return Distortion(xd, yd, dx, dy, dk)
 
 
@@ -155,19 +159,29 @@ def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
 class Projection(NamedTuple):
     """Pixels of camera-frame points and, on request, their derivatives (points last).
 
-    ``pred (2, ...)``; ``P (2, 3, ...)`` = d pixel / d x_c; ``J_intr (5, 2, ...)`` =
-    d pixel / d (fx, fy, cx, cy, skew); ``J_dist (5, 2, ...)`` = d pixel / d (k1, k2, p1,
-    p2, k3).
+    ``pred (2, ...)``; ``P (2, 3, ...)`` = d pixel / d x_c; ``xd``, ``yd`` the distorted
+    normalised coordinates (d u / d fx = x', d u / d skew = y', d v / d fy = y');
+    ``J_dist (5, 2, ...)`` = d pixel / d (k1, k2, p1, p2, k3), or None when not asked for.
     """
 
     pred: np.ndarray
     P: np.ndarray | None = None
-    J_intr: np.ndarray | None = None
+    xd: np.ndarray | None = None
+    yd: np.ndarray | None = None
     J_dist: np.ndarray | None = None
+
+    def intrinsic_jacobian(self, basis: np.ndarray) -> np.ndarray:
+        """d pixel / d (free intrinsics) ``(q, 2, ...)`` for a basis ``E (5, q)`` of
+        ``(fx, fy, cx, cy, skew)`` increments."""
+        out = np.empty((basis.shape[1], 2) + self.xd.shape)
+        for p, (efx, efy, ecx, ecy, es) in enumerate(basis.T):
+            out[p, 0] = efx * self.xd + es * self.yd + ecx
+            out[p, 1] = efy * self.yd + ecy
+        return out
 
 
 def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *, jacobian: bool = False,
-                         valid: np.ndarray | None = None) -> Projection:
+                         valid: np.ndarray | None = None, dist_jacobian: bool = True) -> Projection:
     """Pixels of points in the camera frame (module docstring), components first.
 
     Parameters
@@ -183,6 +197,8 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
     valid : (...) bool, optional
         Points whose values matter; the others get depth 1 in the divisions (their
         results are finite and meaningless).
+    dist_jacobian : bool
+        With ``jacobian``: also the derivatives with respect to the coefficients.
 
     Returns
     -------
@@ -192,21 +208,23 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
     z = xc[2] if valid is None else np.where(valid, xc[2], 1.0)
     iz = 1.0 / z
     x, y = xc[0] * iz, xc[1] * iz
-    d = distort(x, y, dist5, jacobian=jacobian)
+    d = distort(x, y, dist5, jacobian=jacobian, coefficients=dist_jacobian)
     pred = np.stack([fx * d.xd + s * d.yd + cx, fy * d.yd + cy])
     if not jacobian:
         return Projection(pred)
     # M = [[fx, s], [0, fy]] d(x', y')/d(x, y);  P = M [[1, 0, -x], [0, 1, -y]] / z
-    m11, m12 = fx * d.dx[0] + s * d.dy[0], fx * d.dx[1] + s * d.dy[1]
-    m21, m22 = fy * d.dy[0], fy * d.dy[1]
+    if d.dx is None:  # pinhole: d(x', y')/d(x, y) = I
+        m11, m12, m21, m22 = fx, s, 0.0, fy
+    else:
+        m11, m12 = fx * d.dx[0] + s * d.dy[0], fx * d.dx[1] + s * d.dy[1]
+        m21, m22 = fy * d.dy[0], fy * d.dy[1]
     P = np.empty((2, 3) + x.shape)
     P[0, 0], P[0, 1], P[0, 2] = m11 * iz, m12 * iz, -(m11 * x + m12 * y) * iz
     P[1, 0], P[1, 1], P[1, 2] = m21 * iz, m22 * iz, -(m21 * x + m22 * y) * iz
-    zero, one = np.zeros_like(x), np.ones_like(x)
-    J_intr = np.stack([np.stack([d.xd, zero]), np.stack([zero, d.yd]), np.stack([one, zero]),
-                       np.stack([zero, one]), np.stack([d.yd, zero])])
-    J_dist = np.stack([np.stack([fx * gx + s * gy, fy * gy]) for gx, gy in d.dk])
-    return Projection(pred, P, J_intr, J_dist)
+    J_dist = None
+    if dist_jacobian:
+        J_dist = np.stack([np.stack([fx * gx + s * gy, fy * gy]) for gx, gy in d.dk])
+    return Projection(pred, P, d.xd, d.yd, J_dist)
 
 
 def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=()) -> np.ndarray:

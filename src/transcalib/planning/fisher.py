@@ -73,7 +73,7 @@ def _jacobians(options: PlanOptions, X: np.ndarray, T: np.ndarray):
                         np.stack([x1, -x0, zero], -1)], -2)
     Jrot = P @ negskew
     nd = dist_size(options.distortion)
-    Jin = np.moveaxis(pr.J_intr[:4], 0, -1)  # (2, B, m, n, 4) -> moved below
+    Jin = np.moveaxis(pr.intrinsic_jacobian(np.eye(5)[:, :4]), 0, -1)  # (2, B, m, n, 4) -> moved below
     Jin = np.moveaxis(Jin, 0, -2)
     parts = [Jin]
     if nd:
