@@ -210,7 +210,7 @@ def full_calibration(n_points=40, n_views=5, seed=0):
     R = Rotation.from_rotvec(rng.normal(size=3) * 0.3).as_matrix()
     K = K_from_params(812.25, 809.5, 321.125, 239.75, 0.0)
     camera = Camera(K, R, dist=[-0.1, 0.01], dist_model="radial2", image_size=(640, 480))
-    X = rng.normal(size=(n_points, 3)) + [0, 0, 10]
+    X = (rng.normal(size=(n_points, 3)) + [0, 0, 10]) @ R  # in front of the camera
     X[3] = np.nan
     res = rng.normal(size=(n_views, n_points, 2)) / 3
     res[1, 5] = np.nan
@@ -225,7 +225,7 @@ def full_calibration(n_points=40, n_views=5, seed=0):
     cov = np.diag(np.arange(1.0, 9.0)) / 7
     return Calibration(
         camera=camera, X=X, residuals_px=res, rms_px=float(np.sqrt(np.nanmean(np.sum(res**2, 2)))),
-        T=rng.normal(size=(n_views, 3)) * 100, sigma_px=0.33,
+        T=rng.normal(size=(n_views, 3)) * 0.5, sigma_px=0.33,
         diagnostics=[Diagnostic("few_points", "only 40 points: add points"), Diagnostic("x", "second, with ±")],
         linear=lin, cov=cov, std={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)} | {"skew": np.nan},
         param_names=names, X_std=np.abs(X) / 100, inliers=np.arange(n_points) % 7 != 0, options=opts,
