@@ -180,13 +180,14 @@ def _observations(args, plan, progress: Progress):
 
 
 def run(args) -> int:
+    t_start = time.perf_counter()
+    progress = args._progress = Progress(args.quiet)
+    plan = check_all(args)  # (1): before importing the numerics
+
     from ..io.export import ExportContext, export_calibration
     from ..pipeline import calibrate
     from .summary import summary_json, summary_text
 
-    t_start = time.perf_counter()
-    progress = args._progress = Progress(args.quiet)
-    plan = check_all(args)
     t_read = time.perf_counter()
     uv, point_ids, colors, view_names = _observations(args, plan, progress)
     progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({time.perf_counter() - t_read:.2f} s)")
