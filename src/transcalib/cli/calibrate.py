@@ -203,7 +203,8 @@ def run(args) -> int:
               "image_size_from": _size_source(args, plan)}
     ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
                         truth=plan["truth"])
-    written = export_calibration(cal, plan["out"], plan["formats"], ctx)
+    write_timings = {}
+    written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings)
     if args.images:
         written.insert(0, plan["out"] / "tracks.csv")
     t_end = time.perf_counter()
@@ -214,7 +215,7 @@ def run(args) -> int:
     if args.json:
         summary = summary_json(cal, args.unit, plan["truth"], simulated_ids)
         summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
-                       outputs=[str(p) for p in written], run_timings_s=timings)
+                       outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings)
         print_json(summary)
     else:
         print(summary_text(cal, args.unit, plan["truth"], simulated_ids))
