@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.check.diagnostics import ROTATION_ALPHA, locate_view_rotation
+from transcalib.check import ROTATION_ALPHA, locate_view_rotation
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
 from transcalib.estimate.robust import estimate_robust
@@ -72,7 +72,7 @@ def outliers(trials: int, n_points: int = 500, seed: int = 0) -> list[str]:
         uv, out = plant_outliers(scene, 0.3, rng)
         truth = _k4(scene.K)
         t0 = time.perf_counter()
-        r = estimate_robust(uv, scene.T, threshold_px=2.0, rng=rng)
+        r = estimate_robust(uv, scene.T, rng=rng, options=RansacOptions(threshold_px=2.0))
         times.append(time.perf_counter() - t0)
         good = ~out & (np.isfinite(scene.uv[..., 0]).sum(axis=0) >= 2)
         rec.append(np.sum(r.inliers & good) / good.sum())
@@ -156,7 +156,7 @@ def violation(trials: int, seed: int = 0) -> list[str]:
                 # best possible: the noise-free data's misfit to pure translation is the
                 # non-centrality lambda of the ideal test of that view (known sigma)
                 exact = _rotated(scene, view, deg, axis, rng, noise_px=0.0)
-                lam = np.nansum(refine(exact, scene.T, estimate_linear(exact, scene.T), sigma_px=0.5)
+                lam = np.nansum(refine(exact, scene.T, estimate_linear(exact, scene.T), options=RefineOptions(sigma_px=0.5))
                                 .residuals_px ** 2) / 0.25
                 bound.append(stats.ncx2.sf(crit, 3, lam))
         return flagged / n, right / n, among / n, (np.mean(bound) if bound else np.nan)

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.check.diagnostics import (
+from transcalib.check import (
     check_null_space,
     check_outliers,
     check_points_behind,
@@ -21,7 +21,7 @@ from transcalib.check.diagnostics import (
 )
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
-from transcalib.types import Diagnostic, InputError
+from transcalib.types import Diagnostic, InputError, RefineOptions
 
 
 def _codes(diags):
@@ -180,7 +180,7 @@ def test_rotation_estimate_exact_to_first_order_on_noise_free_data():
     scene = simulate.random_scene(200, 4, rng=9)
     w = np.array([0.01, -0.02, 0.015])  # degrees, camera frame
     uv, T = _rotated_view(scene, 2, np.linalg.norm(w), w, 0.0, rng=0)
-    cal = _calibrate(uv, T, sigma_px=0.5)
+    cal = _calibrate(uv, T, options=RefineOptions(sigma_px=0.5))
     res = view_rotation_test(uv, T, cal)
     np.testing.assert_allclose(res["rotation_deg"][2], w, rtol=0.05, atol=2e-4)
 

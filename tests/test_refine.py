@@ -12,16 +12,10 @@ from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.estimate.refine import (
-    _apply_step,
-    _Layout,
-    _predict_view,
-    _rotvec_to_matrix,
-    _State,
-    crlb,
-    refine,
-)
-from transcalib.types import Calibration, DegenerateError, InputError
+from transcalib.estimate.bundle import Layout, State, apply_step, intrinsic_basis, predict_view
+from transcalib.estimate.refine import crlb, refine
+from transcalib.geometry.rotation import rotvec_to_matrix
+from transcalib.types import Calibration, Camera, DegenerateError, InputError, RefineOptions
 
 KEYS = ("fx", "fy", "cx", "cy")
 
@@ -40,7 +34,10 @@ def perturbed_start(scene, rng, dK=0.02, drot_rad=0.01, dX=0.01, dist=()):
     K[1, 2] += 5 * rng.normal()
     R = Rotation.from_rotvec(drot_rad * rng.normal(size=3)).as_matrix() @ scene.R
     X = scene.X * (1 + dX * rng.normal(size=scene.X.shape))
-    return Calibration(K=K, R=R, X=X, dist=np.asarray(dist, float), residuals_px=np.zeros_like(scene.uv), rms_px=0.0)
+    dist = np.asarray(dist, float)
+    model = {0: "none", 1: "radial1", 2: "radial2", 5: "opencv5"}[dist.size]
+    return Calibration(camera=Camera(K, R, dist, model), X=X, residuals_px=np.zeros_like(scene.uv), rms_px=0.0,
+                       T=scene.T.copy())
 
 
 def linear_start(scene, uv=None):
@@ -66,7 +63,7 @@ def test_noise_free_exact(case):
         "random_missing": lambda: simulate.random_scene(80, 6, missing=0.25, rng=1),
         "random_planar": lambda: simulate.random_scene(40, 4, planar=True, rng=2),
     }[case]()
-    cal = refine(scene.uv, scene.T, perturbed_start(scene, 3), sigma_px=0.5)
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 3), options=RefineOptions(sigma_px=0.5))
     assert cal.info["converged"], cal.info["stop_reason"]
     assert rel(cal.K, scene.K) < 1e-9
     assert np.abs(cal.R - scene.R).max() < 1e-9
@@ -79,8 +76,7 @@ def test_noise_free_exact(case):
 
 def test_noise_free_exact_with_skew_and_distortion():
     scene = simulate.random_scene(150, 5, skew=3.0, dist=(-0.15, 0.05, 0.001, -0.002, 0.01), rng=4)
-    cal = refine(scene.uv, scene.T, perturbed_start(scene, 5), distortion="opencv5", estimate_skew=True,
-                 sigma_px=1.0)
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 5), distortion="opencv5", options=RefineOptions(estimate_skew=True, sigma_px=1.0))
     assert rel(cal.K, scene.K) < 1e-9
     assert np.abs(cal.dist - scene.dist).max() < 1e-9
     assert cal.param_names == ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "rx", "ry", "rz")
@@ -91,26 +87,31 @@ def test_noise_free_exact_with_skew_and_distortion():
 # ---------------------------------------------------------------------------- Jacobians
 
 
-@pytest.mark.parametrize("view", [0, 2])
-def test_jacobians_match_finite_differences(view):
+@pytest.mark.parametrize("view,sessions", [(0, False), (2, False), (2, True)])
+def test_jacobians_match_finite_differences(view, sessions):
+    """Every analytic column of the one bundle adjuster against central differences, with
+    distortion, skew, view rotations, free translations and (sessions) known per-view
+    rotations F_i with a free offset t."""
     scene = simulate.random_scene(30, 4, dist=(-0.2, 0.05, 0.002, -0.001, 0.02), skew=2.0, rng=6)
     n_views = scene.n_views
     rng = np.random.default_rng(7)
-    lay = _Layout(n_views, 5, True, True, np.array([False, True, True, True]))
+    E, names = intrinsic_basis({}, True, False)
+    lay = Layout(n_views, E, names, (0, 1, 2, 3, 4), (1, 2, 3), (1, 2, 3), t_free=sessions)
     K = scene.K
-    Q = np.stack([np.eye(3)] + [_rotvec_to_matrix(0.01 * rng.normal(size=3)) for _ in range(n_views - 1)])
-    state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), np.asarray(scene.dist, float),
-                   scene.R.copy(), Q, scene.T_true.copy(), scene.X.copy())
+    Q = np.stack([np.eye(3)] + [rotvec_to_matrix(0.01 * rng.normal(size=3)) for _ in range(n_views - 1)])
+    F = np.stack([rotvec_to_matrix(0.05 * rng.normal(size=3)) for _ in range(n_views)]) if sessions else None
+    state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), np.asarray(scene.dist, float),
+                  scene.R.copy(), Q, scene.T_true.copy(), scene.X.copy(), F, np.array([3.0, -2.0, 5.0]))
     pts = np.arange(scene.n_points)
-    _, _, Jg, JX = _predict_view(state, lay, view, pts)
+    _, _, Jg, JX = predict_view(state, lay, view, pts)
     cols = lay.view_columns(view)
     zero_X = np.zeros((3, len(pts)))
     for local, k in enumerate(cols):
         h = 1e-6 * max(1.0, abs(state.intr[k]) if k < 5 else 1.0)
         dg = np.zeros(lay.size)
         dg[k] = h
-        plus = _predict_view(_apply_step(state, lay, dg, zero_X), lay, view, pts, False)[0]
-        minus = _predict_view(_apply_step(state, lay, -dg, zero_X), lay, view, pts, False)[0]
+        plus = predict_view(apply_step(state, lay, dg, zero_X), lay, view, pts, False)[0]
+        minus = predict_view(apply_step(state, lay, -dg, zero_X), lay, view, pts, False)[0]
         fd = (plus - minus) / (2 * h)
         scale = max(np.abs(fd).max(), 1e-3)
         assert np.abs(Jg[local] - fd).max() / scale < 1e-6, lay.names()[k]
@@ -120,8 +121,8 @@ def test_jacobians_match_finite_differences(view):
         h = 1e-4
         dX = np.zeros((3, len(pts)))
         dX[a] = h
-        plus = _predict_view(_apply_step(state, lay, np.zeros(lay.size), dX), lay, view, pts, False)[0]
-        minus = _predict_view(_apply_step(state, lay, np.zeros(lay.size), -dX), lay, view, pts, False)[0]
+        plus = predict_view(apply_step(state, lay, np.zeros(lay.size), dX), lay, view, pts, False)[0]
+        minus = predict_view(apply_step(state, lay, np.zeros(lay.size), -dX), lay, view, pts, False)[0]
         fd = (plus - minus) / (2 * h)
         assert np.abs(JX[a] - fd).max() / np.abs(fd).max() < 1e-6
 
@@ -132,7 +133,7 @@ def test_jacobians_match_finite_differences(view):
 @pytest.mark.parametrize("model,dist", [("radial2", (-0.2, 0.1)), ("opencv5", (-0.2, 0.1, 0.001, -0.002, 0.02))])
 def test_distortion_recovered_from_linear_start(model, dist):
     scene = simulate.random_scene(200, 5, dist=dist, rng=2)
-    cal = refine(scene.uv, scene.T, linear_start(scene), distortion=model, sigma_px=0.5)
+    cal = refine(scene.uv, scene.T, linear_start(scene), distortion=model, options=RefineOptions(sigma_px=0.5))
     assert cal.dist_model == model
     assert np.abs(cal.dist - np.asarray(dist)).max() < 1e-8
     assert rel(cal.K, scene.K) < 1e-9
@@ -200,7 +201,7 @@ def test_paper_monte_carlo_refined_beats_linear_and_std_is_honest():
 def test_crlb_equals_predicted_std_at_truth():
     scene = simulate.random_scene(60, 5, noise_px=0.7, dist=(-0.1, 0.02), rng=10)
     exact = replace(scene, uv=np.where(np.isfinite(scene.uv), scene.uv_true, np.nan))
-    cal = refine(exact.uv, exact.T, perturbed_start(scene, 11), distortion="radial2", sigma_px=0.7)
+    cal = refine(exact.uv, exact.T, perturbed_start(scene, 11), distortion="radial2", options=RefineOptions(sigma_px=0.7))
     bound = crlb(scene)
     assert set(bound) == set(cal.std)
     for name in bound:
@@ -210,12 +211,12 @@ def test_crlb_equals_predicted_std_at_truth():
 def test_sigma_estimated_with_degrees_of_freedom():
     scene = simulate.random_scene(2000, 4, noise_px=0.8, rng=12)
     cal = refine(scene.uv, scene.T, perturbed_start(scene, 13, dK=0.005, dX=0.002))
-    assert cal.info["sigma_px_estimated"]
-    assert abs(cal.info["sigma_px"] / 0.8 - 1) < 0.03
+    assert cal.options.refinement.sigma_px is None  # estimated
+    assert abs(cal.sigma_px / 0.8 - 1) < 0.03
     n_obs = int(np.isfinite(scene.uv[..., 0]).sum())
     assert cal.info["dof"] == 2 * n_obs - 7 - 3 * scene.n_points
     # OpenCV's RMS: sum |r|^2 = sigma^2 dof, so sqrt(mean(du^2 + dv^2)) = sigma sqrt(dof / n_obs)
-    assert np.isclose(cal.rms_px, cal.info["sigma_px"] * np.sqrt(cal.info["dof"] / n_obs))
+    assert np.isclose(cal.rms_px, cal.sigma_px * np.sqrt(cal.info["dof"] / n_obs))
 
 
 def test_point_std_matches_monte_carlo():
@@ -237,7 +238,7 @@ def test_point_std_matches_monte_carlo():
 
 def test_sigma_T_noise_free_is_exact_and_keeps_translations():
     scene = simulate.paper_scene()
-    cal = refine(scene.uv, scene.T, perturbed_start(scene, 1), sigma_T=0.1, sigma_px=0.5)
+    cal = refine(scene.uv, scene.T, perturbed_start(scene, 1), sigma_T=0.1, options=RefineOptions(sigma_px=0.5))
     assert rel(cal.K, scene.K) < 1e-9
     assert np.abs(cal.T - scene.T_true).max() < 1e-9
     assert "T1_x" in cal.std and np.isfinite(cal.std["T3_z"])
@@ -295,7 +296,7 @@ def test_robust_loss_finds_planted_outliers(loss):
     uv, bad = _with_outliers(scene, 0.15, rng=15)
     start = linear_start(scene)  # from clean data: the robust module's RANSAC provides this
     clean = refine(scene.uv, scene.T, start)
-    cal = refine(uv, scene.T, start, loss=loss, loss_scale_px=1.0)
+    cal = refine(uv, scene.T, start, options=RefineOptions(loss=loss, loss_scale_px=1.0))
     assert cal.inliers is not None
     assert np.array_equal(np.flatnonzero(~cal.inliers), bad)
     for n in KEYS:
@@ -312,7 +313,7 @@ def test_linear_loss_has_no_inlier_mask():
     scene = simulate.paper_scene(noise_px=0.5, rng=0)
     cal = refine(scene.uv, scene.T, perturbed_start(scene, 0))
     assert cal.inliers is None
-    assert cal.info["loss"] == "linear"
+    assert cal.options.refinement.loss == "linear"
 
 
 # ---------------------------------------------------------------------------- view rotations
@@ -320,7 +321,7 @@ def test_linear_loss_has_no_inlier_mask():
 
 def _rotated_view_uv(scene, view, rotvec_deg):
     """Observations where the camera of ``view`` rotated by ``rotvec_deg`` (camera frame)."""
-    Q = _rotvec_to_matrix(np.radians(rotvec_deg))
+    Q = rotvec_to_matrix(np.radians(rotvec_deg))
     uv = scene.uv_true.copy()
     uv[view] = project(scene.K, Q @ scene.R, scene.X, scene.T_true[view: view + 1], scene.dist)[0]
     return uv
@@ -329,7 +330,7 @@ def _rotated_view_uv(scene, view, rotvec_deg):
 def test_view_rotation_noise_free_exact():
     scene = simulate.random_scene(100, 5, rng=16)
     uv = _rotated_view_uv(scene, 2, [0.2, -0.1, 0.05])
-    cal = refine(uv, scene.T, perturbed_start(scene, 17), estimate_view_rotations=True, sigma_px=0.5)
+    cal = refine(uv, scene.T, perturbed_start(scene, 17), options=RefineOptions(estimate_view_rotations=True, sigma_px=0.5))
     expected = np.zeros((5, 3))
     expected[2] = [0.2, -0.1, 0.05]
     assert np.abs(cal.info["view_rotations_deg"] - expected).max() < 1e-9
@@ -355,7 +356,7 @@ def test_view_rotation_recovered_within_std(preset, views, noise_px, z_max):
     rng = np.random.default_rng(19)
     for _ in range(60):
         uv = _rotated_view_uv(base, 2, truth[2]) + rng.normal(0, noise_px, base.uv.shape)
-        cal = refine(uv, base.T, linear_start(base, uv), estimate_view_rotations=views)
+        cal = refine(uv, base.T, linear_start(base, uv), options=RefineOptions(estimate_view_rotations=views))
         est, std = cal.info["view_rotations_deg"], cal.info["view_rotations_std_deg"]
         z.append((est[rotated] - truth[rotated]) / std[rotated])
         assert np.all(est[[v for v in range(base.n_views) if v not in rotated]] == 0)
@@ -374,8 +375,8 @@ def test_view_rotation_spec_errors():
     start = perturbed_start(scene, 0)
     for bad in ([0, 1, 2, 3], [4], "all"):
         with pytest.raises(InputError, match="estimate_view_rotations"):
-            refine(scene.uv, scene.T, start, estimate_view_rotations=bad)
-    cal = refine(scene.uv, scene.T, start, estimate_view_rotations=[0])  # view 0 rotated, others reference
+            refine(scene.uv, scene.T, start, options=RefineOptions(estimate_view_rotations=bad))
+    cal = refine(scene.uv, scene.T, start, options=RefineOptions(estimate_view_rotations=[0]))  # view 0 rotated, others reference
     assert "view0_rx" in cal.std and "view1_rx" not in cal.std
 
 
@@ -390,7 +391,8 @@ def test_accepts_linear_estimate_and_reports_info():
     cal = refine(scene.uv, scene.T, start, progress=steps.append)
     assert cal.linear is start
     assert cal.info["iterations"] == len(steps) > 0
-    for key in ("iterations", "cost", "stop_reason", "converged", "sigma_px", "dof"):
+    assert cal.sigma_px > 0
+    for key in ("iterations", "cost", "stop_reason", "converged", "dof"):
         assert key in cal.info
     assert cal.diagnostics == []
     assert cal.X_std.shape == (scene.n_points, 3)
@@ -415,20 +417,20 @@ def test_bad_inputs_raise():
     start = perturbed_start(scene, 0)
     with pytest.raises(InputError, match="uv must have shape"):
         refine(scene.uv[..., 0], scene.T, start)
-    with pytest.raises(InputError, match="T must have shape"):
+    with pytest.raises(InputError, match="translations"):
         refine(scene.uv, scene.T[:3], start)
     with pytest.raises(InputError, match="distortion"):
         refine(scene.uv, scene.T, start, distortion="fisheye")
     with pytest.raises(InputError, match="loss"):
-        refine(scene.uv, scene.T, start, loss="l1")
+        refine(scene.uv, scene.T, start, options=RefineOptions(loss="l1"))
     with pytest.raises(InputError, match="initial"):
         refine(scene.uv, scene.T, {"K": scene.K})
     with pytest.raises(InputError, match="sigma_T"):
         refine(scene.uv, scene.T, start, sigma_T=-1.0)
     with pytest.raises(InputError, match="loss_scale_px"):
-        refine(scene.uv, scene.T, start, loss="huber", loss_scale_px=0.0)
+        refine(scene.uv, scene.T, start, options=RefineOptions(loss="huber", loss_scale_px=0.0))
     with pytest.raises(InputError, match="rotation"):
-        refine(scene.uv, scene.T, replace(start, R=-start.R))
+        refine(scene.uv, scene.T, replace(start, camera=replace(start.camera, R=-start.R)))
     with pytest.raises(InputError, match="initial.X"):
         refine(scene.uv, scene.T, replace(start, X=start.X[:5]))
     X = np.full_like(start.X, np.nan)
@@ -453,7 +455,7 @@ def test_property_noise_free_exact_from_linear_start(seed, n_views, planar, miss
     dist = {"none": (), "radial2": (rng.uniform(-0.3, 0.1), rng.uniform(-0.05, 0.1)),
             "opencv5": (rng.uniform(-0.3, 0.1), 0.05, 0.001, -0.001, 0.0)}[model]
     scene = simulate.random_scene(60, n_views, planar=planar, missing=missing, dist=dist, rng=seed)
-    cal = refine(scene.uv, scene.T, linear_start(scene), distortion=model, sigma_px=1.0)
+    cal = refine(scene.uv, scene.T, linear_start(scene), distortion=model, options=RefineOptions(sigma_px=1.0))
     assert rel(cal.K, scene.K) < 1e-8
     assert np.abs(cal.R - scene.R).max() < 1e-8
     assert np.all(np.abs(cal.dist - np.asarray(dist, float)) < 1e-7)
@@ -462,8 +464,8 @@ def test_property_noise_free_exact_from_linear_start(seed, n_views, planar, miss
 def test_sigma_T_forms_and_skew_from_linear_start():
     scene = simulate.random_scene(80, 5, noise_px=0.3, robot_noise=0.5, skew=2.0, rng=22)
     start = linear_start(scene)
-    a = refine(scene.uv, scene.T, start, sigma_T=0.5, estimate_skew=True)
-    b = refine(scene.uv, scene.T, start, sigma_T=np.full(5, 0.5), estimate_skew=True)
+    a = refine(scene.uv, scene.T, start, sigma_T=0.5, options=RefineOptions(estimate_skew=True))
+    b = refine(scene.uv, scene.T, start, sigma_T=np.full(5, 0.5), options=RefineOptions(estimate_skew=True))
     assert np.allclose(a.K, b.K) and "T0_x" in a.std
     assert a.info["T_std"].shape == (5, 3)
     assert abs(a.K[0, 1] - 2.0) < 4 * a.std["skew"]
@@ -475,12 +477,12 @@ def test_dense_and_gathered_linearisation_agree(monkeypatch):
     """Views seeing most points are linearised densely with zero weights: same result."""
     import sys
 
-    refine_module = sys.modules["transcalib.estimate.refine"]  # the package re-exports the function
+    bundle_module = sys.modules["transcalib.estimate.bundle"]
     scene = simulate.random_scene(120, 5, noise_px=0.5, missing=0.2, dist=(-0.1, 0.02), rng=23)
     start = perturbed_start(scene, 24)
-    dense = refine(scene.uv, scene.T, start, distortion="radial2", loss="huber")
-    monkeypatch.setattr(refine_module, "_DENSE_FRACTION", 2.0)  # never dense
-    gathered = refine(scene.uv, scene.T, start, distortion="radial2", loss="huber")
+    dense = refine(scene.uv, scene.T, start, distortion="radial2", options=RefineOptions(loss="huber"))
+    monkeypatch.setattr(bundle_module, "_DENSE_FRACTION", 2.0)  # never dense
+    gathered = refine(scene.uv, scene.T, start, distortion="radial2", options=RefineOptions(loss="huber"))
     assert np.allclose(dense.K, gathered.K, rtol=1e-12, atol=1e-9)
     assert np.allclose(dense.cov, gathered.cov, rtol=1e-8)
     assert np.allclose(dense.X_std, gathered.X_std, rtol=1e-8, equal_nan=True)
@@ -489,18 +491,18 @@ def test_dense_and_gathered_linearisation_agree(monkeypatch):
 def test_jacobian_of_zero_distortion_matches_finite_differences():
     """The pinhole fast path (all coefficients zero) still differentiates the distortion."""
     scene = simulate.random_scene(20, 4, rng=25)
-    lay = _Layout(4, 5, False, False, np.zeros(4, bool))
+    lay = Layout(4, *intrinsic_basis({}, False, False), (0, 1, 2, 3, 4))
     K = scene.K
-    state = _State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0.0]), np.zeros(5), scene.R.copy(),
+    state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0.0]), np.zeros(5), scene.R.copy(),
                    np.tile(np.eye(3), (4, 1, 1)), scene.T_true.copy(), scene.X.copy())
     pts = np.arange(scene.n_points)
-    _, _, Jg, _ = _predict_view(state, lay, 1, pts)
+    _, _, Jg, _ = predict_view(state, lay, 1, pts)
     for c in range(5):
         dg = np.zeros(lay.size)
         dg[lay.i_dist + c] = 1e-7
         zero = np.zeros((3, len(pts)))
-        fd = (_predict_view(_apply_step(state, lay, dg, zero), lay, 1, pts, False)[0]
-              - _predict_view(_apply_step(state, lay, -dg, zero), lay, 1, pts, False)[0]) / 2e-7
+        fd = (predict_view(apply_step(state, lay, dg, zero), lay, 1, pts, False)[0]
+              - predict_view(apply_step(state, lay, -dg, zero), lay, 1, pts, False)[0]) / 2e-7
         assert np.abs(Jg[lay.i_dist + c] - fd).max() < 1e-5 * max(np.abs(fd).max(), 1.0)
 
 
@@ -512,6 +514,6 @@ def test_robust_loss_with_a_point_left_out():
     lin = estimate_linear(scene.uv, scene.T)
     X = lin.X.copy()
     X[3] = np.nan
-    cal = refine(scene.uv, scene.T, replace(lin, X=X), loss="huber")
+    cal = refine(scene.uv, scene.T, replace(lin, X=X), options=RefineOptions(loss="huber"))
     assert np.isnan(cal.X[3]).all() and not cal.inliers[3]
     assert cal.inliers.sum() >= 45

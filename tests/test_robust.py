@@ -5,7 +5,7 @@ import pytest
 
 from transcalib import simulate
 from transcalib.estimate.robust import RobustEstimate, estimate_robust, point_errors, solve_minimal
-from transcalib.types import DegenerateError, InputError
+from transcalib.types import DegenerateError, InputError, RansacOptions
 
 
 def _A_true(scene):
@@ -94,7 +94,7 @@ def test_planted_outliers_with_missing_observations():
 def test_noisy_data_recall_and_precision():
     scene = simulate.random_scene(500, 4, noise_px=0.5, rng=21)
     uv, out = plant_outliers(scene, 0.3, rng=22)
-    r = estimate_robust(uv, scene.T, threshold_px=2.0, rng=0)
+    r = estimate_robust(uv, scene.T, rng=0, options=RansacOptions(threshold_px=2.0))
     recall = np.sum(r.inliers & ~out) / np.sum(~out)
     precision = np.sum(r.inliers & ~out) / np.sum(r.inliers)
     assert recall >= 0.99 and precision >= 0.99
@@ -126,7 +126,7 @@ def test_no_consensus_raises():
     T = simulate.random_scene(5, 4, rng=1).T
     uv = rng.uniform(0, 800, (4, 40, 2))
     with pytest.raises(DegenerateError, match="no consensus"):
-        estimate_robust(uv, T, threshold_px=0.5, rng=0, max_trials=200)
+        estimate_robust(uv, T, rng=0, options=RansacOptions(threshold_px=0.5, max_trials=200))
 
 
 def test_too_few_sampleable_points_raises():
@@ -140,9 +140,13 @@ def test_too_few_sampleable_points_raises():
 @pytest.mark.parametrize("kw", [{"threshold_px": 0}, {"threshold_px": np.nan}, {"confidence": 1.0},
                                 {"max_trials": 0}, {"max_trials": 2.5}])
 def test_bad_options_raise_input_error(kw):
-    scene = simulate.random_scene(10, 4, rng=2)
     with pytest.raises(InputError):
-        estimate_robust(scene.uv, scene.T, **kw)
+        RansacOptions(**kw)
+
+
+def test_misspelt_option_fails_loudly():
+    with pytest.raises(TypeError):
+        RansacOptions(treshold_px=2.0)
 
 
 def test_bad_shapes_raise_input_error():

@@ -12,12 +12,16 @@ from __future__ import annotations
 import importlib
 
 from .types import (
+    CalibrateOptions,
     Calibration,
+    Camera,
     DegenerateError,
     Diagnostic,
     InputError,
     LinearEstimate,
     MirroredError,
+    RansacOptions,
+    RefineOptions,
     TranscalibError,
 )
 
@@ -30,8 +34,8 @@ _LAZY = {
     "estimate_robust": (".estimate.robust", "estimate_robust"),
     "RobustEstimate": (".estimate.robust", "RobustEstimate"),
     "refine": (".estimate.refine", "refine"),
-    "crlb": (".estimate.refine", "crlb"),
-    "diagnose": (".check.diagnostics", "diagnose"),
+    "crlb": (".estimate.covariance", "crlb"),
+    "diagnose": (".check", "diagnose"),
     "track": (".images", "track"),
     "track_squares": (".images", "track_squares"),
     "Tracks": (".images.frames", "Tracks"),
@@ -40,8 +44,8 @@ _LAZY = {
 }
 
 __all__ = [
-    "Calibration", "DegenerateError", "Diagnostic", "InputError", "LinearEstimate", "MirroredError",
-    "TranscalibError", *_LAZY,
+    "CalibrateOptions", "Calibration", "Camera", "DegenerateError", "Diagnostic", "InputError", "LinearEstimate",
+    "MirroredError", "RansacOptions", "RefineOptions", "TranscalibError", *_LAZY,
 ]
 
 

@@ -1,4 +1,4 @@
-"""Result types and error classes shared by every stage.
+"""Result types and option dataclasses shared by every stage (errors: :mod:`.errors`).
 
 Conventions (see ``docs/conventions.md``):
 
@@ -12,13 +12,21 @@ Conventions (see ``docs/conventions.md``):
   robot position ``T = 0``.
 
 Projection (paper eq. 2): ``lam_ij * [u_ij, v_ij, 1] = A (X_j - T_i)``.
+
+Options are frozen dataclasses, checked when they are made: a misspelt option name is a
+``TypeError``, a bad value an :class:`InputError` naming the option.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
 
 import numpy as np
+
+from .errors import DegenerateError, Diagnostic, InputError, MirroredError, TranscalibError
+from .geometry.camera import DIST_MODELS, Camera
 
 __all__ = [
     "TranscalibError",
@@ -26,12 +34,205 @@ __all__ = [
     "DegenerateError",
     "MirroredError",
     "Diagnostic",
+    "RansacOptions",
+    "RefineOptions",
+    "CalibrateOptions",
     "LinearEstimate",
     "Calibration",
+    "Camera",
+    "INTRINSIC_NAMES",
 ]
 
+#: Names of the intrinsic parameters, as used by ``fix`` and ``Calibration.std``.
+INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "skew")
+#: Parameters ``RefineOptions.fix`` accepts: intrinsics and distortion coefficients.
+FIXABLE = INTRINSIC_NAMES + ("k1", "k2", "p1", "p2", "k3")
+#: Robust losses of the refinement.
+LOSSES = ("linear", "huber", "cauchy")
 
-from .errors import DegenerateError, Diagnostic, InputError, MirroredError, TranscalibError  # noqa: E402
+
+def _positive(name: str, value, *, allow_none: bool = False) -> None:
+    if value is None and allow_none:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(value) and value > 0):
+        raise InputError(f"{name} must be a positive number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class RansacOptions:
+    """Options of the robust (RANSAC) stage.
+
+    Attributes
+    ----------
+    threshold_px : float
+        Inlier threshold (pixels) on a point's largest reprojection error over its views.
+    confidence : float
+        Probability, in (0, 1), that an all-inlier pair was drawn when the loop stops.
+    max_trials : int
+        Upper bound on the hypotheses drawn.
+    """
+
+    threshold_px: float = 2.0
+    confidence: float = 0.999
+    max_trials: int = 1000
+
+    def __post_init__(self):
+        _positive("threshold_px", self.threshold_px)
+        if not (isinstance(self.confidence, (int, float)) and 0.0 < self.confidence < 1.0):
+            raise InputError(f"confidence must be in (0, 1), got {self.confidence!r}")
+        if isinstance(self.max_trials, bool) or not isinstance(self.max_trials, (int, np.integer)) \
+                or self.max_trials < 1:
+            raise InputError(f"max_trials must be a positive integer, got {self.max_trials!r}")
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """Options of the maximum-likelihood refinement (the bundle adjuster).
+
+    Attributes
+    ----------
+    distortion : {"none", "radial1", "radial2", "opencv5"}
+        Lens distortion model (OpenCV convention).
+    estimate_skew : bool
+        Estimate the skew ``K[0, 1]`` (else fixed at its start value, 0 by default).
+    fix : mapping of str to float
+        Parameters held at known values: any of ``fx, fy, cx, cy, skew`` and ``k1, k2,
+        p1, p2, k3`` (e.g. ``{"cx": 320.0, "cy": 240.0}`` from the lens maker).
+    square_pixels : bool
+        One focal length: ``fx = fy``.
+    sigma_T : float or tuple of float, optional
+        Robot translation precision (user units), one value or one per view: the
+        translations become measurements. None: exact translations.
+    loss : {"linear", "huber", "cauchy"}
+        Loss of the residual norm; ``loss_scale_px`` its scale.
+    loss_scale_px : float
+        Scale of a robust loss (pixels).
+    inlier_threshold_px : float, optional
+        Residual norm above which a robust loss's observation is an outlier (default
+        ``3 * loss_scale_px``).
+    sigma_px : float, optional
+        Known pixel noise per coordinate; by default estimated from the residuals.
+    max_iterations : int
+        Maximum number of accepted Levenberg-Marquardt steps.
+    tol : float
+        Stop when a step moves the parameters by less than about ``sqrt(2 tol)``
+        standard deviations.
+    estimate_view_rotations : bool or tuple of int
+        A rotation per view ``i >= 1`` (True) or per listed view: the model-violation
+        alternative used by the rotation test.
+    """
+
+    distortion: str = "none"
+    estimate_skew: bool = False
+    fix: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    square_pixels: bool = False
+    sigma_T: float | tuple | None = None
+    loss: str = "linear"
+    loss_scale_px: float = 1.0
+    inlier_threshold_px: float | None = None
+    sigma_px: float | None = None
+    max_iterations: int = 100
+    tol: float = 1e-6
+    estimate_view_rotations: bool | tuple = False
+
+    def __post_init__(self):
+        if self.distortion not in DIST_MODELS:
+            raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
+        if self.loss not in LOSSES:
+            raise InputError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
+        _positive("loss_scale_px", self.loss_scale_px)
+        _positive("inlier_threshold_px", self.inlier_threshold_px, allow_none=True)
+        _positive("sigma_px", self.sigma_px, allow_none=True)
+        if isinstance(self.max_iterations, bool) or int(self.max_iterations) != self.max_iterations \
+                or self.max_iterations < 0:
+            raise InputError(f"max_iterations must be a non-negative integer, got {self.max_iterations!r}")
+        if not (isinstance(self.tol, (int, float)) and self.tol >= 0):
+            raise InputError(f"tol must be a number >= 0, got {self.tol!r}")
+        object.__setattr__(self, "fix", MappingProxyType(_check_fix(self.fix)))
+        object.__setattr__(self, "sigma_T", _check_sigma_T(self.sigma_T))
+        rot = self.estimate_view_rotations
+        if not isinstance(rot, bool):
+            try:
+                rot = tuple(sorted({int(v) for v in rot}))
+            except (TypeError, ValueError):
+                raise InputError("estimate_view_rotations must be a bool or a sequence of view indices, "
+                                 f"got {self.estimate_view_rotations!r}") from None
+            object.__setattr__(self, "estimate_view_rotations", rot)
+        if self.estimate_skew and "skew" in self.fix:
+            raise InputError("estimate_skew=True contradicts fix['skew']: the skew cannot be both free and known")
+
+    def __hash__(self):
+        return hash((self.distortion, tuple(self.fix.items()), self.sigma_T, self.loss))
+
+
+def _check_fix(fix) -> dict:
+    try:
+        items = dict(fix).items()
+    except (TypeError, ValueError):
+        raise InputError(f"fix must be a mapping of parameter names to values, got {fix!r}") from None
+    out = {}
+    for name, value in items:
+        if name not in FIXABLE:
+            raise InputError(f"fix: unknown parameter {name!r}; expected some of {', '.join(FIXABLE)}")
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"fix: {name} must be a number, got {value!r}") from None
+        if not math.isfinite(v) or (name in ("fx", "fy") and v <= 0):
+            raise InputError(f"fix: {name} = {value!r} is not a valid value")
+        out[name] = v
+    return out
+
+
+def _check_sigma_T(sigma_T):
+    if sigma_T is None:
+        return None
+    try:
+        s = np.asarray(sigma_T, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"sigma_T must be a number or one number per view, got {sigma_T!r}") from None
+    if s.ndim > 1 or not np.all(np.isfinite(s)) or np.any(s < 0) or not np.any(s > 0):
+        raise InputError(f"sigma_T must be a positive number, or one standard deviation >= 0 per view "
+                         f"(0: exact) with at least one positive, got {sigma_T!r}")
+    return float(s) if s.ndim == 0 else tuple(float(v) for v in s)
+
+
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """Everything :func:`transcalib.calibrate` was asked to do (``Calibration.options``).
+
+    Attributes
+    ----------
+    refine : bool
+        Maximum-likelihood refinement after the linear estimate.
+    robust : bool or None
+        RANSAC before the linear fit; None: on from ``ROBUST_MIN_POINTS`` points.
+    ransac : RansacOptions
+    refinement : RefineOptions
+    check_rotation : bool
+        Test for views where the robot rotated (needs ``refine``).
+    unit : str
+        Name of the length unit of the translations (messages and files).
+    """
+
+    refine: bool = True
+    robust: bool | None = None
+    ransac: RansacOptions = field(default_factory=RansacOptions)
+    refinement: RefineOptions = field(default_factory=RefineOptions)
+    check_rotation: bool = True
+    unit: str = "units"
+
+    def __post_init__(self):
+        if not self.refine:
+            changed = [f.name for f in fields(RefineOptions)
+                       if getattr(self.refinement, f.name) != getattr(RefineOptions(), f.name)]
+            if changed:
+                raise InputError(f"refine=False ignores the refinement option(s) {', '.join(changed)}: the "
+                                 "linear estimate has no distortion, robot noise, loss or fixed parameters; "
+                                 "drop them or refine")
+        if self.robust is False and self.ransac != RansacOptions():
+            raise InputError("robust=False ignores the RANSAC options given; drop them or use robust=True/None")
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,39 +276,40 @@ class LinearEstimate:
     used: np.ndarray
     method: str = "fast"
 
+    def __eq__(self, other) -> bool:
+        return isinstance(other, LinearEstimate) and _same_fields(self, other)
 
-@dataclass(frozen=True, eq=False)
+    __hash__ = None
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Calibration:
     """A complete calibration: what :func:`transcalib.calibrate` returns.
 
     Attributes
     ----------
-    K : (3, 3) float
-        Intrinsic matrix.
-    R : (3, 3) float
-        Rotation world (robot) -> camera, det +1.
+    camera : Camera
+        ``K``, ``R``, distortion and image size (also as the properties ``K``, ``R``,
+        ``dist``, ``dist_model``, ``image_size``).
     X : (n_points, 3) float
         Scene points in world axes and user units; NaN for unused points.
-    dist : (k,) float
-        Lens distortion coefficients of the model in OpenCV order (``k1, k2, p1, p2, k3``
-        truncated to the model: empty for "none", ``k1, k2`` for "radial2");
-        :attr:`dist_opencv` pads them to the five values OpenCV functions take.
-    dist_model : str
-        ``"none"``, ``"radial2"`` or ``"opencv5"``.
     residuals_px : (n_views, n_points, 2) float
-        Observed minus predicted pixel positions; NaN where a point is not seen or not used.
+        Observed minus predicted pixel positions; NaN where a point is not seen or could
+        not be triangulated.
     rms_px : float
         ``sqrt(mean(du**2 + dv**2))`` over the used observations (OpenCV's RMS convention).
-    diagnostics : list of Diagnostic
-        Human-readable warnings, each naming the cause and what to do. Empty when the
-        data look healthy.
     T : (n_views, 3) float
         The translations used (the measured ones, or their refined values when the
         robot noise was modelled).
+    sigma_px : float or None
+        Pixel noise per coordinate: estimated from the residuals (or the known value).
+    diagnostics : list of Diagnostic
+        Warnings, each naming the cause and what to do; empty when the data look healthy.
     linear : LinearEstimate or None
         The linear estimate the result started from.
     cov : (p, p) float or None
-        Covariance of the parameters named by ``param_names`` (refined results only).
+        Covariance of the parameters named by ``param_names`` (refined results only;
+        rotations in degrees).
     std : dict of str to float
         Standard deviations by parameter name (rotation angles in degrees).
     param_names : tuple of str
@@ -116,39 +318,59 @@ class Calibration:
         Standard deviation of each scene point coordinate.
     inliers : (n_points,) bool or None
         Points classified as inliers (robust estimation), else None (all used).
+    options : CalibrateOptions or None
+        What the calibration was asked to do.
     info : dict
-        How the result was obtained: stages run, iterations, final cost, stop reason...
+        How the result was obtained (statistics only): stages run, iterations, final
+        cost, stop reason, timings.
     """
 
-    K: np.ndarray
-    R: np.ndarray
+    camera: Camera
     X: np.ndarray
-    dist: np.ndarray
     residuals_px: np.ndarray
     rms_px: float
+    T: np.ndarray
+    sigma_px: float | None = None
     diagnostics: list = field(default_factory=list)
-    dist_model: str = "none"
-    T: np.ndarray | None = None
     linear: LinearEstimate | None = None
     cov: np.ndarray | None = None
     std: dict = field(default_factory=dict)
     param_names: tuple = ()
     X_std: np.ndarray | None = None
     inliers: np.ndarray | None = None
+    options: CalibrateOptions | None = None
     info: dict = field(default_factory=dict)
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K
+
+    @property
+    def R(self) -> np.ndarray:
+        return self.camera.R
+
+    @property
+    def dist(self) -> np.ndarray:
+        return self.camera.dist
+
+    @property
+    def dist_model(self) -> str:
+        return self.camera.dist_model
+
+    @property
+    def image_size(self) -> tuple | None:
+        return self.camera.image_size
 
     @property
     def A(self) -> np.ndarray:
         """``K @ R`` (3, 3)."""
-        return self.K @ self.R
+        return self.camera.K @ self.camera.R
 
     @property
     def dist_opencv(self) -> np.ndarray:
         """The five OpenCV coefficients ``k1, k2, p1, p2, k3`` (zeros beyond the model),
         ready for ``cv2.undistort`` / ``cv2.projectPoints``."""
-        out = np.zeros(5)
-        out[: self.dist.size] = self.dist
-        return out
+        return self.camera.dist5
 
     @property
     def n_views(self) -> int:
@@ -157,3 +379,39 @@ class Calibration:
     @property
     def n_points(self) -> int:
         return int(self.residuals_px.shape[1])
+
+    def save(self, path) -> None:
+        """Write this calibration to ``path`` (``calibration.json`` and its binary sidecar);
+        :func:`transcalib.load` reads it back, equal in every field."""
+        from .io.calibration_file import save_calibration  # io sits above types: import on use
+
+        save_calibration(self, path)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Calibration) and _same_fields(self, other)
+
+    __hash__ = None
+
+
+def _same_fields(a, b) -> bool:
+    return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+
+
+def _same(a, b) -> bool:
+    """Equality of result values: arrays element-wise (NaN equals NaN), containers deeply."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and bool(np.all((a == b) | (_isnan(a) & _isnan(b))))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, Diagnostic) or isinstance(b, Diagnostic):
+        return str(a) == str(b) and getattr(a, "code", None) == getattr(b, "code", None)
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
+
+def _isnan(a: np.ndarray) -> np.ndarray:
+    return np.isnan(a) if np.issubdtype(a.dtype, np.floating) else np.zeros(a.shape, bool)

@@ -1,5 +1,111 @@
-"""Diagnostics: checks that name the cause of a doubtful calibration and what to do."""
+"""Diagnostics: warnings that name the cause of a doubtful calibration and what to do.
 
-from .diagnostics import diagnose
+Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
+stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
+and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
+:mod:`.points`, :mod:`.rotation`, :mod:`.poses`.
 
-__all__ = ["diagnose"]
+=========================  ==============================================================
+code                       meaning
+=========================  ==============================================================
+``translations_coplanar``  the translations nearly lie in a plane (or on a line)
+``translations_small``     the translations are tiny compared with the scene distance
+``null_space_2d``          the linear system has a nearly two-dimensional null space
+``points_behind_camera``   reconstructed points behind the camera in some view
+``view_few_points``        views that see very few points
+``view_residuals``         views whose residuals stand out from the others
+``outliers``               gross outliers left in the residuals (mismatched tracks)
+``view_rotation``          model violation: the camera rotated between views
+``pose_orientation``       robot poses whose orientation differs from view 0's
+``check_skipped``          a check that could not run, and why (never silent by omission)
+=========================  ==============================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import DegenerateError, Diagnostic
+from ..types import Calibration, LinearEstimate
+from ..validate import as_uv_T
+from .common import depths
+from .linear import check_null_space
+from .points import check_outliers, check_points_behind, check_views
+from .poses import check_pose_orientations
+from .rotation import check_view_rotations, locate_view_rotation, view_rotation_test
+from .translations import check_translations
+
+__all__ = ["diagnose", "check_translations", "check_null_space", "check_points_behind", "check_views",
+           "check_outliers", "check_view_rotations", "view_rotation_test", "locate_view_rotation",
+           "check_pose_orientations", "skipped"]
+
+
+def skipped(check: str, reason) -> Diagnostic:
+    """The diagnostic of a check that could not run: never silent by omission."""
+    return Diagnostic("check_skipped", f"the {check} could not run: {reason}")
+
+
+def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quaternions=None,
+             check_rotation: bool = True, unit: str = "units") -> list:
+    """Run every check on a calibration; an empty list on healthy data.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        The observations the calibration was computed from.
+    T : (n_views, 3) float
+        Measured robot translations.
+    calibration : Calibration or LinearEstimate
+        The result to check; its ``inliers`` (if any) select the points that count.
+    linear : LinearEstimate, optional
+        The linear estimate (default ``calibration.linear``) for the null-space check.
+    quaternions : (n_views, 4) float, optional
+        Robot orientations ``qx, qy, qz, qw`` when the poses carry them.
+    check_rotation : bool
+        Run the model-violation (rotation) test (a refined calibration only).
+    unit : str
+        Length unit named in the messages.
+
+    Returns
+    -------
+    list of Diagnostic
+        In the order: translations, null space, points behind, views, outliers, rotation,
+        poses; a ``check_skipped`` entry for each check that could not run.
+    """
+    uv, T = as_uv_T(uv, T)
+    K, R, X = (np.asarray(a, float) for a in (calibration.K, calibration.R, calibration.X))
+    seen = np.isfinite(uv[..., 0])
+    z = depths(R, X, T)
+    with np.errstate(invalid="ignore"):
+        zs = z[seen & np.isfinite(z) & (z > 0)]
+    distance = float(np.median(zs)) if zs.size else None
+    out = check_translations(T, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=distance, unit=unit)
+    if linear is None:
+        linear = calibration if isinstance(calibration, LinearEstimate) else calibration.linear
+    if linear is not None:
+        out += check_null_space(linear)
+    out += _behind(uv, T, calibration)
+    if isinstance(calibration, Calibration):
+        out += check_views(uv, calibration.residuals_px, used=calibration.inliers)
+        out += check_outliers(calibration.residuals_px, used=calibration.inliers)
+        if check_rotation:
+            try:
+                out += check_view_rotations(uv, T, calibration)
+            except DegenerateError as exc:
+                out.append(skipped("rotation test (did the robot rotate between views?)", exc))
+    if quaternions is not None:
+        out += check_pose_orientations(quaternions)
+    return out
+
+
+def _behind(uv, T, calibration) -> list:
+    """Points behind the camera now, or left out of the refinement for being behind."""
+    behind = check_points_behind(uv, T, calibration)
+    n_excluded = int(getattr(calibration, "info", {}).get("n_points_behind_camera", 0) or 0)
+    if behind or n_excluded == 0:
+        return behind
+    return [Diagnostic(
+        "points_behind_camera",
+        f"{n_excluded} point(s) were left out of the refinement because they lie behind the camera: these "
+        "tracks are almost certainly mismatches. Remove them or run the robust estimator "
+        "(calibrate(..., robust=True), CLI --robust).")]

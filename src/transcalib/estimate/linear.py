@@ -40,7 +40,7 @@ from ..geometry.triangulate import triangulate
 from ..types import DegenerateError, InputError, LinearEstimate
 from ..validate import as_uv_T, check_translations_span
 
-__all__ = ["estimate_linear", "solve_tls", "DENSE_MAX_POINTS"]
+__all__ = ["estimate_linear", "fit_linear", "solve_tls", "DENSE_MAX_POINTS"]
 
 #: Largest problem the dense reference accepts (its memory grows as n^2).
 DENSE_MAX_POINTS = 3000
@@ -424,6 +424,12 @@ def estimate_linear(uv, T, *, method: str = "fast") -> LinearEstimate:
     if method not in ("fast", "dense"):
         raise InputError(f"method must be 'fast' or 'dense', got {method!r}")
     uv, T = as_uv_T(uv, T)
+    return fit_linear(uv, T, method)
+
+
+def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast") -> LinearEstimate:
+    """:func:`estimate_linear` on validated arrays (the pipeline's entry: no input checks,
+    only the checks that the data determine the camera)."""
     n_seen = np.isfinite(uv[..., 0]).sum(axis=0)
     used = n_seen >= 2
     if used.sum() < 2:

@@ -1,0 +1,537 @@
+"""The one bundle adjuster: model, Jacobians, normal equations, Schur step, Levenberg-Marquardt.
+
+Residual of observation ``(i, j)`` (paper eq. 2 with OpenCV distortion)::
+
+    r_ij = uv_ij - pi(K, dist, Q_i R (F_i (X_j - T_i) - t))
+
+with ``R`` the camera rotation, ``F_i`` a known per-view rotation (identity inside one
+pure-translation session; ``R_i^T`` of the flange for several sessions, then ``R`` is
+``R_X^T`` and ``t`` the camera's position in the flange ``t_X``), ``Q_i = exp([w_i]x)``
+an optional model-violation rotation of view ``i`` (rotation test) and ``T_i`` the
+translation, optionally a noisy measurement with prior ``|T_i - T_i^meas|^2 / sigma_T^2``.
+``pi`` is :func:`transcalib.geometry.camera.project_camera_frame`, the project's only
+projection.
+
+The parameters are laid out by :class:`Layout`: free intrinsics (``fix``, square pixels),
+free distortion coefficients, ``R`` (local update ``R <- exp([dw]x) R``), ``t`` (when
+free), the rotations ``w_i`` and translations ``T_i`` of the views that have them, then
+the points. The Jacobian has one 2x3 block per observation for its point, so the normal
+matrix is ``[[U, W], [W^T, V]]`` with ``V`` block-diagonal; each step eliminates the points
+with the Schur complement ::
+
+    S = U - sum_j W_j V_j^-1 W_j^T,    S dg = b_g - sum_j W_j V_j^-1 b_j,
+    dX_j = V_j^-1 (b_j - W_j^T dg),
+
+O(n) time and memory (batched 3x3 inverses, BLAS products; no loop over points).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from ..errors import DegenerateError
+from ..geometry.camera import DIST_MODELS, DIST_NAMES, project_camera_frame
+from ..geometry.rotation import rotvec_to_matrix
+from ..types import INTRINSIC_NAMES
+
+__all__ = ["Layout", "State", "Data", "build_data", "predict_view", "normal_equations", "schur", "solve_spd",
+           "levenberg_marquardt", "cost", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
+
+_MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
+_DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see Data
+
+
+# ----------------------------------------------------------------------------------------
+# Parameter layout and state
+# ----------------------------------------------------------------------------------------
+
+
+def intrinsic_basis(fix, estimate_skew: bool, square_pixels: bool) -> tuple[np.ndarray, tuple]:
+    """Free intrinsic parameters as a basis ``E (5, q)``: ``d(fx, fy, cx, cy, s) = E dp``.
+
+    ``fix`` holds some of fx, fy, cx, cy, skew at known values; the skew is fixed unless
+    ``estimate_skew``; with ``square_pixels`` one focal length ``f`` moves fx and fy
+    together. Returns ``E`` and the names of the free parameters.
+    """
+    columns, names = [], []
+    if square_pixels:
+        if "fx" not in fix and "fy" not in fix:
+            columns.append([1.0, 1.0, 0, 0, 0])
+            names.append("f")
+    else:
+        for k in (0, 1):
+            if INTRINSIC_NAMES[k] not in fix:
+                columns.append(np.eye(5)[k])
+                names.append(INTRINSIC_NAMES[k])
+    for k in (2, 3):
+        if INTRINSIC_NAMES[k] not in fix:
+            columns.append(np.eye(5)[k])
+            names.append(INTRINSIC_NAMES[k])
+    if estimate_skew and "skew" not in fix:
+        columns.append(np.eye(5)[4])
+        names.append("skew")
+    E = np.array(columns, dtype=float).T.reshape(5, len(columns))
+    return E, tuple(names)
+
+
+@dataclass
+class Layout:
+    """Where each global parameter sits in the vector ``g`` solved for by the Schur step.
+
+    Parameters
+    ----------
+    n_views : int
+    intr_basis : (5, q) float
+        Free intrinsics (:func:`intrinsic_basis`).
+    intr_names : tuple of str
+    dist_free : tuple of int
+        Free distortion coefficients, indices into OpenCV's five.
+    rot_views : tuple of int
+        Views with a rotation ``Q_i``.
+    T_views : tuple of int
+        Views whose translation is a parameter.
+    t_free : bool
+        The offset ``t`` (hand-eye translation) is a parameter.
+    """
+
+    n_views: int
+    intr_basis: np.ndarray
+    intr_names: tuple
+    dist_free: tuple = ()
+    rot_views: tuple = ()
+    T_views: tuple = ()
+    t_free: bool = False
+    i_vrot: dict = field(init=False)
+    i_T: dict = field(init=False)
+
+    def __post_init__(self):
+        self.n_intr = self.intr_basis.shape[1]
+        self.i_dist = self.n_intr
+        self.n_dist = len(self.dist_free)
+        self.i_rot = self.i_dist + self.n_dist
+        self.i_t = self.i_rot + 3
+        self.n_common = self.i_t + 3 * self.t_free
+        start = self.n_common
+        self.i_vrot, self.i_T = {}, {}
+        for i in self.rot_views:
+            self.i_vrot[int(i)] = start
+            start += 3
+        for i in self.T_views:
+            self.i_T[int(i)] = start
+            start += 3
+        self.size = start
+
+    @property
+    def n_global_no_T(self) -> int:
+        """Parameters other than the translations (these have priors)."""
+        return self.size - 3 * len(self.i_T)
+
+    def view_columns(self, i: int) -> np.ndarray:
+        """Global indices of the columns of view ``i``'s local Jacobian (common first)."""
+        cols = list(range(self.n_common))
+        if i in self.i_vrot:
+            cols += range(self.i_vrot[i], self.i_vrot[i] + 3)
+        if i in self.i_T:
+            cols += range(self.i_T[i], self.i_T[i] + 3)
+        return np.array(cols)
+
+    def names(self) -> tuple:
+        names = list(self.intr_names) + [DIST_NAMES[k] for k in self.dist_free] + ["rx", "ry", "rz"]
+        names += ["t_x", "t_y", "t_z"] if self.t_free else []
+        for i in self.i_vrot:
+            names += [f"view{i}_rx", f"view{i}_ry", f"view{i}_rz"]
+        for i in self.i_T:
+            names += [f"T{i}_x", f"T{i}_y", f"T{i}_z"]
+        return tuple(names)
+
+    def rotation_mask(self) -> np.ndarray:
+        """(size,) bool: parameters that are rotation angles (reported in degrees)."""
+        m = np.zeros(self.size, bool)
+        m[self.i_rot: self.i_rot + 3] = True
+        for s in self.i_vrot.values():
+            m[s: s + 3] = True
+        return m
+
+
+def dist_indices(model: str, fix=()) -> tuple:
+    """Free coefficients of distortion ``model`` (indices into OpenCV's five), less ``fix``."""
+    return tuple(DIST_NAMES.index(k) for k in DIST_MODELS[model] if k not in fix)
+
+
+@dataclass
+class State:
+    """Current estimate. ``X`` holds only the used points; ``F`` None means identity."""
+
+    intr: np.ndarray  # (5,) fx, fy, cx, cy, skew
+    dist5: np.ndarray  # (5,) k1, k2, p1, p2, k3
+    R: np.ndarray  # (3, 3)
+    Q: np.ndarray  # (n_views, 3, 3) model-violation rotations, identity by default
+    T: np.ndarray  # (n_views, 3)
+    X: np.ndarray  # (n_used, 3)
+    F: np.ndarray | None = None  # (n_views, 3, 3) known per-view rotations (sessions)
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) offset (hand-eye)
+
+    def copy(self) -> "State":
+        return State(self.intr.copy(), self.dist5.copy(), self.R.copy(), self.Q.copy(), self.T.copy(),
+                     self.X.copy(), self.F, self.t.copy())
+
+
+@dataclass
+class Data:
+    """Observations grouped by view: ``pts[i]`` indexes the used points seen in view i.
+
+    Views seeing most points are also kept as full arrays over *all* used points with a
+    mask (``full_uv``, ``full_seen``): contiguous arrays instead of a gather/scatter per
+    accumulated quantity.
+    """
+
+    pts: list  # of (n_i,) int
+    uv: list  # of (2, n_i) float
+    T_meas: np.ndarray  # (n_views, 3)
+    t_weight: np.ndarray  # (n_views,) sigma_px / sigma_T_i for free translations (else 0)
+    n_points: int  # used points
+    full_uv: list  # of (2, n) float (0 where unseen) or None
+    full_seen: list  # of (n,) bool or None
+
+    @property
+    def n_obs(self) -> int:
+        return int(sum(len(p) for p in self.pts))
+
+
+def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
+    """Group the observations ``seen (V, n_all)`` of the points ``used_idx`` by view."""
+    pts, obs, full_uv, full_seen = [], [], [], []
+    n = len(used_idx)
+    for i in range(uv.shape[0]):
+        sel = np.flatnonzero(seen[i, used_idx])
+        pts.append(sel)
+        obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
+        if _DENSE_FRACTION * n <= len(sel) < n:
+            f = np.zeros((2, n))
+            f[:, sel] = obs[-1]
+            mask = np.zeros(n, bool)
+            mask[sel] = True
+            full_uv.append(f)
+            full_seen.append(mask)
+        else:
+            full_uv.append(None)
+            full_seen.append(None)
+    return Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=n, full_uv=full_uv,
+                full_seen=full_seen)
+
+
+# ----------------------------------------------------------------------------------------
+# Model and Jacobians of one view
+# ----------------------------------------------------------------------------------------
+
+
+def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, valid=None):
+    """Predicted pixels of the used points ``pts`` in view ``i`` and their Jacobians.
+
+    Arrays are laid out with the points last. ``pts`` is an index array or
+    ``slice(None)``; with ``valid`` (n,) bool the invalid points get depth 1 in the
+    divisions (finite, meaningless values that enter with weight 0).
+
+    Returns
+    -------
+    pred : (2, n) float
+    z : (n,) float
+        Camera depth (must be positive).
+    Jg : (q, 2, n) float
+        d pred / d (global parameters of this view), columns ``lay.view_columns(i)``.
+    JX : (3, 2, n) float
+        d pred / d X_j.
+    """
+    d = (state.X[pts] - state.T[i]).T  # (3, n)
+    y = d if state.F is None else state.F[i] @ d
+    if lay.t_free or np.any(state.t):
+        y = y - state.t[:, None]
+    y2 = state.R @ y
+    Q = state.Q[i]
+    xc = Q @ y2 if lay.rot_views else y2
+    p = project_camera_frame(state.intr, state.dist5, xc, jacobian=jacobian, valid=valid)
+    if not jacobian:
+        return p.pred, xc[2], None, None
+    n = y.shape[1]
+    q = lay.n_common + 3 * (i in lay.i_vrot) + 3 * (i in lay.i_T)
+    Jg = np.empty((q, 2, n))
+    Jg[: lay.n_intr] = np.einsum("kcn,kp->pcn", p.J_intr, lay.intr_basis)
+    Jg[lay.i_dist: lay.i_rot] = p.J_dist[list(lay.dist_free)]
+    PQ = np.einsum("kcn,cd->kdn", p.P, Q) if lay.rot_views else p.P  # d pred / d y2
+    # R <- exp([w]x) R: d y2 / dw = -[y2]x, and a^T (-[y2]x) = (y2 x a)^T
+    _cross_rows(y2, PQ, Jg[lay.i_rot: lay.i_rot + 3])
+    PQR = np.einsum("kcn,cd->dkn", PQ, state.R)  # d pred / d y  (3, 2, n)
+    JX = PQR if state.F is None else np.einsum("dkn,de->ekn", PQR, state.F[i])
+    if lay.t_free:
+        Jg[lay.i_t: lay.i_t + 3] = -PQR
+    col = lay.n_common
+    if i in lay.i_vrot:  # Q_i <- exp([w_i]x) Q_i: d xc / dw_i = -[xc]x
+        _cross_rows(xc, p.P, Jg[col: col + 3])
+        col += 3
+    if i in lay.i_T:
+        Jg[col: col + 3] = -JX
+    return p.pred, xc[2], Jg, JX
+
+
+def _cross_rows(v: np.ndarray, A: np.ndarray, out: np.ndarray) -> None:
+    """``out[:, k, n] = v[:, n] x A[k, :, n]`` for v (3, n), A (2, 3, n), out (3, 2, n)."""
+    for k in range(2):
+        a = A[k]
+        out[0, k] = v[1] * a[2] - v[2] * a[1]
+        out[1, k] = v[2] * a[0] - v[0] * a[2]
+        out[2, k] = v[0] * a[1] - v[1] * a[0]
+
+
+# ----------------------------------------------------------------------------------------
+# Losses, cost, residuals
+# ----------------------------------------------------------------------------------------
+
+
+def loss_weights(e2: np.ndarray, loss: str, c: float):
+    """``rho(e^2)`` and the IRLS weight ``w = d rho / d(e^2)`` (cost = sum rho / 2) of the
+    residual norm ``e`` (px): linear ``e^2``; Huber ``e^2`` (e <= c) else ``2 c e - c^2``;
+    Cauchy ``c^2 log(1 + e^2 / c^2)``."""
+    if loss == "linear":
+        return e2, np.ones_like(e2)
+    c2 = c * c
+    if loss == "huber":
+        e = np.sqrt(e2)
+        inside = e <= c
+        return np.where(inside, e2, 2.0 * c * e - c2), np.where(inside, 1.0, c / np.maximum(e, 1e-300))
+    return c2 * np.log1p(e2 / c2), 1.0 / (1.0 + e2 / c2)
+
+
+def _view_residuals(state, lay, data, i):
+    pred, z, _, _ = predict_view(state, lay, i, data.pts[i], jacobian=False)
+    return data.uv[i] - pred, z
+
+
+def cost(state: State, lay: Layout, data: Data, loss: str, c: float) -> float:
+    """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0."""
+    total = 0.0
+    for i, pts in enumerate(data.pts):
+        if len(pts):
+            r, z = _view_residuals(state, lay, data, i)
+            if not np.all(z > 0):
+                return np.inf
+            total += np.sum(loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[0])
+    dT = (state.T - data.T_meas) * data.t_weight[:, None]
+    return 0.5 * (total + np.sum(dT * dT))
+
+
+def sum_sq(state, lay, data, loss="linear", thr=np.inf) -> float:
+    """Sum of squared pixel residuals of ``data`` (with a robust loss: of the observations
+    whose norm is at most ``thr``)."""
+    total = 0.0
+    for i, pts in enumerate(data.pts):
+        if len(pts):
+            r = _view_residuals(state, lay, data, i)[0]
+            e2 = r[0] ** 2 + r[1] ** 2
+            total += float(np.sum(e2 if loss == "linear" else e2[e2 <= thr * thr]))
+    return total
+
+
+def all_residuals(state, lay, uv, seen, used_idx, T) -> np.ndarray:
+    """Residuals ``(n_views, n_used, 2)`` of the used points, NaN where unseen."""
+    data = build_data(uv, seen, used_idx, T, np.zeros(len(T)))
+    out = np.full((len(T), len(used_idx), 2), np.nan)
+    for i, pts in enumerate(data.pts):
+        if len(pts):
+            out[i, pts] = _view_residuals(state, lay, data, i)[0].T
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Normal equations and the Schur step
+# ----------------------------------------------------------------------------------------
+
+
+def _view_system(state, lay, data, i, loss, c, obs_weight):
+    """Residuals, weights and Jacobians of view ``i`` over its points (or all points with a
+    mask): ``(r (2, m), w (m,), Jg, JX, pts)``."""
+    n, seen = data.n_points, data.full_seen[i]
+    if seen is None:
+        pred, _, Jg, JX = predict_view(state, lay, i, data.pts[i], True)
+        r = data.uv[i] - pred
+        w = loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1] if obs_weight is None else obs_weight[i]
+        return r, w, Jg, JX, data.pts[i]
+    pred, _, Jg, JX = predict_view(state, lay, i, slice(None), True, valid=seen)
+    r = data.full_uv[i] - pred
+    if obs_weight is None:
+        w = loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1] * seen
+    else:
+        w = np.zeros(n)
+        w[data.pts[i]] = obs_weight[i]
+    return r * seen, w, Jg, JX, np.arange(n)
+
+
+def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None):
+    """Assemble ``[[U, W], [W^T, V]] [dg; dX] = [b_g; b_X]`` (Gauss-Newton, IRLS weights).
+
+    Returns ``U (p, p)``, ``W (p, 3, n)``, ``V (3, 3, n)``, ``b_g (p,)``, ``b_X (3, n)``
+    (points last). ``obs_weight``: optional list of (n_i,) weights replacing the loss's
+    IRLS weights (the covariance uses ones).
+    """
+    p, n = lay.size, data.n_points
+    U, W, V = np.zeros((p, p)), np.zeros((p, 3, n)), np.zeros((3, 3, n))
+    bg, bX = np.zeros(p), np.zeros((3, n))
+    for i in range(len(data.pts)):
+        if len(data.pts[i]) == 0:
+            continue
+        r, w, Jg, JX, pts = _view_system(state, lay, data, i, loss, c, obs_weight)
+        cols = lay.view_columns(i)
+        q = len(cols)
+        Jw, JXw = Jg * w, JX * w
+        U[np.ix_(cols, cols)] += Jw.reshape(q, -1) @ Jg.reshape(q, -1).T
+        bg[cols] += Jw.reshape(q, -1) @ r.reshape(-1)
+        at = slice(None) if len(pts) == n else pts  # every used point seen: no scatter
+        for a in range(3):
+            for b in range(a, 3):
+                V[a, b, at] += JXw[a, 0] * JX[b, 0] + JXw[a, 1] * JX[b, 1]
+            bX[a, at] += JXw[a, 0] * r[0] + JXw[a, 1] * r[1]
+        for la, ga in enumerate(cols):
+            W[ga][:, at] += Jw[la, 0] * JX[:, 0] + Jw[la, 1] * JX[:, 1]
+    for a in range(3):
+        for b in range(a):
+            V[a, b] = V[b, a]
+    for i, s in lay.i_T.items():  # translation priors: residual t_w (T^meas - T), Jacobian t_w I
+        tw2 = data.t_weight[i] ** 2
+        U[s: s + 3, s: s + 3] += tw2 * np.eye(3)
+        bg[s: s + 3] += tw2 * (data.T_meas[i] - state.T[i])
+    return U, W, V, bg, bX
+
+
+def inv3_spd(V: np.ndarray):
+    """Inverses of symmetric positive definite 3x3 blocks ``V (3, 3, n)``, vectorised.
+
+    Jacobi-scaled adjugate: ``V^-1 = D (D V D)^-1 D`` with ``D = diag(V)^-1/2``. Returns
+    the inverses ``(3, 3, n)`` and the determinants of the scaled blocks ``(n,)``.
+    """
+    d = 1.0 / np.sqrt(np.maximum(np.stack([V[0, 0], V[1, 1], V[2, 2]]), 1e-300))
+    A = V * d[:, None] * d[None, :]
+    a, b, c = A[0, 0], A[0, 1], A[0, 2]
+    e, f, h = A[1, 1], A[1, 2], A[2, 2]
+    c00, c01, c02 = e * h - f * f, c * f - b * h, b * f - c * e
+    c11, c12, c22 = a * h - c * c, b * c - a * f, a * e - b * b
+    det = a * c00 + b * c01 + c * c02
+    idet = 1.0 / np.where(det > 0, det, 1.0)
+    inv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) * idet
+    return inv * d[:, None] * d[None, :], det
+
+
+def matvec3(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M_j v_j`` for M (3, 3, n), v (3, n)."""
+    return M[:, 0] * v[0] + M[:, 1] * v[1] + M[:, 2] * v[2]
+
+
+def schur(U, W, V, bg, bX):
+    """Reduced system ``S dg = rhs`` with the points eliminated, and ``V^-1``.
+
+    ``S = U - sum_j W_j V_j^-1 W_j^T``, ``rhs = b_g - sum_j W_j V_j^-1 b_j``; returns
+    ``S, rhs, V^-1, det`` (scaled determinants of the point blocks).
+    """
+    Vinv, det = inv3_spd(V)
+    p = U.shape[0]
+    Y = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]  # W_j V_j^-1
+    S = U - Y.reshape(p, -1) @ W.reshape(p, -1).T
+    rhs = bg - Y.reshape(p, -1) @ bX.reshape(-1)
+    return 0.5 * (S + S.T), rhs, Vinv, det
+
+
+def solve_spd(S: np.ndarray, rhs: np.ndarray):
+    """Solve ``S x = rhs`` (Jacobi-scaled Cholesky); None if not positive definite."""
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    try:
+        cf = scipy.linalg.cho_factor(S * d[:, None] * d[None, :])
+    except np.linalg.LinAlgError:
+        return None
+    return d * scipy.linalg.cho_solve(cf, rhs * d)
+
+
+def apply_step(state: State, lay: Layout, dg: np.ndarray, dX: np.ndarray) -> State:
+    """The state moved by ``dg`` (global, layout order) and ``dX (3, n)``."""
+    new = state.copy()
+    new.intr += lay.intr_basis @ dg[: lay.n_intr]
+    new.dist5[list(lay.dist_free)] += dg[lay.i_dist: lay.i_rot]
+    new.R = rotvec_to_matrix(dg[lay.i_rot: lay.i_rot + 3]) @ state.R
+    if lay.t_free:
+        new.t += dg[lay.i_t: lay.i_t + 3]
+    for i, s in lay.i_vrot.items():
+        new.Q[i] = rotvec_to_matrix(dg[s: s + 3]) @ state.Q[i]
+    for i, s in lay.i_T.items():
+        new.T[i] += dg[s: s + 3]
+    new.X += dX.T
+    return new
+
+
+# ----------------------------------------------------------------------------------------
+# Levenberg-Marquardt
+# ----------------------------------------------------------------------------------------
+
+
+def _damped_step(state, f, lay, data, system, mu, loss, c):
+    """One damped Schur step from ``state`` (cost ``f``): ``(new_state, new_cost, gain)``,
+    gain < 0 if rejected."""
+    U, W, V, bg, bX = system
+    dU = np.maximum(np.diag(U), 1e-12 * max(np.diag(U).max(), 1e-300))
+    dV = np.stack([V[0, 0], V[1, 1], V[2, 2]])  # (3, n)
+    dV = np.maximum(dV, 1e-12 * dV.max(axis=0))
+    Vd = V.copy()
+    for a in range(3):
+        Vd[a, a] += mu * dV[a]
+    S, rhs, Vinv, det = schur(U + np.diag(mu * dU), W, Vd, bg, bX)
+    dg = solve_spd(S, rhs) if np.all(det > 0) else None
+    if dg is None:
+        return None, np.inf, -1.0
+    dX = matvec3(Vinv, bX - np.tensordot(dg, W, axes=1))  # (3, n)
+    new = apply_step(state, lay, dg, dX)
+    new_cost = cost(new, lay, data, loss, c)
+    # decrease predicted by the damped quadratic model
+    predicted = 0.5 * (dg @ (mu * dU * dg + bg) + np.sum(dX * (mu * dV * dX + bX)))
+    gain = (f - new_cost) / predicted if predicted > 0 else -1.0
+    return new, new_cost, gain
+
+
+def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None):
+    """Minimise the (robust) cost; returns ``(state, cost, iterations, stop reason)``.
+
+    Stops when a step decreases the cost by less than ``tol * sigma^2`` with
+    ``sigma^2 = 2 cost / dof`` (the parameters moved by about ``sqrt(2 tol)`` standard
+    deviations), when no step decreases it, or at zero residual.
+    """
+    f = cost(state, lay, data, loss, c)
+    if not np.isfinite(f):
+        raise DegenerateError("the initial estimate puts some used points behind the camera; "
+                              "start from a better initial estimate (e.g. the linear one)")
+    mu, nu = _MU0, 2.0
+    reason = f"max_iterations ({max_iterations}) reached"
+    floor = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
+    dof = max(2 * data.n_obs - lay.n_global_no_T - 3 * data.n_points, 1)
+    it = 0
+    while it < max_iterations:
+        if f <= floor:
+            reason = "converged: zero residual"
+            break
+        system = normal_equations(state, lay, data, loss, c)
+        while True:
+            new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
+            if gain > 0:
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+                break
+            mu *= nu
+            nu *= 2.0
+            if mu > 1e16:
+                return state, f, it, "converged: no step decreases the cost (minimum within numerical precision)"
+        it += 1
+        decrease = f - new_f
+        state, f = new, new_f
+        if progress is not None:
+            progress({"iteration": it, "cost": f, "damping": mu})
+        if decrease <= tol * 2.0 * f / dof:
+            reason = f"converged: cost decrease below tol={tol:g} x sigma^2"
+            break
+    return state, f, it, reason

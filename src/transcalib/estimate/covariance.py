@@ -1,0 +1,167 @@
+"""Uncertainty: the reduced Fisher information, the covariance at a solution, the CRLB.
+
+With the Jacobian ``J`` of the whitened residuals at the solution and the points
+eliminated (:func:`transcalib.estimate.bundle.schur`), the information of the global
+parameters is ``S = U - sum_j W_j V_j^-1 W_j^T`` (pixel units, unscaled), so
+
+    cov(g) = sigma^2 S^-1,    cov(X_j) = sigma^2 (V_j^-1 + Z_j^T S^-1 Z_j),  Z_j = W_j V_j^-1
+
+At the ground truth of a simulated scene with the true noise, ``sigma^2 S^-1`` is the
+Cramér-Rao lower bound (:func:`crlb`). A (numerically) singular ``S`` means the posed
+problem does not determine some parameters: :func:`check_identifiable` names them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import DegenerateError, InputError
+from ..geometry.camera import DIST_MODELS, pad_dist
+from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, normal_equations, schur
+
+__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "IDENTIFIABILITY_RTOL"]
+
+#: Relative eigenvalue of the (Jacobi-scaled) reduced information below which a parameter
+#: combination counts as undetermined.
+IDENTIFIABILITY_RTOL = 1e-10
+
+
+def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=None):
+    """``S (p, p)`` with the points eliminated, ``W``, ``V^-1`` and the point determinants.
+
+    ``obs_weight``: per-view weights (default ones); ``ok`` (n,) bool: points that count
+    (the others are left out of ``S``).
+    """
+    weights = [np.ones(len(p)) for p in data.pts] if obs_weight is None else obs_weight
+    if ok is not None:
+        weights = [np.where(ok[pts], w, 0.0) for pts, w in zip(data.pts, weights)]
+    U, W, V, _, _ = normal_equations(state, lay, data, "linear", 1.0, obs_weight=weights)
+    if ok is not None:
+        for a in range(3):
+            V[a, a, ~ok] = 1.0  # excluded points: W is zero there, they do not enter S
+    S, _, Vinv, det = schur(U, W, V, np.zeros(lay.size), np.zeros((3, data.n_points)))
+    return S, W, Vinv, det
+
+
+def check_identifiable(S: np.ndarray, names: tuple, hint: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """Raise :class:`DegenerateError` naming the undetermined parameters if ``S`` is singular.
+
+    Returns the eigen-decomposition ``(evals, evecs)`` of the Jacobi-scaled ``S`` and the
+    scaling ``d`` folded into the vectors (``S^-1 = (V / w) V^T`` scaled by ``d``).
+    """
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    evals, evecs = np.linalg.eigh(S * d[:, None] * d[None, :])
+    weak = evals <= IDENTIFIABILITY_RTOL * max(evals[-1], 1e-300)
+    if weak.any():
+        v = np.abs(evecs[:, weak]).max(axis=1)
+        involved = [names[k] for k in np.argsort(-v) if v[k] > 0.2 * v.max()]
+        raise DegenerateError(
+            "the data do not determine all parameters: the combination of "
+            f"{', '.join(involved)} is free (the Fisher information is singular in {int(weak.sum())} "
+            "direction(s)). " + (hint or "Use a simpler distortion model, more points spread over the image, "
+                                        "more views, or fix known parameters."))
+    return evals, evecs * d[:, None]
+
+
+def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = ""):
+    """Unscaled covariances at the solution: ``S^-1 (p, p)`` and each point's diagonal
+    ``(n, 3)``, with the mask ``ok`` of points whose covariance exists.
+
+    Observations with weight 0 are left out; so are points left with fewer than 2
+    observations or whose 3x3 block is (numerically) singular (variances NaN).
+    """
+    weights = [np.ones(len(p)) for p in data.pts] if obs_weight is None else obs_weight
+    n_w = np.zeros(data.n_points, int)
+    for pts, w in zip(data.pts, weights):
+        np.add.at(n_w, pts, w > 0)
+    ok = n_w >= 2
+    for _ in range(2):  # a second pass only if some points turn out undetermined
+        S, W, Vinv, det = reduced_information(state, lay, data, weights, ok)
+        undetermined = ok & (det <= 1e-12)  # rays (nearly) parallel: X_j not determined
+        if not undetermined.any():
+            break
+        ok &= ~undetermined
+    evals, evecs = check_identifiable(S, lay.names(), hint)
+    Sinv = (evecs / evals) @ evecs.T
+    p, n = lay.size, data.n_points
+    Z = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]
+    SZ = (Sinv @ Z.reshape(p, -1)).reshape(p, 3, n)
+    var_X = (np.stack([Vinv[0, 0], Vinv[1, 1], Vinv[2, 2]]) + np.sum(Z * SZ, axis=0)).T  # (n, 3)
+    var_X[~ok] = np.nan
+    return Sinv, var_X, ok
+
+
+def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, fix=None,
+         square_pixels: bool = False, estimate_view_rotations=False) -> dict:
+    """Cramér-Rao lower bound on the parameter standard deviations of a simulated scene.
+
+    The Fisher information ``J^T J / noise_px^2`` (plus ``1 / robot_noise^2`` on the
+    translations of views ``i >= 1`` when the scene has robot noise, as
+    :func:`transcalib.synth.simulate.observe` draws it) at the ground truth, for the
+    observation pattern of ``scene.uv``; the points eliminated as in the refinement.
+
+    Parameters
+    ----------
+    scene : transcalib.synth.simulate.Scene
+        With ``noise_px > 0``.
+    distortion : {"none", "radial1", "radial2", "opencv5"}, optional
+        Model whose parameters are bounded; default from the number of true coefficients.
+    estimate_skew : bool
+        Include the skew as a parameter.
+    fix : mapping, optional
+        Parameters known exactly (names as :class:`transcalib.RefineOptions`).
+    square_pixels : bool
+        One focal length ``f`` (``fx = fy``).
+    estimate_view_rotations : bool or sequence of int
+        Include a rotation per view ``i >= 1`` or per listed view, at zero: the bound on
+        how well a robot rotation could be detected (``view{i}_rx`` ..., degrees).
+
+    Returns
+    -------
+    dict of str to float
+        Lower bound of the standard deviation of each parameter, named as in
+        ``Calibration.std`` (rotations in degrees; with square pixels ``f`` and also
+        ``fx``, ``fy``).
+    """
+    if not scene.noise_px > 0:
+        raise InputError(f"the CRLB needs a scene with pixel noise > 0, got noise_px={scene.noise_px!r}")
+    if distortion is None:
+        distortion = {0: "none", 1: "radial1", 2: "radial2"}.get(np.asarray(scene.dist).size, "opencv5")
+    if distortion not in DIST_MODELS:
+        raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {distortion!r}")
+    fix = dict(fix or {})
+    n_views = scene.uv.shape[0]
+    seen = np.all(np.isfinite(scene.uv), axis=2)
+    used_idx = np.flatnonzero(seen.sum(axis=0) >= 2)
+    T_views = tuple(range(1, n_views)) if scene.robot_noise > 0 else ()
+    E, names = intrinsic_basis(fix, estimate_skew, square_pixels)
+    rot_views = _rot_views(estimate_view_rotations, n_views)
+    lay = Layout(n_views, E, names, dist_indices(distortion, fix), rot_views, T_views)
+    K = scene.K
+    state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), pad_dist(scene.dist), scene.R.copy(),
+                  np.tile(np.eye(3), (n_views, 1, 1)), scene.T_true.copy(), scene.X[used_idx].copy())
+    tw = np.zeros(n_views)
+    tw[list(T_views)] = scene.noise_px / scene.robot_noise if T_views else 0.0
+    data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
+    S = reduced_information(state, lay, data)[0]
+    evals, evecs = check_identifiable(S, lay.names())
+    sd = scene.noise_px * np.sqrt(np.sum(evecs**2 / evals, axis=1))
+    sd = np.where(lay.rotation_mask(), np.degrees(sd), sd)
+    out = {nm: float(v) for nm, v in zip(lay.names(), sd)}
+    if "f" in out:
+        out["fx"] = out["fy"] = out["f"]
+    return out
+
+
+def _rot_views(spec, n_views: int) -> tuple:
+    """Views with a rotation parameter: True -> 1..n_views-1, False -> none, or the listed
+    views (at least one view must stay unrotated, as the reference)."""
+    if spec is True:
+        return tuple(range(1, n_views))
+    if spec is False or spec is None:
+        return ()
+    views = tuple(sorted({int(v) for v in spec}))
+    if any(v < 0 or v >= n_views for v in views) or len(views) >= n_views:
+        raise InputError(f"estimate_view_rotations={spec!r}: view indices must be in 0..{n_views - 1} and at "
+                         "least one view must stay unrotated (the reference)")
+    return views
