@@ -147,8 +147,28 @@ def _join(columns, sep: str = " "):
     return pc.binary_join_element_wise(*[_text(c) for c in columns], sep, null_handling="skip")
 
 
-def _lines(array) -> str:
-    return "\n".join(array.to_pylist()) + ("\n" if len(array) else "")
+def _write_lines(path, header: str, array) -> None:
+    """``header`` then one line per string of the Arrow ``array``, written by Arrow's CSV
+    writer (no Python string per line), atomically."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    with atomic_write(path, "wb") as fh:
+        fh.write(header.encode())
+        if len(array):
+            pcsv.write_csv(pa.table({"line": array}), fh,
+                           write_options=pcsv.WriteOptions(include_header=False, quoting_style="none"))
+
+
+def _one_line(array) -> str:
+    """The strings of an Arrow ``array`` joined by spaces, in Arrow."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if not len(array):
+        return ""
+    lists = pa.ListArray.from_arrays(pa.array([0, len(array)], pa.int32()), array)
+    return pc.binary_join(lists, " ")[0].as_py()
 
 
 def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> list[Path]:
@@ -177,8 +197,7 @@ def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> l
         idx2d[i, cols] = np.arange(cols.size)
         t = (-cal.R @ cal.T[i]).tolist()
         images.append(f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {names[i]}\n")
-        pts = _join([uv[i, cols, 0] + 0.5, uv[i, cols, 1] + 0.5, pid[cols]])
-        images.append(" ".join(pts.to_pylist()) + "\n")
+        images.append(_one_line(_join([uv[i, cols, 0] + 0.5, uv[i, cols, 1] + 0.5, pid[cols]])) + "\n")
     r2 = np.where(seen, np.sum(np.nan_to_num(cal.residuals_px) ** 2, axis=2), 0.0)
     err = np.sqrt(r2.sum(axis=0) / np.maximum(seen.sum(axis=0), 1))
     rgb = np.full((n_points, 3), 128, dtype=np.int64) if colors is None else np.asarray(colors, dtype=np.int64)
@@ -189,11 +208,11 @@ def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> l
     points = _join([pid[j], cal.X[j, 0], cal.X[j, 1], cal.X[j, 2], rgb[j, 0], rgb[j, 1], rgb[j, 2], err[j], *track])
     out = [folder / "cameras.txt", folder / "images.txt", folder / "points3D.txt"]
     texts = ["# Camera list with one line of data per camera\n" + _colmap_camera(cal, image_size),
-             f"# Image list with two lines of data per image; {n_views} images\n" + "".join(images),
-             f"# 3D point list; {j.size} points\n" + _lines(points)]
+             f"# Image list with two lines of data per image; {n_views} images\n" + "".join(images)]
     for path, text in zip(out, texts):
         with atomic_write(path, encoding="utf-8", newline="\n") as fh:
             fh.write(text)
+    _write_lines(out[2], f"# 3D point list; {j.size} points\n", points)
     return out
 
 

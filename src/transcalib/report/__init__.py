@@ -89,7 +89,7 @@ def _figures(cal, uv, truth, point_ids, unit) -> dict:
     out = {"residuals.png": ("Residuals per view", F.residual_arrows(cal, uv)),
            "residual_histogram.png": ("Residual histogram", F.residual_histogram(cal)),
            "reconstruction.png": ("Reconstruction", F.reconstruction(cal, unit)),
-           "uncertainty.png": ("Projection uncertainty", F.uncertainty_map(cal))}
+           "uncertainty.png": ("Projection uncertainty", F.uncertainty_map(cal, uv))}
     if truth is not None:
         out["truth_errors.png"] = ("Errors against the truth", F.truth_errors(cal, truth, point_ids, unit))
     return {name: (title, _png(fig)) for name, (title, fig) in out.items()}
@@ -121,6 +121,10 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
     """
     folder = Path(folder)
     unit = cal.options.unit if getattr(cal, "options", None) is not None else "units"
+    if uv is None:
+        from .figures import observed_pixels
+
+        uv = observed_pixels(cal)  # once, for every figure
     figs = _figures(cal, uv, truth, point_ids, unit)
     written = []
     for name, (_, png) in figs.items():

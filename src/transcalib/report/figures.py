@@ -56,8 +56,9 @@ def residual_arrows(cal, uv=None, scale: float | None = None):
     obs = observed_pixels(cal, uv)
     w, h = _image_box(cal, obs)
     res = cal.residuals_px
-    norm = np.sqrt(np.nansum(res**2, axis=2))
-    typical = np.nanpercentile(norm[np.isfinite(res[..., 0])], 90) if np.isfinite(res).any() else 1.0
+    norm = np.sqrt(np.sum(res**2, axis=2))
+    finite = norm[np.isfinite(norm)]
+    typical = np.percentile(finite[_subsample(np.arange(finite.size), 100_000)], 90) if finite.size else 1.0
     scale = scale or (0.05 * max(w, h) / max(typical, 1e-12))
     n = cal.n_views
     cols = min(n, 3)
@@ -68,7 +69,7 @@ def residual_arrows(cal, uv=None, scale: float | None = None):
             ax.axis("off")
             continue
         ok = np.flatnonzero(np.isfinite(res[i, :, 0]) & np.isfinite(obs[i, :, 0]))
-        big = ok[np.argsort(norm[i, ok])[-50:]]  # the largest always shown
+        big = ok[np.argpartition(norm[i, ok], -50)[-50:]] if ok.size > 50 else ok  # the largest always shown
         pick = np.union1d(_subsample(ok, MAX_ARROWS), big)
         inl = np.ones(cal.n_points, bool) if cal.inliers is None else np.asarray(cal.inliers, bool)
         for mask, color, label in ((inl[pick], "tab:blue", "inlier"), (~inl[pick], "tab:red", "outlier")):
@@ -95,11 +96,14 @@ def residual_histogram(cal):
     inl = np.ones(cal.n_points, bool) if cal.inliers is None else np.asarray(cal.inliers, bool)
     a, b = norm[:, inl], norm[:, ~inl]
     a, b = a[np.isfinite(a)], b[np.isfinite(b)]
-    top = np.percentile(np.concatenate([a, b]), 99.5) if a.size + b.size else 1.0
+    both = np.concatenate([a, b])
+    top = np.percentile(both[_subsample(np.arange(both.size), 200_000)], 99.5) if both.size else 1.0
     bins = np.linspace(0, max(top, 1e-9), 60)
-    ax.hist(np.clip(a, 0, bins[-1]), bins=bins, color="tab:blue", label=f"inliers ({a.size} obs.)")
+    ax.stairs(np.histogram(np.minimum(a, bins[-1]), bins=bins)[0], bins, fill=True, color="tab:blue",
+              label=f"inliers ({a.size} obs.)")
     if b.size:
-        ax.hist(np.clip(b, 0, bins[-1]), bins=bins, color="tab:red", alpha=0.7, label=f"outliers ({b.size} obs.)")
+        ax.stairs(np.histogram(np.minimum(b, bins[-1]), bins=bins)[0], bins, fill=True, color="tab:red", alpha=0.7,
+                  label=f"outliers ({b.size} obs.)")
     if cal.sigma_px:  # |r| of 2-D Gaussian noise is Rayleigh(sigma)
         r = np.linspace(0, bins[-1], 200)
         pdf = r / cal.sigma_px**2 * np.exp(-0.5 * (r / cal.sigma_px) ** 2)
@@ -145,7 +149,7 @@ def reconstruction(cal, unit: str = "units"):
     return fig
 
 
-def projection_std(cal, grid=(48, 36)) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def projection_std(cal, grid=(48, 36), uv=None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Projection uncertainty over the image: the standard deviation (px, worst direction)
     of where a pixel's ray lands, propagated from the covariance of the intrinsics and
     distortion (a point on the ray at the median scene depth, kept fixed in the camera
@@ -156,8 +160,7 @@ def projection_std(cal, grid=(48, 36)) -> tuple[np.ndarray, np.ndarray, np.ndarr
     idx = [k for k, nm in enumerate(names) if nm in ("fx", "fy", "cx", "cy", "skew") + DIST_NAMES]
     if cal.cov is None or not idx:
         return None
-    obs = observed_pixels(cal)
-    w, h = _image_box(cal, obs)
+    w, h = cal.image_size if cal.image_size is not None else _image_box(cal, observed_pixels(cal, uv))
     u, v = np.linspace(0, w - 1, grid[0]), np.linspace(0, h - 1, grid[1])
     uu, vv = np.meshgrid(u, v)
     rays = cal.camera.pixels_to_rays(np.stack([uu, vv], axis=-1))
@@ -173,10 +176,10 @@ def projection_std(cal, grid=(48, 36)) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return u, v, np.sqrt(np.linalg.eigvalsh(C)[..., -1])
 
 
-def uncertainty_map(cal):
+def uncertainty_map(cal, uv=None):
     """Colour map of :func:`projection_std` over the image, observations overlaid."""
     plt = _plt()
-    result = projection_std(cal)
+    result = projection_std(cal, uv=uv)
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     if result is None:
         ax.text(0.5, 0.5, "no covariance (linear estimate only): no uncertainty map", ha="center", va="center")
@@ -188,10 +191,9 @@ def uncertainty_map(cal):
     if np.ptp(std) > 0:
         cs = ax.contour(u, v, std, levels=np.unique(levels), colors="w", linewidths=0.7)
         ax.clabel(cs, fontsize=7, fmt="%.3g")
-    obs = observed_pixels(cal)
-    pts = obs.reshape(-1, 2)
+    obs = observed_pixels(cal, uv)
+    pts = obs[:, _subsample(np.arange(cal.n_points), 3000)].reshape(-1, 2)
     pts = pts[np.isfinite(pts[:, 0])]
-    pts = pts[_subsample(np.arange(len(pts)), 3000)]
     ax.plot(pts[:, 0], pts[:, 1], ",", color="c", alpha=0.6)
     ax.set_xlim(u[0], u[-1])
     ax.set_ylim(v[-1], v[0])
