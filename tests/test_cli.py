@@ -299,7 +299,7 @@ def test_simulate_bad_options(tmp_path, args, words):
 
 @pytest.mark.parametrize("args, words", [
     (["--no-refine", "--robot-sigma", "0.1"], ["--no-refine", "--robot-sigma"]),
-    (["--no-refine", "--distortion", "radial2"], ["--no-refine", "--distortion"]),
+    (["--no-refine", "--distortion", "radial2"], ["--no-refine", "distortion"]),
     (["--no-robust", "--threshold-px", "3"], ["--no-robust"]),
     (["--robot-sigma", "-1"], ["--robot-sigma", "positive"]),
     (["--threshold-px", "0"], ["--threshold-px", "positive"]),

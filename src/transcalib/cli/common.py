@@ -37,7 +37,6 @@ OPTION_NAMES = {
     "sigma_px": "--sigma-px",
     "estimate_skew": "--estimate-skew",
     "square_pixels": "--square-pixels",
-    "distortion": "--distortion",
     "refine=False": "--no-refine",
     "robust=False": "--no-robust",
     "max_trials": "--max-trials",

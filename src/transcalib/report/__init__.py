@@ -58,7 +58,7 @@ def _parameters(cal, truth) -> str:
             rows.append(_row(name, cam.dist5[k], cal.std.get(name), None if dt is None else dt[k]))
     for name in ("rx", "ry", "rz"):
         if name in cal.std:
-            rows.append(_row(f"{name} (std)", 0.0, cal.std[name], unit="deg"))
+            rows.append(_row(f"rotation {name}", None, cal.std[name], unit="deg"))
     rows.append(_row("RMS reprojection", cal.rms_px, unit="px"))
     if cal.sigma_px is not None:
         rows.append(_row("pixel noise sigma", cal.sigma_px, unit="px per coordinate"))

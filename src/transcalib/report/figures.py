@@ -104,10 +104,11 @@ def residual_histogram(cal):
     if b.size:
         ax.stairs(np.histogram(np.minimum(b, bins[-1]), bins=bins)[0], bins, fill=True, color="tab:red", alpha=0.7,
                   label=f"outliers ({b.size} obs.)")
-    if cal.sigma_px:  # |r| of 2-D Gaussian noise is Rayleigh(sigma)
+    s = cal.rms_px / np.sqrt(2)  # per coordinate; below sigma_px by the degrees of freedom fitted
+    if a.size and np.isfinite(s) and s > 0:  # |r| of isotropic 2-D Gaussian residuals is Rayleigh(s)
         r = np.linspace(0, bins[-1], 200)
-        pdf = r / cal.sigma_px**2 * np.exp(-0.5 * (r / cal.sigma_px) ** 2)
-        ax.plot(r, pdf * a.size * (bins[1] - bins[0]), "k--", lw=1, label=f"Rayleigh, sigma {cal.sigma_px:.3g} px")
+        pdf = r / s**2 * np.exp(-0.5 * (r / s) ** 2)
+        ax.plot(r, pdf * a.size * (bins[1] - bins[0]), "k--", lw=1, label=f"Rayleigh, RMS/sqrt(2) = {s:.3g} px")
     ax.set_xlabel("residual norm [px] (clipped at the 99.5th percentile)")
     ax.set_ylabel("observations")
     ax.legend(fontsize=8)
