@@ -193,11 +193,14 @@ def _document(cal, point_ids, inputs, arrays_name: str, arrays: dict) -> dict:
         "schema_version": SCHEMA_VERSION,
         "software": {"name": "transcalib", "version": __version__},
         "unit": unit,
+        "n_views": cal.n_views,
+        "n_points": cal.n_points,
         "image_size": None if cam.image_size is None else list(cam.image_size),
-        "camera": {
-            "K": cam.K.tolist(), "R_cam_world": cam.R.tolist(), "dist_model": cam.dist_model,
-            "dist": cam.dist.tolist(), "dist_opencv": cam.dist5.tolist(),
-        },
+        "K": cam.K.tolist(),
+        "R_cam_world": cam.R.tolist(),
+        "dist_model": cam.dist_model,
+        "dist": cam.dist.tolist(),
+        "dist_opencv": cam.dist5.tolist(),
         "rms_px": jsonable(cal.rms_px),
         "sigma_px": jsonable(cal.sigma_px),
         "T": cal.T.tolist(),
@@ -305,9 +308,9 @@ def load_saved(path) -> Saved:
     from ..types import Calibration
 
     doc, arrays = _read(path)
-    c = doc["camera"]
-    camera = Camera(K=_matrix(c["K"]), R=_matrix(c["R_cam_world"]), dist=_matrix(c["dist"]),
-                    dist_model=c["dist_model"], image_size=None if doc["image_size"] is None else tuple(doc["image_size"]))
+    camera = Camera(K=_matrix(doc["K"]), R=_matrix(doc["R_cam_world"]), dist=_matrix(doc["dist"]),
+                    dist_model=doc["dist_model"],
+                    image_size=None if doc["image_size"] is None else tuple(doc["image_size"]))
     cal = Calibration(
         camera=camera, X=arrays["X"], residuals_px=arrays["residuals_px"], rms_px=_float(doc["rms_px"]),
         T=_matrix(doc["T"]), sigma_px=None if doc["sigma_px"] is None else float(doc["sigma_px"]),
