@@ -360,3 +360,19 @@ def test_subcommands_registered_from_one_list():
     assert cli_main.COMMANDS == ("calibrate", "simulate", "track", "show", "undistort")
     r = run("--help")
     assert all(c in r.stdout for c in cli_main.COMMANDS)
+
+
+def test_json_on_failure_and_binary_tracks(tmp_path):
+    """--json also reports a failure on stdout; simulate --tracks-format npz feeds calibrate."""
+    r = run("simulate", "--preset", "random", "--points", 40, "--views", 5, "--tracks-format", "npz",
+            "--out", tmp_path / "s", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["outputs"][0].endswith("tracks.npz")
+    r = run("calibrate", "--tracks", tmp_path / "s" / "tracks.npz", "--poses", tmp_path / "s" / "poses.csv",
+            "--out", tmp_path / "o", "--formats", "json", "--json", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["n_points"] == 40
+    (tmp_path / "bad.csv").write_text("view,x,y,z\n0,0,0,0\n")
+    r = run("calibrate", "--tracks", tmp_path / "s" / "tracks.npz", "--poses", tmp_path / "bad.csv",
+            "--out", tmp_path / "o2", "--json")
+    d = json.loads(r.stdout)
+    assert r.returncode == 2 and d["status"] == "error" and d["exit_code"] == 2 and "not in the poses file" in d["error"]

@@ -282,3 +282,13 @@ def test_load_errors(tmp_path):
     json_path.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="upgrade"):
         load_calibration(json_path)
+
+
+def test_calibration_save_method_round_trip(tmp_path):
+    """``Calibration.save`` (types.py) writes what ``load_calibration`` reads back equal."""
+    from transcalib.io.calibration_file import load_calibration
+
+    cal = full_calibration(n_points=10)
+    cal.save(tmp_path / "c.json")
+    assert (tmp_path / "c.arrays.npz").is_file()
+    assert load_calibration(tmp_path / "c.json") == cal

@@ -220,7 +220,8 @@ def run(args) -> int:
     else:
         print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
         print(f"\nWrote {len(written)} files to {plan['out']} in {timings['total_s']:.2f} s "
-              f"(checks and imports {timings['start_s']:.2f} s, read {timings['read_s']:.2f} s, calibrate {timings['calibrate_s']:.2f} s, "
+              f"(checks and imports {timings['start_s']:.2f} s, read {timings['read_s']:.2f} s, "
+              f"calibrate {timings['calibrate_s']:.2f} s, "
               f"write {timings['write_s']:.2f} s)")
     return status
 

@@ -37,7 +37,8 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
     K = cal.K
     values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1]}
     Kt = None if truth is None else np.asarray(truth["K"], float)
-    true_vals = None if Kt is None else {"fx": Kt[0, 0], "fy": Kt[1, 1], "cx": Kt[0, 2], "cy": Kt[1, 2], "skew": Kt[0, 1]}
+    true_vals = None if Kt is None else {"fx": Kt[0, 0], "fy": Kt[1, 1], "cx": Kt[0, 2], "cy": Kt[1, 2],
+                                         "skew": Kt[0, 1]}
     stages = " → ".join(cal.info.get("stages", []))
     lines = [f"transcalib: {cal.n_points} points in {cal.n_views} views ({stages})", "", "Intrinsics [px]:"]
     for name, v in values.items():
