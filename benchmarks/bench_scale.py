@@ -80,6 +80,9 @@ def report(n: int, s: dict) -> None:
     print(f"  {'write outputs':34s} {run['write_s']:7.2f} s")
     for k, v in writes.items():
         print(f"    {k[:-2]:32s} {v:7.2f} s")
+    mem = s.get("memory_peak_gib", {})
+    if mem:
+        print("  peak RSS after " + ", ".join(f"{k.removeprefix('after_')} {v:.2f} GiB" for k, v in mem.items()))
     print(f"  rms {s['rms_px']:.3f} px, {s['n_points_reconstructed']} points reconstructed, "
           f"{len(s['diagnostics'])} warning(s)")
 

@@ -121,3 +121,12 @@ def test_export_all_and_errors(cal, uv, tmp_path):
     with pytest.raises(InputError, match="image size is unknown"):
         export_calibration(no_size, tmp_path / "x", ["opencv"])
     assert export.image_size_or_extent(no_size, np.array([[[639.4, 10.0]], [[5.0, 479.6]]])) == (640, 480)
+
+
+def test_colmap_in_chunks_reads_back_the_same(cal, uv, tmp_path, monkeypatch):
+    """Formatting a few points at a time (as at 10^6 points) writes the same model."""
+    export.write_colmap(cal, tmp_path / "one", (640, 480), uv)
+    monkeypatch.setattr(export, "CHUNK", 7)
+    export.write_colmap(cal, tmp_path / "many", (640, 480), uv)
+    for name in ("cameras.txt", "images.txt", "points3D.txt"):
+        assert (tmp_path / "one" / name).read_text() == (tmp_path / "many" / name).read_text(), name

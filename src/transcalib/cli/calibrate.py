@@ -192,11 +192,13 @@ def run(args) -> int:
     uv, point_ids, colors, view_names = _observations(args, plan, progress)
     progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({time.perf_counter() - t_read:.2f} s)")
     opts = plan["options"]
+    memory = {"after_read": _peak_rss_gib()}
     t_cal = time.perf_counter()
     cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
                     refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
                     image_size=plan["image_size"], unit=args.unit, rng=args.seed, progress=progress.stage)
     t_write = time.perf_counter()
+    memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
               "images": None if not args.images else [str(p) for p in plan["images"]],
               "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
@@ -208,6 +210,7 @@ def run(args) -> int:
     if args.images:
         written.insert(0, plan["out"] / "tracks.csv")
     t_end = time.perf_counter()
+    memory["after_write"] = _peak_rss_gib()
     timings = {"start_s": t_read - t_start, "read_s": t_cal - t_read, "calibrate_s": t_write - t_cal,
                "write_s": t_end - t_write, "total_s": t_end - t_start}
     simulated_ids = point_ids if args.tracks else []
@@ -215,7 +218,8 @@ def run(args) -> int:
     if args.json:
         summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)
         summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
-                       outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings)
+                       outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings,
+                       memory_peak_gib=memory)
         print_json(summary)
     else:
         print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
@@ -224,6 +228,13 @@ def run(args) -> int:
               f"calibrate {timings['calibrate_s']:.2f} s, "
               f"write {timings['write_s']:.2f} s)")
     return status
+
+
+def _peak_rss_gib() -> float:
+    """Peak resident memory of this process so far (GiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
 
 
 def _size_source(args, plan) -> str | None:

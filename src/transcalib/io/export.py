@@ -147,19 +147,6 @@ def _join(columns, sep: str = " "):
     return pc.binary_join_element_wise(*[_text(c) for c in columns], sep, null_handling="skip")
 
 
-def _write_lines(path, header: str, array) -> None:
-    """``header`` then one line per string of the Arrow ``array``, written by Arrow's CSV
-    writer (no Python string per line), atomically."""
-    import pyarrow as pa
-    import pyarrow.csv as pcsv
-
-    with atomic_write(path, "wb") as fh:
-        fh.write(header.encode())
-        if len(array):
-            pcsv.write_csv(pa.table({"line": array}), fh,
-                           write_options=pcsv.WriteOptions(include_header=False, quoting_style="none"))
-
-
 def _one_line(array) -> str:
     """The strings of an Arrow ``array`` joined by spaces, in Arrow."""
     import pyarrow as pa
@@ -171,16 +158,46 @@ def _one_line(array) -> str:
     return pc.binary_join(lists, " ")[0].as_py()
 
 
+#: Points formatted at a time by the COLMAP writer (bounds its memory at any n).
+CHUNK = 200_000
+
+
+def _chunks(n: int):
+    return (slice(a, min(a + CHUNK, n)) for a in range(0, max(n, 1), CHUNK))
+
+
+def _write_images(path, cal, uv, seen, pid, names) -> np.ndarray:
+    """``images.txt``: pose line and POINTS2D line per view; returns the index of each
+    observation in its image's POINTS2D list ``(n_views, n_points)``."""
+    from scipy.spatial.transform import Rotation
+
+    n_views, n_points = seen.shape
+    qx, qy, qz, qw = (float(q) for q in Rotation.from_matrix(cal.R).as_quat())
+    idx2d = np.zeros((n_views, n_points), dtype=np.int64)
+    with atomic_write(path, encoding="utf-8", newline="\n") as fh:
+        fh.write(f"# Image list with two lines of data per image; {n_views} images\n")
+        for i in range(n_views):  # a loop over views, then chunks of points
+            cols = np.flatnonzero(seen[i])
+            idx2d[i, cols] = np.arange(cols.size)
+            t = (-cal.R @ cal.T[i]).tolist()
+            fh.write(f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {names[i]}\n")
+            pieces = (_one_line(_join([uv[i, c, 0] + 0.5, uv[i, c, 1] + 0.5, pid[c]]))
+                      for c in (cols[s] for s in _chunks(cols.size)))
+            fh.write(" ".join(p for p in pieces if p) + "\n")
+    return idx2d
+
+
 def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> list[Path]:
     """A COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``) in ``folder``.
 
     Each view is an image with pose ``x_c = R x_w + t``, ``t = -R T_i`` (COLMAP's world to
     camera); the reconstructed points are the 3-D points, with their observations in
     ``uv (n_views, n_points, 2)`` as tracks and the RMS reprojection error as ``ERROR``.
+    Lines are formatted by Arrow, :data:`CHUNK` points at a time.
     """
     import pyarrow as pa
     import pyarrow.compute as pc
-    from scipy.spatial.transform import Rotation
+    import pyarrow.csv as pcsv
 
     if uv is None:
         raise InputError("the COLMAP export needs the observations uv")
@@ -190,29 +207,27 @@ def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> l
     ok = np.isfinite(cal.X[:, 0])
     seen = np.isfinite(uv[..., 0]) & ok[None, :]          # observations that join a 3-D point
     pid = np.cumsum(ok)                                     # COLMAP point ids 1..n_ok
-    qx, qy, qz, qw = (float(q) for q in Rotation.from_matrix(cal.R).as_quat())
-    images, idx2d = [], np.zeros((n_views, n_points), dtype=np.int64)
-    for i in range(n_views):  # a loop over views only
-        cols = np.flatnonzero(seen[i])
-        idx2d[i, cols] = np.arange(cols.size)
-        t = (-cal.R @ cal.T[i]).tolist()
-        images.append(f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {names[i]}\n")
-        images.append(_one_line(_join([uv[i, cols, 0] + 0.5, uv[i, cols, 1] + 0.5, pid[cols]])) + "\n")
+    out = [folder / "cameras.txt", folder / "images.txt", folder / "points3D.txt"]
+    with atomic_write(out[0], encoding="utf-8", newline="\n") as fh:
+        fh.write("# Camera list with one line of data per camera\n" + _colmap_camera(cal, image_size))
+    idx2d = _write_images(out[1], cal, uv, seen, pid, names)
     r2 = np.where(seen, np.sum(np.nan_to_num(cal.residuals_px) ** 2, axis=2), 0.0)
     err = np.sqrt(r2.sum(axis=0) / np.maximum(seen.sum(axis=0), 1))
     rgb = np.full((n_points, 3), 128, dtype=np.int64) if colors is None else np.asarray(colors, dtype=np.int64)
-    j = np.flatnonzero(ok)
-    # the track: "IMAGE_ID POINT2D_IDX" per view that sees the point (null: skipped)
-    track = [pc.if_else(pa.array(seen[i, j]), _join([np.full(j.size, i + 1), idx2d[i, j]]), None)
-             for i in range(n_views)]
-    points = _join([pid[j], cal.X[j, 0], cal.X[j, 1], cal.X[j, 2], rgb[j, 0], rgb[j, 1], rgb[j, 2], err[j], *track])
-    out = [folder / "cameras.txt", folder / "images.txt", folder / "points3D.txt"]
-    texts = ["# Camera list with one line of data per camera\n" + _colmap_camera(cal, image_size),
-             f"# Image list with two lines of data per image; {n_views} images\n" + "".join(images)]
-    for path, text in zip(out, texts):
-        with atomic_write(path, encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-    _write_lines(out[2], f"# 3D point list; {j.size} points\n", points)
+    j_all = np.flatnonzero(ok)
+    opts = pcsv.WriteOptions(include_header=False, quoting_style="none")
+    with atomic_write(out[2], "wb") as fh:
+        fh.write(f"# 3D point list; {j_all.size} points\n".encode())
+        for sl in _chunks(j_all.size):
+            j = j_all[sl]
+            if not j.size:
+                continue
+            # the track: "IMAGE_ID POINT2D_IDX" per view that sees the point (null: skipped)
+            track = [pc.if_else(pa.array(seen[i, j]), _join([np.full(j.size, i + 1), idx2d[i, j]]), None)
+                     for i in range(n_views)]
+            lines = _join([pid[j], cal.X[j, 0], cal.X[j, 1], cal.X[j, 2], rgb[j, 0], rgb[j, 1], rgb[j, 2], err[j],
+                           *track])
+            pcsv.write_csv(pa.table({"line": lines}), fh, write_options=opts)
     return out
 
 
