@@ -23,7 +23,8 @@ import numpy as np
 from transcalib import simulate
 from transcalib.geometry.camera import project
 from transcalib.estimate.linear import estimate_linear
-from transcalib.estimate.refine import _rotvec_to_matrix, crlb, refine
+from transcalib.estimate.refine import crlb, refine
+from transcalib.geometry.rotation import rotvec_to_matrix as _rotvec_to_matrix
 
 KEYS = ("fx", "fy", "cx", "cy")
 

@@ -3,6 +3,7 @@
     python benchmarks/run.py             # all, full size   (make bench)
     python benchmarks/run.py --quick     # all, small and fast
     python benchmarks/run.py linear      # only bench_linear.py
+    python benchmarks/run.py handeye     # only bench_handeye.py (sessions, issue 11)
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from transcalib import simulate
 from transcalib.geometry.camera import project
 from transcalib.estimate.bundle import Layout, State, apply_step, intrinsic_basis, predict_view
+from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import crlb, refine
 from transcalib.geometry.rotation import rotvec_to_matrix
 from transcalib.types import Calibration, Camera, DegenerateError, InputError, RefineOptions
@@ -41,11 +42,7 @@ def perturbed_start(scene, rng, dK=0.02, drot_rad=0.01, dX=0.01, dist=()):
 
 
 def linear_start(scene, uv=None):
-    """The linear estimate when linear.py is available, else a perturbed truth."""
-    try:
-        from transcalib.estimate.linear import estimate_linear
-    except ImportError:  # pragma: no cover - while linear.py is being written
-        return perturbed_start(scene, 0)
+    """The paper's linear estimate of the scene's observations."""
     return estimate_linear(scene.uv if uv is None else uv, scene.T)
 
 
@@ -96,7 +93,7 @@ def test_jacobians_match_finite_differences(view, sessions):
     n_views = scene.n_views
     rng = np.random.default_rng(7)
     E, names = intrinsic_basis({}, True, False)
-    lay = Layout(n_views, E, names, (0, 1, 2, 3, 4), (1, 2, 3), (1, 2, 3), t_free=sessions)
+    lay = Layout(n_views, E, names, (0, 1, 2, 3, 4), (1, 2, 3), (1, 2, 3), t_basis=np.eye(3) if sessions else None)
     K = scene.K
     Q = np.stack([np.eye(3)] + [rotvec_to_matrix(0.01 * rng.normal(size=3)) for _ in range(n_views - 1)])
     F = np.stack([rotvec_to_matrix(0.05 * rng.normal(size=3)) for _ in range(n_views)]) if sessions else None
@@ -172,7 +169,6 @@ def test_distortion_matches_cv2_project_points():
 def test_paper_monte_carlo_refined_beats_linear_and_std_is_honest():
     """Paper preset, 0.5 px: refined RMS error of fx, fy, cx, cy below the linear one's;
     predicted std within 20 % of the empirical one and close to the CRLB."""
-    pytest.importorskip("transcalib.estimate.linear")
     from transcalib.estimate.linear import estimate_linear
 
     base = simulate.paper_scene()
@@ -198,10 +194,47 @@ def test_paper_monte_carlo_refined_beats_linear_and_std_is_honest():
     assert np.all(empirical < 1.25 * bound) and np.all(empirical > 0.8 * bound), (empirical, bound)
 
 
-def test_crlb_equals_predicted_std_at_truth():
+def test_crlb_matches_finite_difference_fisher_information_with_opencv_projection():
+    """Independent oracle for the CRLB: the Fisher information J^T J / sigma^2 of the
+    full problem (intrinsics, k1, k2, R, every point), J by central differences of
+    ``cv2.projectPoints``, inverted densely (no Schur complement)."""
+    cv2 = pytest.importorskip("cv2")
+    scene = simulate.random_scene(25, 4, noise_px=0.7, dist=(-0.1, 0.02), rng=10)
+    seen = np.isfinite(scene.uv[..., 0])
+    n = scene.n_points
+
+    def residuals(theta):
+        fx, fy, cx, cy, k1, k2 = theta[:6]
+        R = rotvec_to_matrix(theta[6:9]) @ scene.R
+        X = theta[9:].reshape(n, 3)
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+        out = []
+        for i, Ti in enumerate(scene.T_true):
+            uv, _ = cv2.projectPoints(X, cv2.Rodrigues(R)[0], -R @ Ti, K, np.array([k1, k2, 0, 0, 0.0]))
+            out.append(uv.reshape(-1, 2)[seen[i]])
+        return np.concatenate(out).ravel()
+
+    K = scene.K
+    theta0 = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], scene.dist, np.zeros(3), scene.X.ravel()])
+    J = np.empty((residuals(theta0).size, theta0.size))
+    for k in range(theta0.size):
+        h = 1e-6 * max(1.0, abs(theta0[k]))
+        d = np.zeros_like(theta0)
+        d[k] = h
+        J[:, k] = (residuals(theta0 + d) - residuals(theta0 - d)) / (2 * h)
+    sd = 0.7 * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    sd[6:9] = np.degrees(sd[6:9])
+    bound = crlb(scene, distortion="radial2")
+    for k, name in enumerate(("fx", "fy", "cx", "cy", "k1", "k2", "rx", "ry", "rz")):
+        assert np.isclose(bound[name], sd[k], rtol=1e-4), (name, bound[name], sd[k])
+
+
+def test_predicted_std_at_truth_equals_crlb():
+    """refine's covariance at the truth (exact data, known sigma) is the bound."""
     scene = simulate.random_scene(60, 5, noise_px=0.7, dist=(-0.1, 0.02), rng=10)
     exact = replace(scene, uv=np.where(np.isfinite(scene.uv), scene.uv_true, np.nan))
-    cal = refine(exact.uv, exact.T, perturbed_start(scene, 11), distortion="radial2", options=RefineOptions(sigma_px=0.7))
+    cal = refine(exact.uv, exact.T, perturbed_start(scene, 11), distortion="radial2",
+                 options=RefineOptions(sigma_px=0.7))
     bound = crlb(scene)
     assert set(bound) == set(cal.std)
     for name in bound:
@@ -385,7 +418,6 @@ def test_view_rotation_spec_errors():
 
 def test_accepts_linear_estimate_and_reports_info():
     scene = simulate.paper_scene(noise_px=0.5, rng=1)
-    pytest.importorskip("transcalib.estimate.linear")
     start = linear_start(scene)
     steps = []
     cal = refine(scene.uv, scene.T, start, progress=steps.append)

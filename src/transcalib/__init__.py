@@ -34,12 +34,14 @@ _LAZY = {
     "estimate_robust": (".estimate.robust", "estimate_robust"),
     "RobustEstimate": (".estimate.robust", "RobustEstimate"),
     "refine": (".estimate.refine", "refine"),
+    "calibrate_sessions": (".handeye.calibrate", "calibrate_sessions"),
     "crlb": (".estimate.covariance", "crlb"),
     "diagnose": (".check", "diagnose"),
     "track": (".images", "track"),
     "track_squares": (".images", "track_squares"),
     "Tracks": (".images.frames", "Tracks"),
     "simulate": (".synth.simulate", None),
+    "plan": (".planning", "plan"), "evaluate_plan": (".planning", "evaluate_plan"),
     "render": (".synth.render", None),
 }
 

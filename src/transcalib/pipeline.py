@@ -17,9 +17,12 @@ import numpy as np
 
 from .check import diagnose
 from .errors import InputError
+from .estimate.coplanar import fit_coplanar, fit_coplanar_robust
+from .estimate.degeneracy import explain_span
 from .estimate.linear import fit_linear
-from .estimate.refine import fit_refine
+from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
+from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold
 from .geometry.camera import Camera, project
 from .geometry.triangulate import triangulate
 from .types import CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
@@ -29,6 +32,9 @@ __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
 
 #: ``robust=None`` turns RANSAC on from this many points (2-point samples need spare points).
 ROBUST_MIN_POINTS = 8
+#: Relative singular value of the translations below which they count as coplanar (a
+#: table whose measured height jitters is a 2-axis stage).
+COPLANAR_TOL = 1e-3
 
 
 def calibrate(
@@ -64,8 +70,9 @@ def calibrate(
     robust : bool or None
         RANSAC over 2-point samples before the linear fit. ``None`` (default): on from
         ``ROBUST_MIN_POINTS`` points.
-    distortion : {"none", "radial1", "radial2", "opencv5"}, optional
-        Lens distortion model of the refinement (default ``refinement.distortion``).
+    distortion : {"auto", "none", "radial1", "radial2", "opencv5"}, optional
+        Lens distortion model of the refinement (default ``refinement.distortion``,
+        ``"auto"``: chosen from the data, see :class:`RefineOptions`).
     sigma_T : float or (n_views,) float, optional
         Robot translation precision (user units): translations become measurements.
     fix : mapping, optional
@@ -107,7 +114,8 @@ def calibrate(
     notify = progress or (lambda stage, info: None)
     timings = {}
     t0 = time.perf_counter()
-    linear, inliers, stages = _initial_estimate(uv, T, opts, rng, notify)
+    span = _explain_span(T, opts)  # degeneracy first: raises naming what the motion cannot determine
+    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify, coplanar=span is not None)
     timings[f"{stages[0]}_s"] = time.perf_counter() - t0
     if opts.refine:
         t1 = time.perf_counter()
@@ -123,6 +131,8 @@ def calibrate(
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     found = diagnose(uv_fit, T, result, linear=linear, quaternions=quaternions,
                      check_rotation=opts.check_rotation and opts.refine, unit=unit)
+    if span is not None:  # the coplanar motion was understood: say what it allows instead
+        found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     result.diagnostics.extend(found)
     result.info["diagnostics_s"] = time.perf_counter() - t2
     notify("diagnostics", {"warnings": len(found)})
@@ -137,53 +147,91 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
                                    ("square_pixels", square_pixels)) if v is not None}
     if overrides:
         r = replace(r, **overrides)
-    if not refine and r.distortion != "none":
+    if not refine and r.distortion not in ("none", "auto"):
         raise InputError(f"distortion={r.distortion!r} needs refine=True: the linear estimate has no distortion")
     return CalibrateOptions(refine=bool(refine), robust=robust, ransac=ransac or RansacOptions(), refinement=r,
                             check_rotation=bool(check_rotation), unit=str(unit))
 
 
-def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify):
-    """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages)``."""
+def _explain_span(T, opts: CalibrateOptions):
+    """:func:`transcalib.estimate.degeneracy.explain_span` for the problem posed: None for
+    translations spanning 3-D, a Diagnostic for coplanar ones that the known parameters
+    make identifiable; raises :class:`DegenerateError` otherwise."""
+    r = opts.refinement
+    model = "none" if r.distortion == "auto" else r.distortion
+    return explain_span(T, r.fix, r.square_pixels, opts.unit, estimate_skew=r.estimate_skew, distortion=model,
+                        tol=COPLANAR_TOL)
+
+
+def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool = False):
+    """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages, robust
+    estimate or None)``; coplanar translations take the known-parameter linear start."""
     n_tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
     robust = n_tracked >= ROBUST_MIN_POINTS if opts.robust is None else bool(opts.robust)
+    if coplanar:
+        r = opts.refinement
+        if robust:
+            linear, inliers, sigma = fit_coplanar_robust(
+                uv, T, fix=r.fix, square_pixels=r.square_pixels, threshold_px=opts.ransac.threshold_px,
+                false_rejection=opts.ransac.false_rejection, rng=rng, tol=COPLANAR_TOL)
+            notify("robust (coplanar)", {"inliers": int(inliers.sum()), "sigma_px": sigma})
+            return linear, inliers, ["robust"], None
+        linear = fit_coplanar(uv, T, fix=r.fix, square_pixels=r.square_pixels, tol=COPLANAR_TOL)
+        notify("linear (coplanar)", {"points": linear.n_used_points})
+        return linear, None, ["linear"], None
     if robust:
         rob = fit_robust(uv, T, opts.ransac, rng=rng)
-        notify("robust", {"inliers": int(rob.inliers.sum()), "trials": rob.trials})
-        return rob.linear, rob.inliers, ["robust"]
+        notify("robust", {"inliers": int(rob.inliers.sum()), "trials": rob.trials, "sigma_px": rob.sigma_px})
+        return rob.linear, rob.inliers, ["robust"], rob
     linear = fit_linear(uv, T)
     notify("linear", {"points": linear.n_used_points})
-    return linear, None, ["linear"]
+    return linear, None, ["linear"], None
 
 
 def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     """Refine on the inliers; then judge every track again with the refined camera (RANSAC
     judged them with the linear, distortion-free one: this matters under strong
-    distortion) and refit if the inlier set changes. Returns ``(cal, inliers, stages)``."""
+    distortion) and refit while the inlier set changes. Returns ``(cal, inliers, stages)``."""
     uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
     cal = fit_refine(uv_fit, T, linear, opts.refinement)
-    notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px})
+    notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px, "distortion": cal.dist_model})
     stages = ["refine"]
-    if inliers is not None:
+    chosen = replace(opts.refinement, distortion=cal.dist_model)  # refits keep the model chosen
+    selection = cal.info.get("distortion_selection", [])
+    k = np.isfinite(uv[..., 0]).sum(axis=0)
+    for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
-        again = _point_errors(uv, cal, X_all) < opts.ransac.threshold_px  # the rule of the robust stage
-        if np.any(again != inliers) and again.sum() >= 2:
-            inliers = again
-            start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
-            cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, opts.refinement)
-            stages.append("reclassify+refine")
+        again = inlier_rule(_track_sse(uv, cal, X_all), k, _rule_sigma(cal, opts), opts.ransac.false_rejection)
+        if np.array_equal(again, inliers) or again.sum() < 2:
+            break
+        inliers = again
+        start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
+        cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, chosen)
+        stages.append("reclassify+refine")
+    if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
+        cal = climb_distortion(np.where(inliers[None, :, None], uv, np.nan), T, cal, opts.refinement)
+        cal.info["distortion_selection"] = selection + cal.info["distortion_selection"]
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
     return cal, inliers, stages
 
 
-def _point_errors(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
-    """Largest reprojection error (px) of each point over the views that see it (n_points,);
-    inf for points that cannot be triangulated."""
+def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
+    """Sum of squared reprojection errors (px^2) of each track over the views that see it
+    (n_points,); inf for tracks that cannot be triangulated or fall behind the camera."""
+    xc = np.einsum("ab,vnb->vna", cal.R, np.nan_to_num(X)[None] - cal.T[:, None])
     r = uv - cal.camera.project(np.nan_to_num(X), cal.T)
-    e = np.sqrt(np.sum(r**2, axis=2))
-    e = np.where(np.isfinite(e), e, 0.0).max(axis=0)
-    return np.where(np.isfinite(X[:, 0]), e, np.inf)
+    e2 = np.where(np.isfinite(uv[..., 0]), np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)
+    behind = np.any(np.isfinite(uv[..., 0]) & (xc[..., 2] <= 0), axis=0)
+    return np.where(np.isfinite(X[:, 0]) & ~behind, e2.sum(axis=0), np.inf)
+
+
+def _rule_sigma(cal: Calibration, opts: CalibrateOptions) -> float:
+    """The sigma of the inlier rule after refinement: the refined estimate, or the one a
+    user threshold implies."""
+    if opts.ransac.threshold_px is not None:
+        return sigma_from_threshold(opts.ransac.threshold_px, opts.ransac.false_rejection)
+    return max(cal.sigma_px, SIGMA_FLOOR_PX)
 
 
 def _all_residuals(uv, cal: Calibration, inliers) -> np.ndarray:

@@ -65,20 +65,29 @@ class RansacOptions:
 
     Attributes
     ----------
-    threshold_px : float
-        Inlier threshold (pixels) on a point's largest reprojection error over its views.
+    threshold_px : float or None
+        None (default): the pixel noise is estimated from the data and a track seen in
+        ``k`` views is an inlier when its squared reprojection errors sum to less than
+        ``sigma^2 chi2_{2k-3}(1 - false_rejection)``. A number overrides the estimate:
+        the residual norm of one observation an inlier stays below with probability
+        ``1 - false_rejection`` (sigma = threshold / sqrt(chi2_2(1 - false_rejection))).
+    false_rejection : float
+        Probability, in (0, 0.5), that the inlier rule rejects a good track.
     confidence : float
         Probability, in (0, 1), that an all-inlier pair was drawn when the loop stops.
     max_trials : int
         Upper bound on the hypotheses drawn.
     """
 
-    threshold_px: float = 2.0
+    threshold_px: float | None = None
+    false_rejection: float = 0.01
     confidence: float = 0.999
     max_trials: int = 1000
 
     def __post_init__(self):
-        _positive("threshold_px", self.threshold_px)
+        _positive("threshold_px", self.threshold_px, allow_none=True)
+        if not (isinstance(self.false_rejection, (int, float)) and 0.0 < self.false_rejection < 0.5):
+            raise InputError(f"false_rejection must be in (0, 0.5), got {self.false_rejection!r}")
         if not (isinstance(self.confidence, (int, float)) and 0.0 < self.confidence < 1.0):
             raise InputError(f"confidence must be in (0, 1), got {self.confidence!r}")
         if isinstance(self.max_trials, bool) or not isinstance(self.max_trials, (int, np.integer)) \
@@ -92,8 +101,11 @@ class RefineOptions:
 
     Attributes
     ----------
-    distortion : {"none", "radial1", "radial2", "opencv5"}
-        Lens distortion model (OpenCV convention).
+    distortion : {"auto", "none", "radial1", "radial2", "opencv5"}
+        Lens distortion model (OpenCV convention). ``"auto"`` (default): chosen from the
+        data, climbing none -> radial2 -> opencv5 while a score test of the added
+        coefficients is significant at 1 % and they are determined
+        (``Calibration.info["distortion_selection"]`` says why).
     estimate_skew : bool
         Estimate the skew ``K[0, 1]`` (else fixed at its start value, 0 by default).
     fix : mapping of str to float
@@ -106,11 +118,13 @@ class RefineOptions:
         translations become measurements. None: exact translations.
     loss : {"linear", "huber", "cauchy"}
         Loss of the residual norm; ``loss_scale_px`` its scale.
-    loss_scale_px : float
-        Scale of a robust loss (pixels).
+    loss_scale_px : float, optional
+        Scale of a robust loss (pixels). None (default): from the pixel noise estimated
+        robustly from the residuals (Huber 1.345 sigma, Cauchy 2.385 sigma).
     inlier_threshold_px : float, optional
         Residual norm above which a robust loss's observation is an outlier (default
-        ``3 * loss_scale_px``).
+        ``3.72 sigma``, exceeded by 0.1 % of Gaussian inliers; ``3 * loss_scale_px`` when
+        a scale is given).
     sigma_px : float, optional
         Known pixel noise per coordinate; by default estimated from the residuals.
     max_iterations : int
@@ -123,13 +137,13 @@ class RefineOptions:
         alternative used by the rotation test.
     """
 
-    distortion: str = "none"
+    distortion: str = "auto"
     estimate_skew: bool = False
     fix: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     square_pixels: bool = False
     sigma_T: float | tuple | None = None
     loss: str = "linear"
-    loss_scale_px: float = 1.0
+    loss_scale_px: float | None = None
     inlier_threshold_px: float | None = None
     sigma_px: float | None = None
     max_iterations: int = 100
@@ -137,11 +151,11 @@ class RefineOptions:
     estimate_view_rotations: bool | tuple = False
 
     def __post_init__(self):
-        if self.distortion not in DIST_MODELS:
-            raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
+        if self.distortion not in ("auto", *DIST_MODELS):
+            raise InputError(f"distortion must be 'auto' or one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
         if self.loss not in LOSSES:
             raise InputError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
-        _positive("loss_scale_px", self.loss_scale_px)
+        _positive("loss_scale_px", self.loss_scale_px, allow_none=True)
         _positive("inlier_threshold_px", self.inlier_threshold_px, allow_none=True)
         _positive("sigma_px", self.sigma_px, allow_none=True)
         if isinstance(self.max_iterations, bool) or int(self.max_iterations) != self.max_iterations \

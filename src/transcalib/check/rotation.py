@@ -55,8 +55,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import DegenerateError, Diagnostic
-from ..estimate import bundle
-from ..estimate.bundle import Layout, State, build_data
+from ..estimate.covariance import linearise, profile_step
 from ..estimate.refine import refine
 from ..types import Calibration, RefineOptions
 from .common import fmt_list
@@ -69,9 +68,9 @@ MIN_ROTATION_SHIFT_PX = 0.1
 
 @dataclass(frozen=True)
 class _Reduced:
-    """Reduced normal equations at the pure-translation solution: ``S`` (information of
-    the global parameters with the points eliminated), ``b`` (gradient), ``sse``, the
-    residual degrees of freedom, and the columns of each view's rotation ``cols[i]``."""
+    """Reduced normal equations at the pure-translation solution with a rotation for
+    every view ``i >= 1``: ``S``, ``b``, ``sse``, ``dof``, the columns of each view's
+    rotation ``cols[i]`` and the nuisance columns (every other parameter)."""
 
     S: np.ndarray
     b: np.ndarray
@@ -79,56 +78,32 @@ class _Reduced:
     dof: int
     cols: dict
     nuisance: np.ndarray
-    sigma_px: float
 
     def step(self, views):
-        """Linearised fit of ``views``' rotations with every nuisance parameter profiled
-        out: ``(rotation (3 k,), covariance / sigma^2, RSS reduction)``."""
-        th = np.concatenate([self.cols[i] for i in views])
-        nu = self.nuisance
-        S_tn = self.S[np.ix_(th, nu)]
-        Sn_inv = np.linalg.pinv(self.S[np.ix_(nu, nu)], rcond=1e-13, hermitian=True)
-        info_t = self.S[np.ix_(th, th)] - S_tn @ Sn_inv @ S_tn.T
-        g = self.b[th] - S_tn @ Sn_inv @ self.b[nu]
-        cov = np.linalg.pinv(info_t, rcond=1e-13, hermitian=True)
-        w = cov @ g
-        return w, cov, float(g @ w)
+        """Linearised fit of ``views``' rotations, everything else profiled out:
+        ``(rotation (3 k,), covariance / sigma^2, RSS reduction)``."""
+        return profile_step(self.S, self.b, np.concatenate([self.cols[i] for i in views]), self.nuisance)
+
+
+def _refinement(calibration: Calibration) -> RefineOptions:
+    """The refinement options of the calibration, with the distortion model it chose."""
+    opts = calibration.options.refinement if calibration.options is not None else RefineOptions()
+    return replace(opts, distortion=calibration.dist_model)
 
 
 def _reduced_system(uv, T, calibration: Calibration) -> _Reduced:
     """The calibration's own parameter layout plus a rotation for every view ``i >= 1``,
-    linearised at the ML solution (a few LM steps make sure it is one)."""
-    opts = calibration.options.refinement if calibration.options is not None else RefineOptions(
-        distortion=calibration.dist_model)
-    n_views = uv.shape[0]
-    seen = np.isfinite(uv[..., 0])
-    X = np.asarray(calibration.X, float)
-    use = np.isfinite(X).all(axis=1) & (seen.sum(axis=0) >= 2)
-    if calibration.inliers is not None:
-        use &= np.asarray(calibration.inliers, bool)
-    idx = np.flatnonzero(use)
-    t_sigma = np.zeros(n_views) if opts.sigma_T is None else np.broadcast_to(
-        np.asarray(opts.sigma_T, float), (n_views,)).copy()
-    E, names = bundle.intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
-    base = Layout(n_views, E, names, bundle.dist_indices(opts.distortion, opts.fix), (),
-                  tuple(np.flatnonzero(t_sigma > 0)))
-    sigma_px = calibration.sigma_px or max(calibration.rms_px / np.sqrt(2), 1e-6)
-    tw = np.where(t_sigma > 0, sigma_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
-    T_start = np.asarray(calibration.T, float) if t_sigma.any() else T
-    state = State(calibration.camera.intrinsics, calibration.camera.dist5, np.array(calibration.R),
-                  np.tile(np.eye(3), (n_views, 1, 1)), T_start.copy(), X[idx].copy())
-    data = build_data(uv, seen, idx, T, tw)
-    dof = 2 * data.n_obs - base.n_global_no_T - 3 * len(idx)
-    if dof <= 3:
-        raise DegenerateError("too few observations to test for a rotation between views")
-    state = bundle.levenberg_marquardt(state, base, data, max_iterations=5, tol=1e-9)[0]
-    lay = replace(base, rot_views=tuple(range(1, n_views)))
-    U, W, V, bg, bX = bundle.normal_equations(state, lay, data)
-    S, b, _, _ = bundle.schur(U, W, V, bg, bX)
-    sse = 2.0 * bundle.cost(state, lay, data, "linear", 1.0)
+    linearised at the ML solution."""
+    opts = _refinement(calibration)
+    try:
+        lin = linearise(uv, T, calibration, opts)
+    except DegenerateError as exc:
+        raise DegenerateError(f"too few observations to test for a rotation between views ({exc})") from None
+    lay = replace(lin.layout, rot_views=tuple(range(1, uv.shape[0])))
+    S, b, sse = lin.system(lay)
     cols = {i: s + np.arange(3) for i, s in lay.i_vrot.items()}
     nuisance = np.setdiff1d(np.arange(lay.size), np.concatenate(list(cols.values())))
-    return _Reduced(S, b, sse, int(dof), cols, nuisance, float(sigma_px))
+    return _Reduced(S, b, sse, lin.dof, cols, nuisance)
 
 
 def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATION_ALPHA,
@@ -235,8 +210,7 @@ def _fit_rotated_views(uv, T, calibration: Calibration, candidates):
     no candidate could be fitted."""
     if not candidates:
         return None
-    opts = calibration.options.refinement if calibration.options is not None else RefineOptions(
-        distortion=calibration.dist_model)
+    opts = _refinement(calibration)
     uv = np.asarray(uv, float)
     if calibration.inliers is not None:
         uv = np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)

@@ -37,14 +37,16 @@ def add_parser(sub) -> None:
     rob.add_argument("--robust", dest="robust", action="store_true", default=None,
                      help="RANSAC against mismatched tracks (default: on from 8 points)")
     rob.add_argument("--no-robust", dest="robust", action="store_false")
-    c.add_argument("--threshold-px", type=positive_float, help="RANSAC inlier threshold in pixels (default 2)")
-    c.add_argument("--distortion", choices=["none", "radial1", "radial2", "opencv5"],
-                   help="lens distortion model (OpenCV convention; default none)")
+    c.add_argument("--threshold-px", type=positive_float,
+                   help="RANSAC inlier threshold in pixels (default: from the pixel noise estimated from the data)")
+    c.add_argument("--distortion", choices=["auto", "none", "radial1", "radial2", "opencv5"],
+                   help="lens distortion model (OpenCV convention; default auto: chosen from the data)")
     c.add_argument("--estimate-skew", action="store_true", help="estimate the skew (default: fixed at 0)")
     c.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
                    help="robot translation precision in --unit: treat translations as noisy measurements")
     c.add_argument("--loss", choices=["linear", "huber", "cauchy"], help="refinement loss (default linear)")
-    c.add_argument("--loss-scale-px", type=positive_float, help="scale of a robust loss in pixels (default 1)")
+    c.add_argument("--loss-scale-px", type=positive_float,
+                   help="scale of a robust loss in pixels (default: from the estimated pixel noise)")
     c.add_argument("--truth", help="truth.json of a simulated scene: print and plot the errors")
     c.add_argument("--formats", default="all",
                    help="comma-separated outputs among json,csv,opencv,ros,colmap,ply,report (default all)")

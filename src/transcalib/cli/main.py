@@ -14,7 +14,7 @@ from .. import __version__
 from .common import Parser, run_guarded
 
 #: Subcommand modules of this package, in ``--help`` order.
-COMMANDS = ("calibrate", "simulate", "track", "show", "undistort")
+COMMANDS = ("calibrate", "simulate", "track", "show", "undistort", "plan")
 
 
 def build_parser() -> Parser:

@@ -93,8 +93,10 @@ class Layout:
         Views with a rotation ``Q_i``.
     T_views : tuple of int
         Views whose translation is a parameter.
-    t_free : bool
-        The offset ``t`` (hand-eye translation) is a parameter.
+    t_basis : (3, k) float or None
+        Free directions of the offset ``t`` (the hand-eye translation): ``dt = B dp``;
+        None (or k = 0): ``t`` is fixed. Directions the data cannot determine (a rotation
+        axis shared by every session) are left out, so ``t`` keeps its value there.
     """
 
     n_views: int
@@ -103,7 +105,7 @@ class Layout:
     dist_free: tuple = ()
     rot_views: tuple = ()
     T_views: tuple = ()
-    t_free: bool = False
+    t_basis: np.ndarray | None = None
     i_vrot: dict = field(init=False)
     i_T: dict = field(init=False)
 
@@ -113,7 +115,9 @@ class Layout:
         self.n_dist = len(self.dist_free)
         self.i_rot = self.i_dist + self.n_dist
         self.i_t = self.i_rot + 3
-        self.n_common = self.i_t + 3 * self.t_free
+        self.n_t = 0 if self.t_basis is None else self.t_basis.shape[1]
+        self.t_free = self.n_t > 0
+        self.n_common = self.i_t + self.n_t
         start = self.n_common
         self.i_vrot, self.i_T = {}, {}
         for i in self.rot_views:
@@ -140,7 +144,7 @@ class Layout:
 
     def names(self) -> tuple:
         names = list(self.intr_names) + [DIST_NAMES[k] for k in self.dist_free] + ["rx", "ry", "rz"]
-        names += ["t_x", "t_y", "t_z"] if self.t_free else []
+        names += ["t_x", "t_y", "t_z"][: self.n_t] if self.n_t == 3 else [f"t_{k}" for k in range(self.n_t)]
         for i in self.i_vrot:
             names += [f"view{i}_rx", f"view{i}_ry", f"view{i}_rz"]
         for i in self.i_T:
@@ -265,8 +269,8 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     _cross_rows(y2, PQ, Jg[lay.i_rot: lay.i_rot + 3])
     PQR = np.einsum("kcn,cd->dkn", PQ, state.R)  # d pred / d y  (3, 2, n)
     JX = PQR if state.F is None else np.einsum("dkn,de->ekn", PQR, state.F[i])
-    if lay.t_free:
-        Jg[lay.i_t: lay.i_t + 3] = -PQR
+    if lay.t_free:  # d pred / dp = -PQR B
+        Jg[lay.i_t: lay.i_t + lay.n_t] = -np.einsum("dkn,dp->pkn", PQR, lay.t_basis)
     col = lay.n_common
     if i in lay.i_vrot:  # Q_i <- exp([w_i]x) Q_i: d xc / dw_i = -[xc]x
         _cross_rows(xc, p.P, Jg[col: col + 3])
@@ -458,7 +462,7 @@ def apply_step(state: State, lay: Layout, dg: np.ndarray, dX: np.ndarray) -> Sta
     new.dist5[list(lay.dist_free)] += dg[lay.i_dist: lay.i_rot]
     new.R = rotvec_to_matrix(dg[lay.i_rot: lay.i_rot + 3]) @ state.R
     if lay.t_free:
-        new.t += dg[lay.i_t: lay.i_t + 3]
+        new.t += lay.t_basis @ dg[lay.i_t: lay.i_t + lay.n_t]
     for i, s in lay.i_vrot.items():
         new.Q[i] = rotvec_to_matrix(dg[s: s + 3]) @ state.Q[i]
     for i, s in lay.i_T.items():

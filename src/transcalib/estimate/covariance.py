@@ -17,9 +17,13 @@ import numpy as np
 
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, pad_dist
+from dataclasses import dataclass, replace
+
+from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, normal_equations, schur
 
-__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "IDENTIFIABILITY_RTOL"]
+__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "linearise", "Linearised", "profile_step",
+           "IDENTIFIABILITY_RTOL"]
 
 #: Relative eigenvalue of the (Jacobi-scaled) reduced information below which a parameter
 #: combination counts as undetermined.
@@ -43,8 +47,10 @@ def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=Non
     return S, W, Vinv, det
 
 
-def check_identifiable(S: np.ndarray, names: tuple, hint: str = "") -> tuple[np.ndarray, np.ndarray]:
+def check_identifiable(S: np.ndarray, names: tuple, hint="") -> tuple[np.ndarray, np.ndarray]:
     """Raise :class:`DegenerateError` naming the undetermined parameters if ``S`` is singular.
+
+    ``hint``: what would determine them, a string or a callable of the undetermined names.
 
     Returns the eigen-decomposition ``(evals, evecs)`` of the Jacobi-scaled ``S`` and the
     scaling ``d`` folded into the vectors (``S^-1 = (V / w) V^T`` scaled by ``d``).
@@ -55,6 +61,7 @@ def check_identifiable(S: np.ndarray, names: tuple, hint: str = "") -> tuple[np.
     if weak.any():
         v = np.abs(evecs[:, weak]).max(axis=1)
         involved = [names[k] for k in np.argsort(-v) if v[k] > 0.2 * v.max()]
+        hint = hint(involved) if callable(hint) else hint
         raise DegenerateError(
             "the data do not determine all parameters: the combination of "
             f"{', '.join(involved)} is free (the Fisher information is singular in {int(weak.sum())} "
@@ -165,3 +172,66 @@ def _rot_views(spec, n_views: int) -> tuple:
         raise InputError(f"estimate_view_rotations={spec!r}: view indices must be in 0..{n_views - 1} and at "
                          "least one view must stay unrotated (the reference)")
     return views
+
+
+@dataclass(frozen=True, eq=False)
+class Linearised:
+    """A calibration's problem linearised at its solution, ready for score tests of
+    extra parameters: ``state``, the calibration's own ``layout``, the ``data`` of the
+    points it used (its inliers), ``dof`` (residual degrees of freedom) and ``sigma_px``."""
+
+    state: State
+    layout: Layout
+    data: object
+    dof: int
+    sigma_px: float
+
+    def system(self, layout: Layout):
+        """``(S, b, sse)``: reduced normal equations (points eliminated) of ``layout``
+        (the calibration's plus extra parameters at their current values) and the
+        residual sum of squares."""
+        U, W, V, bg, bX = normal_equations(self.state, layout, self.data)
+        S, b, _, _ = schur(U, W, V, bg, bX)
+        return S, b, 2.0 * bundle.cost(self.state, layout, self.data, "linear", 1.0)
+
+
+def linearise(uv, T, calibration, opts, polish: int = 5) -> Linearised:
+    """The refined calibration's problem at its solution (``polish`` LM steps make sure it
+    is the ML one): layout from ``opts`` (a RefineOptions), points with finite ``X``
+    among ``calibration.inliers``, translation priors from ``opts.sigma_T``."""
+    n_views = uv.shape[0]
+    seen = np.isfinite(uv[..., 0])
+    X = np.asarray(calibration.X, float)
+    use = np.isfinite(X).all(axis=1) & (seen.sum(axis=0) >= 2)
+    if calibration.inliers is not None:
+        use &= np.asarray(calibration.inliers, bool)
+    idx = np.flatnonzero(use)
+    t_sigma = np.zeros(n_views) if opts.sigma_T is None else np.broadcast_to(
+        np.asarray(opts.sigma_T, float), (n_views,)).copy()
+    E, names = intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
+    layout = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix), (), tuple(np.flatnonzero(t_sigma > 0)))
+    sigma_px = calibration.sigma_px or max(calibration.rms_px / np.sqrt(2), 1e-6)
+    tw = np.where(t_sigma > 0, sigma_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
+    T_start = np.asarray(calibration.T, float) if t_sigma.any() else T
+    state = State(calibration.camera.intrinsics, calibration.camera.dist5, np.array(calibration.R),
+                  np.tile(np.eye(3), (n_views, 1, 1)), T_start.copy(), X[idx].copy())
+    data = build_data(uv, seen, idx, T, tw)
+    dof = 2 * data.n_obs - layout.n_global_no_T - 3 * len(idx)
+    if dof <= 3:
+        raise DegenerateError(f"too few observations ({data.n_obs}) for a test of extra parameters")
+    if polish:
+        state = bundle.levenberg_marquardt(state, layout, data, max_iterations=polish, tol=1e-9)[0]
+    return Linearised(state, layout, data, int(dof), float(sigma_px))
+
+
+def profile_step(S: np.ndarray, b: np.ndarray, test: np.ndarray, nuisance: np.ndarray):
+    """One Gauss-Newton step of the ``test`` parameters with the ``nuisance`` ones profiled
+    out: ``(step (k,), covariance / sigma^2 (k, k), RSS reduction)``. The reduction over
+    ``sigma^2`` is the score statistic for ``test = 0`` (chi-square(k) under the null)."""
+    S_tn = S[np.ix_(test, nuisance)]
+    Sn_inv = np.linalg.pinv(S[np.ix_(nuisance, nuisance)], rcond=1e-13, hermitian=True)
+    info_t = S[np.ix_(test, test)] - S_tn @ Sn_inv @ S_tn.T
+    g = b[test] - S_tn @ Sn_inv @ b[nuisance]
+    cov = np.linalg.pinv(info_t, rcond=1e-13, hermitian=True)
+    w = cov @ g
+    return w, cov, float(g @ w)

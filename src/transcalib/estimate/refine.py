@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import stats
 
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
@@ -25,11 +26,35 @@ from ..types import CalibrateOptions, Calibration, LinearEstimate, RefineOptions
 from ..validate import as_uv_T
 from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
-from .covariance import _rot_views, covariance
+from .covariance import _rot_views, covariance, linearise, profile_step
+from .degeneracy import identifiability_hint
+from .scoring import SIGMA_FLOOR_PX
 
-__all__ = ["refine", "fit_refine", "crlb"]
+__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
+
+
+@dataclass(frozen=True, eq=False)
+class FlangeModel:
+    """Known flange orientations of several sessions (the hand-eye model).
+
+    The camera rotation of view ``i`` becomes ``R F_i`` and its centre ``T_i + F_i^T t``
+    (``F_i = R_i^T``, ``R = R_X^T``, ``t = t_X``; :mod:`transcalib.estimate.bundle`).
+
+    Attributes
+    ----------
+    F : (n_views, 3, 3) float
+        World -> flange rotations ``R_i^T`` of the views.
+    t0 : (3,) float
+        Start of the offset ``t`` (robot units).
+    t_basis : (3, k) float
+        Directions of ``t`` the data determine (the others keep ``t0``'s component).
+    """
+
+    F: np.ndarray
+    t0: np.ndarray
+    t_basis: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -95,21 +120,32 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
     return fit_refine(uv, T, initial, opts, progress)
 
 
-def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, progress=None) -> Calibration:
-    """:func:`refine` on validated arrays and options (the pipeline's entry)."""
+def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, progress=None,
+               flange: FlangeModel | None = None) -> Calibration:
+    """:func:`refine` on validated arrays and options (the pipeline's entry); with
+    ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
+    estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined)."""
+    if opts.distortion == "auto":
+        if flange is not None:
+            raise InputError("distortion='auto' is not available with several sessions yet; choose the model "
+                             "(none, radial1, radial2, opencv5)")
+        return _fit_auto(uv, T, initial, opts, progress)
     t_start = time.perf_counter()
-    pb = _problem(uv, T, initial, opts)
+    pb = _problem(uv, T, initial, opts, flange)
     fitter = _Fitter(pb, progress)
     return _result(pb, fitter, _fit(pb, fitter), initial, t_start)
 
 
-def _problem(uv, T, initial, opts: RefineOptions) -> _Problem:
+def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = None) -> _Problem:
     """Check the start, choose the used points and lay out the parameters."""
     n_views, n_points = uv.shape[:2]
     X0, K0, R0 = _check_initial(initial, n_points)
     seen = np.all(np.isfinite(uv), axis=2)
     usable = np.all(np.isfinite(X0), axis=1) & (seen.sum(axis=0) >= 2)
-    z0 = np.einsum("b,vnb->vn", R0[2], X0[None] - T[:, None])
+    d0 = X0[None] - T[:, None]  # (V, n, 3)
+    if flange is not None:
+        d0 = np.einsum("vab,vnb->vna", flange.F, d0) - flange.t0
+    z0 = d0 @ R0[2]
     in_front = np.all(~seen | (z0 > 0) | ~usable[None], axis=0)
     used_idx = np.flatnonzero(usable & in_front)
     if len(used_idx) < 2:
@@ -121,7 +157,8 @@ def _problem(uv, T, initial, opts: RefineOptions) -> _Problem:
     t_sigma = np.broadcast_to(t_sigma, (n_views,)).copy()
     E, names = intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
     lay = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix),
-                 _rot_views(opts.estimate_view_rotations, n_views), tuple(np.flatnonzero(t_sigma > 0)))
+                 _rot_views(opts.estimate_view_rotations, n_views), tuple(np.flatnonzero(t_sigma > 0)),
+                 None if flange is None else flange.t_basis)
     intr = _start_intrinsics(K0, opts)
     dist5 = pad_dist(getattr(initial, "dist", ()) if isinstance(initial, Calibration) else ())
     keep = np.zeros(5, bool)
@@ -129,7 +166,8 @@ def _problem(uv, T, initial, opts: RefineOptions) -> _Problem:
     dist5 = np.where(keep, dist5, 0.0)
     for k, name in enumerate(("k1", "k2", "p1", "p2", "k3")):
         dist5[k] = opts.fix.get(name, dist5[k])
-    start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy())
+    start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy(),
+                  None if flange is None else flange.F, np.zeros(3) if flange is None else flange.t0.copy())
     n_obs = int(seen[:, used_idx].sum())
     dof = 2 * n_obs - lay.n_global_no_T - 3 * len(used_idx)
     if dof < 0 or (dof == 0 and opts.sigma_px is None):
@@ -170,6 +208,69 @@ def _start_intrinsics(K0: np.ndarray, opts: RefineOptions) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------
+# Distortion model chosen from the data
+# ----------------------------------------------------------------------------------------
+
+#: Nested distortion models ``distortion="auto"`` climbs, simplest first.
+AUTO_CHAIN = ("none", "radial2", "opencv5")
+#: False-positive rate of each step of the climb (score test of the added coefficients).
+AUTO_ALPHA = 0.01
+
+
+def _fit_auto(uv, T, initial, opts: RefineOptions, progress) -> Calibration:
+    """Refine without distortion, then add coefficients while the data ask for them.
+
+    At the solution of model ``m`` the score test of the coefficients ``m'`` adds
+    (``k`` of them, the others profiled out) gives ``F = (D / k) / ((RSS - D) / (dof - k))``
+    with ``D`` the RSS reduction of one Gauss-Newton step: F(k, dof - k) when ``m``
+    suffices. ``m'`` is taken when ``p < AUTO_ALPHA`` and its refit determines every
+    coefficient (its covariance exists); ``info["distortion_selection"]`` says why.
+    """
+    cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress)
+    return climb_distortion(uv, T, cal, opts, progress)
+
+
+def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None) -> Calibration:
+    """From the refined ``cal`` (a model of :data:`AUTO_CHAIN`), add coefficients while
+    the score test asks for them (:func:`_fit_auto`); ``opts`` are recorded."""
+    steps = []
+    start = AUTO_CHAIN.index(cal.dist_model) if cal.dist_model in AUTO_CHAIN else len(AUTO_CHAIN) - 1
+    for simpler, richer in zip(AUTO_CHAIN[start:], AUTO_CHAIN[start + 1:]):
+        F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer)
+        step = {"model": richer, "F": F, "p_value": p, "alpha": AUTO_ALPHA, "chosen": bool(p < AUTO_ALPHA)}
+        if step["chosen"]:
+            try:
+                richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress)
+            except DegenerateError as exc:  # the added coefficients are not determined
+                step.update(chosen=False, reason=f"not determined: {exc}")
+            else:
+                cal = richer_cal
+        steps.append(step)
+        if not step["chosen"]:
+            break
+    cal.info["distortion_selection"] = steps
+    return replace(cal, options=replace(cal.options, refinement=opts))
+
+
+def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str) -> tuple[float, float]:
+    """Score test at ``cal`` (the ML solution of ``simpler``) of the coefficients that
+    ``richer`` adds: ``(F, p-value)``."""
+    lin = linearise(uv, T, cal, simpler, polish=0)
+    lay = replace(lin.layout, dist_free=dist_indices(richer, simpler.fix))
+    added = [lay.i_dist + m for m, k in enumerate(lay.dist_free) if k not in lin.layout.dist_free]
+    if not added:
+        return 0.0, 1.0
+    S, b, sse = lin.system(lay)
+    nuisance = np.setdiff1d(np.arange(lay.size), added)
+    red = profile_step(S, b, np.array(added), nuisance)[2]
+    k, d = len(added), lin.dof - len(added)
+    if d <= 0:
+        return 0.0, 1.0
+    F = (red / k) / max((sse - red) / d, SIGMA_FLOOR_PX**2)
+    return float(F), float(stats.f.sf(F, k, d))
+
+
+# ----------------------------------------------------------------------------------------
 # Fitting stages
 # ----------------------------------------------------------------------------------------
 
@@ -185,10 +286,20 @@ class _Fitter:
 
     def __init__(self, pb: _Problem, progress):
         self.pb, self.progress = pb, progress
-        o = pb.opts
-        self.c = float(o.loss_scale_px)
-        self.thr = 3.0 * self.c if o.inlier_threshold_px is None else float(o.inlier_threshold_px)
         self.iterations = 0
+        self.set_scale(pb.opts.loss_scale_px or 1.0)
+
+    def set_scale(self, sigma: float) -> None:
+        """Scale ``c`` of the robust loss and the inlier threshold of an observation's
+        residual norm: given ones, or from the pixel noise ``sigma`` (Huber ``1.345
+        sigma``, Cauchy ``2.385 sigma``: 95 % efficiency under Gaussian noise; threshold
+        ``sqrt(chi2_2(0.999)) sigma = 3.72 sigma``)."""
+        o = self.pb.opts
+        self.c = float(o.loss_scale_px) if o.loss_scale_px is not None else _LOSS_FACTOR[o.loss] * sigma
+        if o.inlier_threshold_px is not None:
+            self.thr = float(o.inlier_threshold_px)
+        else:
+            self.thr = 3.0 * self.c if o.loss_scale_px is not None else _OBS_QUANTILE * sigma
 
     def _lm(self, state, lay, data, loss):
         o = self.pb.opts
@@ -247,10 +358,20 @@ class _Fit:
 
 def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     """The (robust) fit, then for a robust loss the least-squares polish on the inlier
-    observations (points keeping >= 2 of them), repeated until the inlier set settles."""
-    state, fit.cost, fit.reason, data, sigma_T_mode = fit(pb.start, pb.used_idx, pb.seen, pb.opts.loss)
+    observations (points keeping >= 2 of them), repeated until the inlier set settles.
+    A robust loss without a given scale takes it from the noise, estimated robustly
+    (median absolute residual) at the start and again at the robust solution."""
+    state = pb.start
+    if pb.opts.loss != "linear" and pb.opts.loss_scale_px is None:
+        fit.set_scale(_robust_sigma(pb, state))
+    state, fit.cost, fit.reason, data, sigma_T_mode = fit(state, pb.used_idx, pb.seen, pb.opts.loss)
     if pb.opts.loss == "linear":
         return _Fit(state, state, pb.used_idx, pb.seen, data, sigma_T_mode, None)
+    if pb.opts.loss_scale_px is None:
+        sigma = _robust_sigma(pb, state)
+        if abs(sigma * _LOSS_FACTOR[pb.opts.loss] / fit.c - 1) > 0.1:  # the start's residuals misled the scale
+            fit.set_scale(sigma)
+            state, fit.cost, fit.reason, data, sigma_T_mode = fit(state, pb.used_idx, pb.seen, pb.opts.loss)
     last, idx, mask, previous = state, pb.used_idx, pb.seen, None
     for _ in range(3):
         obs_in = _inlier_observations(pb, state, fit.thr)
@@ -270,6 +391,21 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     return _Fit(state, last, idx, mask, data, sigma_T_mode, inliers)
 
 
+#: Scale of a robust loss per unit of pixel noise (95 % efficiency under Gaussian noise).
+_LOSS_FACTOR = {"huber": 1.345, "cauchy": 2.385, "linear": 1.0}
+#: An inlier observation's residual norm stays below this many sigmas with probability 0.999.
+_OBS_QUANTILE = float(np.sqrt(-2.0 * np.log(1e-3)))
+
+
+def _robust_sigma(pb: _Problem, state: State) -> float:
+    """Pixel noise per coordinate from the median absolute residual coordinate, scaled to
+    the residual degrees of freedom (outliers barely move a median)."""
+    res = bundle.all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    r = np.abs(res[np.isfinite(res)])
+    dof = max(r.size - pb.lay.n_global_no_T - 3 * len(pb.used_idx), 1)
+    return max(float(1.4826 * np.median(r) * np.sqrt(r.size / dof)), SIGMA_FLOOR_PX)
+
+
 def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
     """(n_views, n_points) bool: observations of the used points with residual norm <= thr."""
     obs_in = np.zeros(pb.seen.shape, bool)
@@ -286,7 +422,7 @@ def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
 def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calibration:
     """Covariance at the solution and the :class:`Calibration`."""
     lay, n_views, n_points = pb.lay, *pb.uv.shape[:2]
-    Sinv, var_X, ok = covariance(fit.last, lay, fit.data)
+    Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T))
     dof_fit = 2 * int(fit.mask[:, fit.idx].sum()) - lay.n_global_no_T - 3 * len(fit.idx)
     sigma = _sigma(pb, fit, dof_fit)
     names = lay.names()
@@ -304,6 +440,8 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     used_res = residuals[:, pb.used_idx][pb.seen[:, pb.used_idx]]
     info = _info(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)
     info.update(_view_rotation_info(lay, fit.state, cov, n_views))
+    if fit.state.F is not None:
+        info["flange_offset"] = fit.state.t.copy()
     if lay.i_T:
         info["T_std"] = np.zeros((n_views, 3))
         for i, s in lay.i_T.items():

@@ -1,14 +1,22 @@
-"""Robust estimation: the two-point minimal solver (:mod:`.minimal`) inside an MSAC /
-LO-RANSAC loop, hypotheses scored by :mod:`.scoring`.
+"""Robust estimation: the two-point minimal solver (:mod:`.minimal`) inside an LO-RANSAC
+loop, hypotheses scored by :mod:`.scoring`, with no noise knob to turn.
 
-Loop: adaptive number of trials ``log(1 - confidence) / log(1 - p)`` (``p`` the
-probability of drawing two inliers at the best inlier ratio so far); each new best
-hypothesis is refined by local optimisation (refit on its inliers, rescore, repeat while
-the cost drops). Problems with more than ``SCORE_POINTS`` points draw and score the
-hypotheses on a random subset of that many points (the ranking of hypotheses needs no
-more); every point is then classified with the best hypothesis. The final model is
-:func:`transcalib.estimate_linear` on the inliers, with the inliers reclassified from it
-(weighted triangulation, all points) until they settle.
+The pixel noise is unknown, so hypotheses are first ranked by the **median** of their
+normalised track errors ``e_j^2 / median(chi2(2 k_j - 3))`` (least median of squares:
+no threshold needed, correct up to 50 % of bad tracks). For each new best hypothesis
+the noise ``sigma`` is estimated from its track errors (:func:`.scoring.truncated_sigma`),
+its inliers follow from the chi-square rule with false-rejection rate ``alpha``
+(:func:`.scoring.inlier_rule`), and local optimisation refits ``A`` on them while the
+median drops. The number of trials adapts: ``log(1 - confidence) / log(1 - p)`` with
+``p`` the probability of drawing two inliers at the best inlier ratio so far. A user
+threshold (``RansacOptions.threshold_px``) replaces the estimated ``sigma`` by
+``threshold_px / sqrt(chi2_2(1 - alpha))`` and ranks hypotheses by the MSAC cost
+``sum_j min(e_j^2, sigma^2 q_j)`` instead.
+
+Problems with more than ``SCORE_POINTS`` points draw and score hypotheses on a random
+subset of that many points; every track is then classified. The final model is the
+paper's TLS on the inliers, with ``sigma`` and the inliers re-estimated from it until
+they settle.
 """
 
 from __future__ import annotations
@@ -18,13 +26,14 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import stats
 
 from ..errors import DegenerateError, MirroredError
 from ..types import LinearEstimate, RansacOptions
 from ..validate import as_uv_T, check_translations_span
 from .linear import fit_linear
 from .minimal import forms, forms_sum, normalise, null_vectors, solve_minimal, to_pixels
-from .scoring import Scorer, msac_cost, point_errors
+from .scoring import Scorer, inlier_rule, median_sigma, point_errors, sigma_from_threshold, truncated_sigma
 
 __all__ = ["RobustEstimate", "estimate_robust", "fit_robust", "solve_minimal", "point_errors"]
 
@@ -46,23 +55,24 @@ class RobustEstimate:
         The paper's linear estimate refitted on the inliers (``linear.used == inliers``;
         ``linear.X`` is NaN for outliers).
     inliers : (n_points,) bool
-        Points whose reprojection error is below ``threshold_px`` in **every** view that
-        sees them, under the final ``linear.A``.
-    error_px : (n_points,) float
-        Per-point score: the largest reprojection error (pixels) over the views that see
-        the point, each point triangulated from all its views with the final ``A``;
-        ``inf`` if it falls behind the camera, NaN if it is seen in fewer than 2 views.
+        Tracks whose error passes the chi-square rule under the final ``linear.A``.
+    sse_px2 : (n_points,) float
+        Track errors: sum of squared reprojection errors (pixels^2) over the views that
+        see the track, triangulated from all its views with the final ``A``; ``inf``
+        behind the camera, NaN if seen in fewer than 2 views.
     residuals_px : (n_views, n_points, 2) float
         Observed minus predicted pixels for every observation under the final ``A``
         (outliers included); NaN where unseen.
+    sigma_px : float
+        Pixel noise per coordinate estimated from the inliers (also when a threshold
+        was given: compare the two).
+    rule_sigma_px : float
+        The sigma of the inlier rule: ``sigma_px``, or the one ``threshold_px`` implies.
     trials : int
         Minimal-sample hypotheses drawn.
     inlier_ratio : float
         ``inliers.sum() / n_points``.
-    threshold_px : float
-        The inlier threshold used.
-    cost : float
-        MSAC cost ``sum_j min(error_px_j^2, threshold_px^2)`` of the final model (px^2).
+    options : RansacOptions
     info : dict
         ``trials_needed``, ``lo_steps``, ``refits``, ``time_s``, ``n_candidates``
         (points eligible for sampling), ``n_scored`` (points hypotheses were scored on).
@@ -70,12 +80,13 @@ class RobustEstimate:
 
     linear: LinearEstimate
     inliers: np.ndarray
-    error_px: np.ndarray
+    sse_px2: np.ndarray
     residuals_px: np.ndarray
+    sigma_px: float
+    rule_sigma_px: float
     trials: int
     inlier_ratio: float
-    threshold_px: float
-    cost: float
+    options: RansacOptions
     info: dict
 
     @property
@@ -143,7 +154,7 @@ def _trials_needed(n_in: int, m: int, confidence: float) -> float:
 
 
 def estimate_robust(uv, T, *, options: RansacOptions | None = None, rng=None, progress=None) -> RobustEstimate:
-    """Calibrate linearly despite gross outliers: two-point LO-MSAC, then a TLS refit.
+    """Calibrate linearly despite gross outliers: two-point LO-RANSAC, then a TLS refit.
 
     Parameters
     ----------
@@ -152,14 +163,12 @@ def estimate_robust(uv, T, *, options: RansacOptions | None = None, rng=None, pr
     T : array_like (n_views, 3)
         Robot translations spanning 3-D (``n_views >= 4``).
     options : RansacOptions, optional
-        Threshold (on a point's **largest** reprojection error over its views, the point
-        triangulated from all its views with the hypothesised ``A``), confidence and the
-        maximum number of trials.
+        False-rejection rate, confidence, maximum trials, and an optional fixed threshold.
     rng : seed or numpy Generator
         Randomness of the sampling.
     progress : callable, optional
         Called after every batch of hypotheses with a dict
-        ``{trials, trials_needed, best_inliers, best_cost}``.
+        ``{trials, trials_needed, best_inliers}``.
 
     Returns
     -------
@@ -184,58 +193,76 @@ def fit_robust(uv: np.ndarray, T: np.ndarray, opts: RansacOptions, *, rng=None, 
     t0 = time.perf_counter()
     check_translations_span(T)
     rng = np.random.default_rng(rng)
-    search = _Search(uv, T, opts.threshold_px, rng)
-    search.run(opts, progress)
-    lin, err, res, refits = _final_refit(uv, T, search, opts.threshold_px)
+    search = _Search(uv, T, opts, rng)
+    search.run(progress)
+    lin, sse, res, sigma, rule_sigma, refits = _final_refit(uv, T, search, opts)
     return RobustEstimate(
-        linear=lin, inliers=lin.used.copy(), error_px=err, residuals_px=res, trials=int(search.trials),
-        inlier_ratio=float(lin.used.sum() / uv.shape[1]), threshold_px=float(opts.threshold_px),
-        cost=float(msac_cost(err[None], opts.threshold_px)[0]),
+        linear=lin, inliers=lin.used.copy(), sse_px2=sse, residuals_px=res, sigma_px=sigma, rule_sigma_px=rule_sigma,
+        trials=int(search.trials), inlier_ratio=float(lin.used.sum() / uv.shape[1]), options=opts,
         info={"trials_needed": float(search.needed), "lo_steps": search.lo_steps, "refits": refits,
               "n_candidates": int(len(search.pool)), "n_scored": int(len(search.subset)),
               "time_s": time.perf_counter() - t0})
 
 
 class _Search:
-    """The LO-MSAC loop on a scored subset of the points: the best hypothesis so far
-    (``a``, its per-point errors ``err``, ``cost``, ``n_in``), trials and LO steps."""
+    """The LO-RANSAC loop on a scored subset of the points: the best hypothesis so far
+    (``a``, its track errors ``sse``, ranking ``score``, noise ``sigma``, inliers
+    ``n_in``), trials and LO steps."""
 
-    def __init__(self, uv, T, thr: float, rng):
-        self.uv, self.T, self.thr, self.rng = uv, T, float(thr), rng
+    def __init__(self, uv, T, opts: RansacOptions, rng):
+        self.T, self.opts, self.rng = T, opts, rng
         n_points = uv.shape[1]
-        self.pb_all = normalise(uv, T)
+        pb_all = normalise(uv, T)
         # hypotheses are drawn and scored on a random subset of at most SCORE_POINTS points;
         # the final classification and refit use every point
-        scorable = np.flatnonzero(self.pb_all.seen.sum(axis=1) >= 2)
+        scorable = np.flatnonzero(pb_all.seen.sum(axis=1) >= 2)
         self.subset = (np.sort(rng.choice(scorable, SCORE_POINTS, replace=False)) if len(scorable) > SCORE_POINTS
                        else np.arange(n_points))
-        self.pb = replace(self.pb_all, x=self.pb_all.x[self.subset], seen=self.pb_all.seen[self.subset])
+        self.pb = replace(pb_all, x=pb_all.x[self.subset], seen=pb_all.seen[self.subset])
         self.scorer = Scorer(self.pb)
-        self.k_views = self.pb.seen.sum(axis=1)
-        self.pool = np.flatnonzero((self.k_views >= 3) & self.scorer.ok)
+        self.k = self.pb.seen.sum(axis=1)
+        self.pool = np.flatnonzero((self.k >= 3) & self.scorer.ok)
         if len(self.pool) < 2:
             raise DegenerateError(
                 f"robust estimation needs points seen in at least 3 views (pairs together in 8, e.g. two points "
                 f"in 4 views); only {len(self.pool)} such point(s) among {n_points}. Track the points through "
                 "more views.")
-        self.cost, self.a, self.err, self.n_in = np.inf, None, None, 0
+        ok = self.scorer.ok
+        self.median_chi2 = np.where(ok, stats.chi2.ppf(0.5, np.maximum(2 * self.k - 3, 1)), 1.0)
+        self.fixed_sigma = (None if opts.threshold_px is None
+                            else sigma_from_threshold(opts.threshold_px, opts.false_rejection))
+        self.score, self.a, self.sse, self.sigma, self.n_in = np.inf, None, None, np.nan, 0
         self.trials = self.lo_steps = 0
         self.needed = math.inf
 
+    def _rank(self, sse: np.ndarray) -> np.ndarray:
+        """Score of hypotheses (H,) from their track errors (H, n): lower is better."""
+        ok = self.scorer.ok
+        if self.fixed_sigma is None:  # least median of normalised squares
+            return np.median(sse[:, ok] / self.median_chi2[ok], axis=1)
+        q = self.fixed_sigma**2 * stats.chi2.ppf(1.0 - self.opts.false_rejection, np.maximum(2 * self.k - 3, 1))
+        return np.sum(np.minimum(np.nan_to_num(sse[:, ok], nan=0.0), q[ok]), axis=1)  # MSAC
+
     def consider(self, a: np.ndarray) -> bool:
         """Score hypotheses ``a (H, 9)``; keep the best; True if it improved."""
-        err = self.scorer.errors(a.reshape(-1, 3, 3))
-        cost = msac_cost(err, self.thr)
-        k = int(np.argmin(cost))
-        if cost[k] >= self.cost:
+        sse = self.scorer.sse(a.reshape(-1, 3, 3))
+        score = self._rank(sse)
+        h = int(np.argmin(score))
+        if not score[h] < self.score:
             return False
-        self.cost, self.a, self.err, self.n_in = float(cost[k]), a[k], err[k], int(np.sum(err[k] < self.thr))
+        self.score, self.a, self.sse = float(score[h]), a[h], sse[h]
+        self.sigma = self.fixed_sigma or truncated_sigma(sse[h], self.k, median_sigma(sse[h], self.k),
+                                                         self.opts.false_rejection)
+        self.n_in = int(self.inliers().sum())
         return True
 
+    def inliers(self) -> np.ndarray:
+        return inlier_rule(self.sse, self.k, self.sigma, self.opts.false_rejection)
+
     def local_optimisation(self) -> None:
-        """Refit on the inliers of the best hypothesis while that lowers the cost."""
+        """Refit on the inliers of the best hypothesis while that improves its score."""
         for _ in range(5):
-            inl = np.flatnonzero(self.err < self.thr)
+            inl = np.flatnonzero(self.inliers())
             if len(inl) < 2:
                 return
             a, ok = null_vectors(forms_sum(self.pb, inl)[None])
@@ -243,53 +270,57 @@ class _Search:
             if not ok[0] or not self.consider(a):
                 return
 
-    def run(self, opts: RansacOptions, progress) -> None:
+    def run(self, progress) -> None:
         """Draw batches of pairs until the adaptive number of trials is reached."""
-        batch = 16
+        batch, opts = 16, self.opts
         while self.trials < min(self.needed, opts.max_trials):
             left = max(1, math.ceil(self.needed - self.trials)) if math.isfinite(self.needed) else batch
             B = int(min(batch, opts.max_trials - self.trials, left))
-            pairs = _draw_pairs(self.rng, self.pool, self.k_views, self.pb.seen, self.T, B)
+            pairs = _draw_pairs(self.rng, self.pool, self.k, self.pb.seen, self.T, B)
             self.trials += B
             if len(pairs):
                 a, ok = null_vectors(forms(self.pb, pairs.ravel()).reshape(-1, 2, 9, 9).sum(axis=1))
                 if ok.any() and self.consider(a[ok]):
                     self.local_optimisation()
-                    n_in_pool = int(np.sum(self.err[self.pool] < self.thr))
+                    n_in_pool = int(self.inliers()[self.pool].sum())
                     self.needed = _trials_needed(n_in_pool, len(self.pool), opts.confidence)
             batch = min(2 * batch, 256)
             if progress is not None:
-                progress({"trials": self.trials, "trials_needed": self.needed, "best_inliers": self.n_in,
-                          "best_cost": self.cost})
+                progress({"trials": self.trials, "trials_needed": self.needed, "best_inliers": self.n_in})
         if self.a is None or self.n_in < MIN_CONSENSUS:
             raise DegenerateError(
-                f"no consensus: after {self.trials} hypotheses the best one agrees with only {self.n_in} point(s) "
-                f"within {self.thr:g} px (at least {MIN_CONSENSUS} needed). The tracks are mostly wrong, the "
-                "threshold is too small for the pixel noise (try 3-4x the noise), or the motion was not a pure "
-                "translation.")
+                f"no consensus: after {self.trials} hypotheses the best one agrees with only {self.n_in} track(s) "
+                f"(at least {MIN_CONSENSUS} needed). The tracks are mostly wrong, or the motion was not a pure "
+                "translation (the robot rotated).")
 
 
-def _final_refit(uv, T, search: _Search, thr: float):
-    """The paper's TLS on the inliers, reclassified (all points) until the inliers settle:
-    ``(linear, error_px, residuals_px, refits)``."""
+def _final_refit(uv, T, search: _Search, opts: RansacOptions):
+    """The paper's TLS on the inliers, with sigma and the inliers (all tracks) re-estimated
+    until they settle: ``(linear, sse, residuals, sigma, rule_sigma, refits)``."""
+    k = np.isfinite(uv[..., 0]).sum(axis=0)
     if len(search.subset) == uv.shape[1]:
-        inliers = search.err < thr
+        sse = search.sse
     else:
-        inliers = point_errors(to_pixels(search.pb, search.a)[0], uv, T)[0] < thr
+        sse = point_errors(to_pixels(search.pb, search.a)[0], uv, T)[0]
+    sigma = search.sigma if search.fixed_sigma is None else truncated_sigma(
+        sse, k, median_sigma(sse, k), opts.false_rejection)
+    rule_sigma = search.fixed_sigma or sigma
+    inliers = inlier_rule(sse, k, rule_sigma, opts.false_rejection)
     refits = 0
-    for _ in range(4):
-        masked = np.where(inliers[None, :, None], uv, np.nan)
+    for _ in range(5):
         try:
-            lin = fit_linear(masked, T)
+            lin = fit_linear(np.where(inliers[None, :, None], uv, np.nan), T)
         except MirroredError:
             raise
         except DegenerateError as exc:
             raise DegenerateError(f"the {int(inliers.sum())} inliers found do not determine the camera: {exc}") \
                 from exc
         refits += 1
-        err, res = point_errors(lin.A, uv, T)
-        new = err < thr
+        sse, res = point_errors(lin.A, uv, T)
+        sigma = truncated_sigma(sse, k, sigma, opts.false_rejection)
+        rule_sigma = search.fixed_sigma or sigma
+        new = inlier_rule(sse, k, rule_sigma, opts.false_rejection)
         if np.array_equal(new, inliers) or new.sum() < MIN_CONSENSUS:
             break
         inliers = new
-    return lin, err, res, refits
+    return lin, sse, res, sigma, rule_sigma, refits

@@ -1,27 +1,100 @@
-"""Scoring of robust hypotheses: every point triangulated with a hypothesised ``A``.
+"""Scoring of robust hypotheses, and the noise-adaptive inlier rule.
 
 With ``A`` known the linear triangulation of point ``j`` (paper eq. 2 divided out, as in
-:mod:`transcalib.triangulate`) is ``Y_j = G_j^-1 sum_i P_ij A T_i`` with
+:mod:`transcalib.geometry.triangulate`) is ``Y_j = G_j^-1 sum_i P_ij A T_i`` with
 ``P_ij = r_u r_u^T + r_v r_v^T``, ``r_u = (1, 0, -u)``, ``r_v = (0, 1, -v)`` and
 ``G_j = sum_i P_ij``: ``G_j^-1 P_ij`` do not depend on ``A`` and are computed once, so
 scoring a hypothesis costs O(n_views n_points) multiply-adds, vectorised over
-hypotheses and points. The **error of a point** is the largest reprojection error (pixel
-norm) over the views that see it, infinite when it lies behind the camera in some view;
-a point is an **inlier** when that error is below ``threshold_px``. Hypotheses are ranked
-by the MSAC cost ``sum_j min(e_j^2, threshold_px^2)``.
+hypotheses and points.
+
+The **error of a track** seen in ``k`` views is the sum of its squared reprojection
+errors ``e_j^2 = sum_i |r_ij|^2`` (pixels^2; infinite when it lies behind the camera in
+some view). For an inlier with Gaussian pixel noise ``sigma`` per coordinate, a
+triangulated track leaves ``nu_j = 2 k - 3`` degrees of freedom::
+
+    e_j^2 / sigma^2 ~ chi2(nu_j),    inlier  <=>  e_j^2 < sigma^2 chi2_{nu_j}(1 - alpha)
+
+so a good track is rejected with probability ``alpha`` (the false-rejection rate) whatever
+its length. ``sigma`` comes from the data: :func:`truncated_sigma` is the fixed point of
+the mean of the inliers' ``e^2`` corrected for the truncation at the threshold,
+``E[X | X < q] = nu F_{nu+2}(q) / F_nu(q)`` for ``X ~ chi2(nu)``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
 from ..geometry.triangulate import triangulate
 from .minimal import Problem
 
-__all__ = ["Scorer", "msac_cost", "point_errors", "SCORE_BLOCK"]
+__all__ = ["Scorer", "point_errors", "track_dof", "inlier_rule", "truncated_sigma", "median_sigma",
+           "sigma_from_threshold", "SCORE_BLOCK", "SIGMA_FLOOR_PX"]
 
 #: Largest number of (hypothesis x view x point) entries scored at once (memory bound).
 SCORE_BLOCK = 2_000_000
+#: Smallest pixel noise the rule assumes: exact (simulated) data have rounding errors of
+#: ~1e-10 px, which are not Gaussian; no real tracker is below a thousandth of a pixel.
+SIGMA_FLOOR_PX = 1e-6
+
+
+def track_dof(k: np.ndarray) -> np.ndarray:
+    """Residual degrees of freedom ``2 k - 3`` of tracks seen in ``k`` views (at least 1)."""
+    return np.maximum(2 * np.asarray(k) - 3, 1)
+
+
+def _quantile(nu: np.ndarray, p: float) -> np.ndarray:
+    """``chi2_nu(p)`` for an array of degrees of freedom (few distinct values: cached)."""
+    values, inverse = np.unique(nu, return_inverse=True)
+    return stats.chi2.ppf(p, values)[inverse.ravel()].reshape(np.shape(nu))
+
+
+def inlier_rule(sse: np.ndarray, k: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
+    """Inlier tracks: ``sse < sigma^2 chi2_{2k-3}(1 - alpha)`` (module docstring); NaN
+    (unscorable) and inf (behind the camera) are outliers."""
+    q = _quantile(track_dof(k), 1.0 - alpha)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(sse) & (sse < sigma * sigma * q)
+
+
+def truncated_sigma(sse: np.ndarray, k: np.ndarray, sigma0: float, alpha: float, iterations: int = 50) -> float:
+    """Pixel noise per coordinate from track errors containing outliers (module docstring).
+
+    Starting from ``sigma0`` (an over-estimate is fine, e.g. a median-based one), iterate
+    ``sigma^2 = sum_inliers e_j^2 / sum_inliers nu_j F_{nu_j+2}(q_j) / F_{nu_j}(q_j)``
+    with ``q_j = chi2_{nu_j}(1 - alpha)``, the inliers those of :func:`inlier_rule`.
+    """
+    nu = track_dof(k)
+    q = _quantile(nu, 1.0 - alpha)
+    values, inverse = np.unique(nu, return_inverse=True)
+    qv = stats.chi2.ppf(1.0 - alpha, values)
+    factor = (values * stats.chi2.cdf(qv, values + 2) / stats.chi2.cdf(qv, values))[inverse.ravel()]
+    sigma = max(float(sigma0), SIGMA_FLOOR_PX)
+    finite = np.isfinite(sse)
+    for _ in range(iterations):
+        inl = finite & (np.where(finite, sse, np.inf) < sigma * sigma * q)
+        if inl.sum() < 2:
+            return sigma
+        new = max(float(np.sqrt(np.sum(sse[inl]) / np.sum(factor[inl]))), SIGMA_FLOOR_PX)
+        if abs(new - sigma) <= 1e-6 * sigma:
+            return new
+        sigma = new
+    return sigma
+
+
+def median_sigma(sse: np.ndarray, k: np.ndarray) -> float:
+    """A robust first guess of sigma: ``sqrt(median(e_j^2 / median(chi2(nu_j))))``."""
+    finite = np.isfinite(sse)
+    if not finite.any():
+        return float("nan")
+    s = sse[finite] / _quantile(track_dof(k[finite]), 0.5)
+    return max(float(np.sqrt(np.median(s))), SIGMA_FLOOR_PX)
+
+
+def sigma_from_threshold(threshold_px: float, alpha: float) -> float:
+    """The noise a user threshold implies: the norm of one observation's residual is below
+    ``threshold_px`` with probability ``1 - alpha``: ``threshold / sqrt(chi2_2(1 - alpha))``."""
+    return float(threshold_px / np.sqrt(stats.chi2.ppf(1.0 - alpha, 2)))
 
 
 class Scorer:
@@ -49,19 +122,17 @@ class Scorer:
         self.L2 = np.ascontiguousarray(L.transpose(0, 2, 1, 3).reshape(3 * n, 3 * V))
         self.n, self.V = n, V
 
-    def errors(self, A: np.ndarray) -> np.ndarray:
-        """Largest reprojection error per point (H, n) in **pixels** for normalised
-        hypotheses ``A`` (H, 3, 3); inf if behind the camera, NaN if not scorable."""
-        pb = self.pb
-        Hn = A.shape[0]
-        out = np.empty((Hn, self.n))
+    def sse(self, A: np.ndarray) -> np.ndarray:
+        """Track errors ``e_j^2`` (H, n) in **pixels^2** for normalised hypotheses ``A``
+        (H, 3, 3); inf if behind the camera, NaN if not scorable."""
+        out = np.empty((A.shape[0], self.n))
         step = max(1, SCORE_BLOCK // max(1, self.n * self.V))
-        for lo in range(0, Hn, step):
-            out[lo: lo + step] = self._errors(A[lo: lo + step])
+        for lo in range(0, A.shape[0], step):
+            out[lo: lo + step] = self._sse(A[lo: lo + step])
         out[:, ~self.ok] = np.nan
-        return out / pb.scale
+        return out / self.pb.scale**2
 
-    def _errors(self, A):
+    def _sse(self, A):
         pb = self.pb
         c = np.einsum("hab,vb->hva", A, pb.T)  # A T_i: (H, V, 3)
         Y = (self.L2 @ c.reshape(len(A), -1).T).T.reshape(len(A), self.n, 3)  # (H, n, 3)
@@ -76,34 +147,12 @@ class Scorer:
             inv = sign[:, None, None] / z
             du = p[..., 0] * inv - pb.x[None, ..., 0]
             dv = p[..., 1] * inv - pb.x[None, ..., 1]
-        e2 = du * du + dv * dv
-        e2 = np.where(z > 0, e2, np.inf)
-        e2 = np.where(seen, e2, 0.0)
-        return np.sqrt(e2.max(axis=2))
-
-
-def _msac_cost(err: np.ndarray, thr: float) -> np.ndarray:
-    """``sum_j min(e_j^2, thr^2)`` over scorable points, per hypothesis (H,)."""
-    e2 = np.minimum(np.nan_to_num(err, nan=0.0, posinf=np.inf) ** 2, thr * thr)
-    e2 = np.where(np.isnan(err), 0.0, e2)
-    return e2.sum(axis=-1)
-
-
-def _to_pixels(pb: Problem, a: np.ndarray) -> np.ndarray:
-    """Normalised ``a`` (..., 9) -> pixel ``A`` (..., 3, 3), ``||A[2]|| = 1`` (sign kept)."""
-    A = np.linalg.solve(pb.H, a.reshape(-1, 3, 3)) / pb.t_scale
-    return A / np.linalg.norm(A[:, 2], axis=1)[:, None, None]
-
-
-def msac_cost(err: np.ndarray, thr: float) -> np.ndarray:
-    """``sum_j min(e_j^2, thr^2)`` over scorable points, per hypothesis (H,)."""
-    e2 = np.minimum(np.nan_to_num(err, nan=0.0, posinf=np.inf) ** 2, thr * thr)
-    e2 = np.where(np.isnan(err), 0.0, e2)
-    return e2.sum(axis=-1)
+        e2 = np.where(z > 0, du * du + dv * dv, np.inf)
+        return np.where(seen, e2, 0.0).sum(axis=2)
 
 
 def point_errors(A: np.ndarray, uv: np.ndarray, T: np.ndarray):
-    """Reprojection errors of every point triangulated with a known ``A``.
+    """Reprojection errors of every track triangulated with a known ``A``.
 
     Parameters
     ----------
@@ -114,9 +163,9 @@ def point_errors(A: np.ndarray, uv: np.ndarray, T: np.ndarray):
 
     Returns
     -------
-    error_px : (n_points,) float
-        Largest reprojection error over the views seeing the point (pixels); inf behind
-        the camera, NaN if seen in fewer than 2 views.
+    sse : (n_points,) float
+        Sum of squared reprojection errors over the views seeing the track (pixels^2);
+        inf behind the camera, NaN if seen in fewer than 2 views.
     residuals_px : (n_views, n_points, 2) float
         Observed minus predicted, NaN where unseen.
     """
@@ -130,10 +179,8 @@ def point_errors(A: np.ndarray, uv: np.ndarray, T: np.ndarray):
     with np.errstate(divide="ignore", invalid="ignore"):
         pred = p[..., :2] / p[..., 2:3]
     res = uv - pred
-    e = np.where(seen, np.hypot(res[..., 0], res[..., 1]), 0.0)
-    e = np.where(seen & ~(p[..., 2] > 0), np.inf, e)
-    err = e.max(axis=0)
-    err[~(seen.sum(axis=0) >= 2) | ~np.isfinite(X).all(axis=1)] = np.nan
-    return err, res
-
-
+    e2 = np.where(seen, np.sum(np.where(seen[..., None], res, 0.0) ** 2, axis=2), 0.0)
+    e2 = np.where(seen & ~(p[..., 2] > 0), np.inf, e2)
+    sse = e2.sum(axis=0)
+    sse[~(seen.sum(axis=0) >= 2) | ~np.isfinite(X).all(axis=1)] = np.nan
+    return sse, res

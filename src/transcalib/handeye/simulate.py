@@ -1,0 +1,158 @@
+"""Simulated sessions: a camera on a flange, several wrist orientations, translations in each.
+
+The camera of view ``i`` has rotation ``(R_i R_X)^T`` (base -> camera) and centre
+``C_i = T_i + R_i t_X``; pixels come from :func:`transcalib.geometry.camera.project` (the
+project's one camera model), one call per view. The default layout: a table-top scene
+(base z up, points within ``+-150 x +-150 x 0..100`` mm) seen from about 0.5 m above, the
+camera mounted ~100 mm off the flange, the wrist tilted by ``tilt_deg`` between sessions.
+Used by the tests, the benchmarks and ``examples/make_sessions.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry.camera import project
+from ..geometry.rotation import rotvec_to_matrix
+
+__all__ = ["SessionScene", "session_scene", "look_rotation", "flange_rotations_looking", "DEFAULT_K",
+           "DEFAULT_R_X", "DEFAULT_T_X"]
+
+DEFAULT_K = np.array([[800.0, 0.0, 322.0], [0.0, 790.0, 238.0], [0.0, 0.0, 1.0]])
+#: Camera in the flange: looking roughly along the flange z axis, mounted off-centre (mm).
+DEFAULT_R_X = rotvec_to_matrix(np.radians([3.0, -4.0, 91.0]) * np.array([1, 1, 1]))
+DEFAULT_T_X = np.array([42.0, -65.0, 95.0])
+
+
+@dataclass(frozen=True, eq=False)
+class SessionScene:
+    """A simulated multi-session problem with its ground truth.
+
+    Attributes
+    ----------
+    uv : (n_views, n_points, 2) float
+        Observed pixels (noise added, NaN outside the image).
+    uv_true : (n_views, n_points, 2) float
+    T : (n_views, 3) float
+        Flange positions (base frame, mm).
+    R : (n_views, 3, 3) float
+        Flange -> base rotations.
+    session_of_view : (n_views,) int
+    K, R_X, t_X, dist, X, noise_px, image_size
+        Truth: intrinsics, camera in the flange, distortion, points (base frame).
+    """
+
+    uv: np.ndarray
+    uv_true: np.ndarray
+    T: np.ndarray
+    R: np.ndarray
+    session_of_view: np.ndarray
+    K: np.ndarray
+    R_X: np.ndarray
+    t_X: np.ndarray
+    dist: np.ndarray
+    X: np.ndarray
+    noise_px: float
+    image_size: tuple
+
+    def camera_rotations(self) -> np.ndarray:
+        """(n_views, 3, 3) base -> camera rotations ``(R_i R_X)^T``."""
+        return np.transpose(self.R @ self.R_X, (0, 2, 1))
+
+    def camera_centres(self) -> np.ndarray:
+        """(n_views, 3) camera centres ``T_i + R_i t_X``."""
+        return self.T + self.R @ self.t_X
+
+
+def look_rotation(direction: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """Base -> camera rotation of a camera looking along ``direction`` (its z axis), with
+    its image y axis as close as possible to ``-up`` (y down)."""
+    z = np.asarray(direction, float) / np.linalg.norm(direction)
+    x = np.cross(-np.asarray(up, float), z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z])
+
+
+def flange_rotations_looking(directions: np.ndarray, R_X: np.ndarray) -> np.ndarray:
+    """Flange -> base rotations ``R_s`` making the camera look along each direction:
+    ``(R_s R_X)^T = look_rotation(d)``, i.e. ``R_s = look^T R_X^T``."""
+    return np.stack([look_rotation(d).T @ R_X.T for d in directions])
+
+
+def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, n_points: int = 60,
+                  moves: str = "3d", step_mm: float = 60.0, tilt_deg: float = 25.0, distance_mm: float = 500.0,
+                  noise_px: float = 0.0, K=None, R_X=None, t_X=None, dist=(), image_size=(640, 480),
+                  rotations=None, X=None) -> SessionScene:
+    """Simulate sessions of a flange-mounted camera over a table-top scene.
+
+    Parameters
+    ----------
+    rng : seed or Generator
+    n_sessions : int
+        Wrist orientations; session ``s`` tilts the viewing direction by ``tilt_deg`` about
+        the base x axis (s = 1) and y axis (s = 2), ... (s = 0 looks straight down).
+    views_per_session : int
+    n_points : int
+    moves : {"3d", "xy", "line"}
+        Translations inside a session: random in a box, in the base xy plane (a 2-axis
+        stage), or along base x.
+    step_mm : float
+        Size of the moves.
+    tilt_deg, distance_mm : float
+    noise_px : float
+        Gaussian pixel noise per coordinate.
+    K, R_X, t_X, dist, image_size
+        Camera and hand-eye truth (defaults :data:`DEFAULT_K`, ...).
+    rotations : (n_sessions, 3, 3) float, optional
+        Flange rotations to use instead of the tilts (e.g. a SCARA wrist about base z).
+    X : (n_points, 3) float, optional
+        Scene points (base frame).
+
+    Returns
+    -------
+    SessionScene
+    """
+    rng = np.random.default_rng(rng)
+    K = DEFAULT_K if K is None else np.asarray(K, float)
+    R_X = DEFAULT_R_X if R_X is None else np.asarray(R_X, float)
+    t_X = DEFAULT_T_X if t_X is None else np.asarray(t_X, float)
+    if moves not in ("3d", "xy", "line"):
+        raise InputError(f"moves must be '3d', 'xy' or 'line', got {moves!r}")
+    if rotations is None:
+        axes = [np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([1.0, 1.0, 0]) / np.sqrt(2),
+                np.array([1.0, -1.0, 0]) / np.sqrt(2)]
+        dirs = [rotvec_to_matrix(np.radians(tilt_deg) * axes[s % len(axes)]) @ [0, 0, -1.0] for s in range(n_sessions)]
+        rotations = flange_rotations_looking(np.array(dirs), R_X)
+    rotations = np.asarray(rotations, float)
+    if X is None:
+        X = rng.uniform([-150, -150, 0], [150, 150, 100], (n_points, 3))
+    centre = np.array([0.0, 0.0, 50.0])
+    T, R, sess = [], [], []
+    for s, Rs in enumerate(rotations):
+        view_dir = (Rs @ R_X)[:, 2]  # camera z in the base frame
+        C0 = centre - distance_mm * view_dir
+        T0 = C0 - Rs @ t_X
+        if moves == "3d":
+            d = rng.uniform(-step_mm, step_mm, (views_per_session, 3))
+        elif moves == "xy":
+            d = np.c_[rng.uniform(-step_mm, step_mm, (views_per_session, 2)), np.zeros(views_per_session)]
+        else:
+            d = np.c_[np.linspace(-step_mm, step_mm, views_per_session), np.zeros((views_per_session, 2))]
+        d[0] = 0.0
+        T.append(T0 + d)
+        R.append(np.repeat(Rs[None], views_per_session, axis=0))
+        sess += [s] * views_per_session
+    T, R, sess = np.concatenate(T), np.concatenate(R), np.array(sess)
+    Rc = np.transpose(R @ R_X, (0, 2, 1))
+    C = T + R @ t_X
+    uv_true = np.stack([project(K, Rc[i], X, C[i:i + 1], dist)[0] for i in range(len(T))])
+    uv = uv_true + rng.normal(0.0, noise_px, uv_true.shape) if noise_px > 0 else uv_true.copy()
+    w, h = image_size
+    depth = np.einsum("vb,vnb->vn", Rc[:, 2], X[None] - C[:, None])
+    outside = (uv_true[..., 0] < 0) | (uv_true[..., 0] > w - 1) | (uv_true[..., 1] < 0) | (uv_true[..., 1] > h - 1)
+    uv[outside | (depth <= 0)] = np.nan
+    return SessionScene(uv, uv_true, T, R, sess, K, R_X, t_X, np.asarray(dist, float), X, float(noise_px),
+                        tuple(image_size))
