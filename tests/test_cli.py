@@ -167,7 +167,7 @@ def test_degenerate_translations_exit_3(tmp_path):
     tio.write_tracks_csv(tmp_path / "t.csv", project(scene.K, scene.R, scene.X, T))
     tio.write_poses_csv(tmp_path / "p.csv", T)
     r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o")
-    assert_clean_error(r, "do not span 3-D", code=3)
+    assert_clean_error(r, "coplanar", "--fix", code=3)
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
 
 
@@ -306,6 +306,9 @@ def test_simulate_bad_options(tmp_path, args, words):
     (["--image-size", "640"], ["--image-size", "WIDTHxHEIGHT"]),
     (["--formats", "json,matlab"], ["--formats", "matlab"]),
     (["--target", "squares"], ["--target", "--images"]),
+    (["--fix", "cx"], ["--fix", "NAME=VALUE"]),
+    (["--fix", "focal=3"], ["--fix", "unknown parameter"]),
+    (["--fix", "principal-point=centre", "--image-size", "0x0"], ["--image-size"]),
 ])
 def test_calibrate_bad_options_name_the_option(simulated, tmp_path, args, words):
     out = tmp_path / "o"
@@ -314,6 +317,20 @@ def test_calibrate_bad_options_name_the_option(simulated, tmp_path, args, words)
     assert_clean_error(r, *words)
     assert "sigma_T" not in r.stderr and "threshold_px" not in r.stderr
     assert not out.exists()
+
+
+def test_fix_and_square_pixels(simulated, tmp_path):
+    """--fix principal-point=centre (image size from --truth) and --square-pixels reach the fit."""
+    from transcalib.io.calibration_file import load_calibration
+
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", tmp_path,
+            "--truth", simulated / "truth.json", "--fix", "principal-point=centre", "--square-pixels", "--quiet",
+            "--formats", "json")
+    assert r.returncode == 0, r.stderr
+    cal = load_calibration(tmp_path)
+    w, h = cal.image_size
+    assert cal.K[0, 2] == (w - 1) / 2 and cal.K[1, 2] == (h - 1) / 2 and cal.K[0, 0] == cal.K[1, 1]
+    assert dict(cal.options.refinement.fix) == {"cx": (w - 1) / 2, "cy": (h - 1) / 2}
 
 
 def test_missing_inputs_name_the_option(simulated, tmp_path):

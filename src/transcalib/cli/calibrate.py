@@ -42,6 +42,10 @@ def add_parser(sub) -> None:
     c.add_argument("--distortion", choices=["auto", "none", "radial1", "radial2", "opencv5"],
                    help="lens distortion model (OpenCV convention; default auto: chosen from the data)")
     c.add_argument("--estimate-skew", action="store_true", help="estimate the skew (default: fixed at 0)")
+    c.add_argument("--fix", metavar="NAME=VALUE,...",
+                   help="known parameters held fixed, e.g. cx=320,cy=240 or principal-point=centre "
+                        "(the image centre; needs the image size); names: fx, fy, cx, cy, skew, k1, k2, p1, p2, k3")
+    c.add_argument("--square-pixels", action="store_true", help="one focal length: fx = fy")
     c.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
                    help="robot translation precision in --unit: treat translations as noisy measurements")
     c.add_argument("--loss", choices=["linear", "huber", "cauchy"], help="refinement loss (default linear)")
@@ -88,14 +92,45 @@ def parse_formats(text: str) -> tuple:
     return names
 
 
-def build_options(args):
+def parse_fix(text: str | None, size) -> dict:
+    """``--fix``: ``NAME=VALUE`` pairs, ``principal-point=centre`` for the image centre
+    ``((w - 1) / 2, (h - 1) / 2)`` (pixel (0, 0) is the centre of the top-left pixel)."""
+    from ..types import FIXABLE
+
+    out = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        name, sep, value = (x.strip().lower() for x in item.partition("="))
+        if not sep:
+            raise OptionError("--fix", f"expected NAME=VALUE, got {item.strip()!r}")
+        if name == "principal-point":
+            if value not in ("centre", "center"):
+                raise OptionError("--fix", f"principal-point takes the value centre, got {value!r}")
+            if size is None:
+                raise OptionError("--fix", "principal-point=centre needs the image size: give --image-size WxH")
+            out.update(cx=(size[0] - 1) / 2, cy=(size[1] - 1) / 2)
+            continue
+        if name not in FIXABLE:
+            raise OptionError("--fix", f"unknown parameter {name!r}; expected some of {', '.join(FIXABLE)}, "
+                              "principal-point")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise OptionError("--fix", f"{name}={value!r} is not a number") from None
+    return out
+
+
+def build_options(args, size=None):
     """The option dataclasses of the run, checked now (an option that would have no
     effect, such as ``--distortion`` with ``--no-refine``, is an error)."""
     from ..types import CalibrateOptions, RansacOptions, RefineOptions
 
+    fixed = parse_fix(args.fix, size)
     ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
     given = {"distortion": args.distortion, "sigma_T": args.robot_sigma, "loss": args.loss,
-             "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None}
+             "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
+             "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
                                unit=args.unit)
@@ -109,7 +144,8 @@ def check_all(args) -> dict:
     from ..io import check_writable_dir, read_poses
 
     out = check_writable_dir(args.out, "--out")
-    plan = {"out": out, "formats": parse_formats(args.formats), "options": build_options(args)}
+    plan = {"out": out, "formats": parse_formats(args.formats)}
+    build_options(args, args.image_size or (1, 1))  # every option but the image size checked now
     plan["truth"] = read_truth(args.truth) if args.truth else None
     if args.tracks:
         plan["tracks"] = existing_file("--tracks", args.tracks)
@@ -126,6 +162,7 @@ def check_all(args) -> dict:
     elif size is None and plan["truth"] is not None and "image_size" in plan["truth"]:
         size = tuple(int(v) for v in plan["truth"]["image_size"])
     plan["image_size"] = size
+    plan["options"] = build_options(args, size)
     return plan
 
 

@@ -184,14 +184,14 @@ def _arrays(cal, point_ids) -> dict:
 
 
 def _document(cal, point_ids, inputs, arrays_name: str, arrays: dict) -> dict:
-    from .. import __version__
+    from .files import software_version
 
     cam = cal.camera
     lin = cal.linear
     unit = cal.options.unit if cal.options is not None else None
     return {
         "schema_version": SCHEMA_VERSION,
-        "software": {"name": "transcalib", "version": __version__},
+        "software": {"name": "transcalib", "version": software_version()},
         "unit": unit,
         "n_views": cal.n_views,
         "n_points": cal.n_points,

@@ -19,7 +19,18 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["atomic_write", "write_json", "jsonable", "check_writable_dir"]
+__all__ = ["atomic_write", "write_json", "jsonable", "check_writable_dir", "check_writable_file", "software_version"]
+
+
+def software_version() -> str:
+    """The installed transcalib's version (from the package metadata: io sits below the
+    top-level package and does not import it)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("transcalib")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 @contextmanager

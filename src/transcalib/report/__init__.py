@@ -131,11 +131,11 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
         with atomic_write(folder / "figures" / name, "wb") as fh:
             fh.write(png)
         written.append(folder / "figures" / name)
-    from .. import __version__
+    from ..io.files import software_version
 
     sections = [f"<h1>{html.escape(title)}</h1>",
                 f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
-                f"stages {html.escape(' → '.join(cal.info.get('stages', [])))}; transcalib {__version__}; "
+                f"stages {html.escape(' → '.join(cal.info.get('stages', [])))}; transcalib {software_version()}; "
                 f"{time.strftime('%Y-%m-%d %H:%M')}</p>",
                 "<h2>Parameters</h2>", _parameters(cal, truth), "<h2>Diagnostics</h2>", _diagnostics(cal)]
     for name, (fig_title, png) in figs.items():
