@@ -393,3 +393,24 @@ def test_json_on_failure_and_binary_tracks(tmp_path):
             "--out", tmp_path / "o2", "--json")
     d = json.loads(r.stdout)
     assert r.returncode == 2 and d["status"] == "error" and d["exit_code"] == 2 and "not in the poses file" in d["error"]
+
+
+def test_progress_bar_on_a_terminal_plain_lines_otherwise():
+    import io
+
+    from transcalib.cli.common import Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty, pipe = Terminal(), io.StringIO()
+    for stream in (tty, pipe):
+        p = Progress(stream=stream)
+        for k in range(1, 9):
+            p.step("matching", k, 8)
+    assert "\r" in tty.getvalue() and "100%" in tty.getvalue()  # a tqdm bar
+    assert pipe.getvalue().splitlines() == ["  matching: 2/8", "  matching: 4/8", "  matching: 6/8", "  matching: 8/8"]
+    quiet = io.StringIO()
+    Progress(quiet=True, stream=quiet).step("x", 1, 1)
+    assert quiet.getvalue() == ""
