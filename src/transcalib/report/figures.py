@@ -14,8 +14,8 @@ __all__ = ["residual_arrows", "residual_histogram", "reconstruction", "uncertain
            "observed_pixels", "MAX_ARROWS", "MAX_POINTS"]
 
 #: Largest number of residual arrows drawn per view, and of points in a 3-D plot.
-MAX_ARROWS = 1500
-MAX_POINTS = 20000
+MAX_ARROWS = 600
+MAX_POINTS = 8000
 
 
 def _plt():
