@@ -1,19 +1,38 @@
-"""The ``transcalib`` command end to end, as a user runs it (a real subprocess)."""
+"""The ``transcalib`` command end to end, as a user runs it (a real subprocess), and its
+checks: every bad option, input or output path fails first, in one line, exit 2."""
 
 import json
+import os
+import shutil
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from transcalib import simulate
 from transcalib import io as tio
+from transcalib import simulate
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def run(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "transcalib.cli", *map(str, args)],
                           capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def assert_clean_error(r, *words, code=2):
+    """Exit ``code``, one error line on stderr (after any progress lines) naming ``words``,
+    no traceback."""
+    assert r.returncode == code, (r.returncode, r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    errors = [line for line in lines if "error" in line.lower()]
+    assert errors == lines[-1:] and lines[-1].startswith("transcalib: error:"), r.stderr
+    assert "Traceback" not in r.stderr
+    for w in words:
+        assert w in lines[-1], (w, lines[-1])
 
 
 @pytest.fixture(scope="module")
@@ -25,44 +44,100 @@ def simulated(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="module")
+def calibrated(simulated, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cal") / "result"
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv",
+            "--out", out, "--unit", "mm", "--truth", simulated / "truth.json")
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
 def test_simulate_writes_three_files(simulated):
     assert sorted(p.name for p in simulated.iterdir()) == ["poses.csv", "tracks.csv", "truth.json"]
     truth = json.loads((simulated / "truth.json").read_text())
     assert np.array(truth["K"]).shape == (3, 3) and truth["units"] == "mm"
+    for p in simulated.iterdir():
+        assert b"\r" not in p.read_bytes(), p  # LF line endings
 
 
-def test_calibrate_outputs(simulated, tmp_path):
-    out = tmp_path / "result"
-    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv",
-            "--out", out, "--unit", "mm", "--truth", simulated / "truth.json")
-    assert r.returncode == 0, r.stderr
+def test_calibrate_outputs(simulated, calibrated):
+    from transcalib.io.calibration_file import load_saved
+
+    out, r = calibrated
     assert "fx =" in r.stdout and "±" in r.stdout and "truth" in r.stdout
-    cal = json.loads((out / "calibration.json").read_text())
-    for key in ("K", "R", "dist", "rms_px", "n_points", "n_views", "units", "diagnostics", "points",
-                "std", "cov", "param_names", "dist_model", "inliers"):
-        assert key in cal, key
+    names = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+    assert {"calibration.json", "arrays.npz", "points.csv", "camera.yaml", "camera_info.yaml", "points.ply",
+            "colmap/cameras.txt", "colmap/images.txt", "colmap/points3D.txt", "report.html",
+            "figures/residuals.png"} <= names
+    saved = load_saved(out)
+    cal = saved.calibration
     truth = json.loads((simulated / "truth.json").read_text())
-    K, K_true = np.array(cal["K"]), np.array(truth["K"])
-    assert np.abs(K - K_true).max() / K_true[0, 0] < 0.01
-    assert cal["n_views"] == 5 and cal["units"] == "mm"
-    # points in input order: ids 0..n-1 as written by simulate
-    view_ids, point_ids, _, _ = tio.read_tracks(simulated / "tracks.csv")
-    assert cal["point_ids"] == point_ids
-    X = np.array([[np.nan if v is None else v for v in p] for p in cal["points"]])
-    X_true = np.array(truth["points"])[[int(p) for p in point_ids]]
-    ok = np.isfinite(X[:, 0])
-    assert ok.sum() >= 0.9 * len(X)
-    assert np.median(np.linalg.norm(X[ok] - X_true[ok], axis=1)) < 0.01 * np.linalg.norm(X_true, axis=1).mean()
+    K_true = np.array(truth["K"])
+    assert np.abs(cal.K - K_true).max() / K_true[0, 0] < 0.01
+    assert cal.n_views == 5 and cal.options.unit == "mm" and cal.image_size == tuple(truth["image_size"])
+    assert saved.inputs["image_size_from"] == "--truth"
+    table = tio.read_track_table(simulated / "tracks.csv")
+    assert saved.point_ids == table.point_ids  # points in input order
+    X_true = np.array(truth["points"])[[int(p) for p in saved.point_ids]]
+    ok = np.isfinite(cal.X[:, 0])
+    assert ok.sum() >= 0.9 * len(cal.X)
+    assert np.median(np.linalg.norm(cal.X[ok] - X_true[ok], axis=1)) < 0.01 * np.linalg.norm(X_true, axis=1).mean()
     lines = (out / "points.csv").read_text().splitlines()
-    assert lines[0].startswith("point,x,y,z") and len(lines) == len(point_ids) + 1
+    assert lines[0].startswith("point,x,y,z") and len(lines) == len(saved.point_ids) + 1
+    for p in ("calibration.json", "points.csv", "camera.yaml", "report.html"):
+        assert b"\r\n" not in (out / p).read_bytes(), p
+    doc = json.loads((out / "calibration.json").read_text())
+    assert doc["schema_version"] == 1 and "arrays.npz" == doc["arrays"]["file"]
+
+
+def test_no_single_view_point_counted_as_outlier(tmp_path):
+    """Points seen in one view only are not outliers: the inlier count is over tracked points."""
+    scene = simulate.random_scene(40, 5, noise_px=0.1, rng=5)
+    uv = scene.uv.copy()
+    uv[1:, 30:] = np.nan  # 10 points seen in view 0 only
+    tio.write_tracks_csv(tmp_path / "t.csv", uv)
+    tio.write_poses_csv(tmp_path / "p.csv", scene.T)
+    r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o",
+            "--quiet", "--formats", "json", "--json")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)
+    tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
+    assert tracked >= 28 and summary["n_points_tracked"] == tracked and summary["n_inliers"] == tracked
 
 
 def test_no_refine_gives_linear(simulated, tmp_path):
+    from transcalib.io.calibration_file import load_calibration
+
     r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv",
-            "--out", tmp_path, "--no-refine", "--no-robust", "--quiet")
+            "--out", tmp_path, "--no-refine", "--no-robust", "--quiet", "--formats", "json,csv")
     assert r.returncode == 0, r.stderr
-    cal = json.loads((tmp_path / "calibration.json").read_text())
-    assert cal["info"]["stages"] == ["linear"] and cal["dist"] == []
+    cal = load_calibration(tmp_path)
+    assert cal.info["stages"] == ["linear"] and cal.dist.size == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["arrays.npz", "calibration.json", "points.csv"]
+
+
+def test_json_summary_and_show(calibrated, tmp_path):
+    out, _ = calibrated
+    r = run("show", out, "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)  # stdout is JSON only
+    assert d["status"] == "ok" and d["exit_code"] == 0 and d["n_views"] == 5
+    assert np.array(d["K"]).shape == (3, 3) and "fx" in d["std"] and d["schema_version"] == 1
+    r = run("show", out)
+    assert r.returncode == 0 and "fx =" in r.stdout and "schema 1" in r.stdout
+    r = run("show", tmp_path)
+    assert_clean_error(r, "does not exist")
+
+
+def test_calibrate_json(simulated, tmp_path):
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv",
+            "--out", tmp_path, "--json", "--formats", "json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["status"] in ("ok", "warnings") and d["exit_code"] == 0
+    assert {"K", "R_cam_world", "rms_px", "std", "diagnostics", "outputs", "timings_s", "run_timings_s"} <= set(d)
+    assert str(tmp_path / "calibration.json") in d["outputs"]
 
 
 @pytest.mark.parametrize(
@@ -80,12 +155,11 @@ def test_errors_are_clear_and_leave_no_output(tmp_path, tracks, poses, match):
     (tmp_path / "p.csv").write_text(poses)
     out = tmp_path / "out"
     r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", out)
-    assert r.returncode == 2
-    assert match in r.stderr and "Traceback" not in r.stderr
+    assert_clean_error(r, match)
     assert not out.exists() or not any(out.iterdir())
 
 
-def test_degenerate_translations_message(tmp_path):
+def test_degenerate_translations_exit_3(tmp_path):
     scene = simulate.random_scene(30, 4, rng=2)
     T = scene.T.copy()
     T[3] = T[1] + 0.5 * (T[2] - T[1])  # coplanar with the others
@@ -93,18 +167,18 @@ def test_degenerate_translations_message(tmp_path):
     tio.write_tracks_csv(tmp_path / "t.csv", project(scene.K, scene.R, scene.X, T))
     tio.write_poses_csv(tmp_path / "p.csv", T)
     r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o")
-    assert r.returncode == 2 and "coplanar" in r.stderr and "principal-point" in r.stderr and "Traceback" not in r.stderr
+    assert_clean_error(r, "coplanar", "--fix", code=3)
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
 
 
 def test_inputs_untouched(simulated, tmp_path):
     before = {p.name: p.read_bytes() for p in simulated.iterdir()}
     run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", tmp_path,
-        "--quiet")
+        "--quiet", "--formats", "json")
     assert before == {p.name: p.read_bytes() for p in simulated.iterdir()}
 
 
-def test_pose_orientations_checked(tmp_path):
-    """poses.csv with qx,qy,qz,qw: a view whose orientation differs is reported, with its angle."""
+def _rotated_view_inputs(tmp_path):
     scene = simulate.paper_scene(noise_px=0.2, rng=1)
     tio.write_tracks_csv(tmp_path / "t.csv", scene.uv)
     lines = ["view,x,y,z,qx,qy,qz,qw"]
@@ -112,9 +186,231 @@ def test_pose_orientations_checked(tmp_path):
         q = "0.0026,0,0,0.99999662" if i == 2 else "0,0,0,1"  # view 2: turned 0.3 deg
         lines.append(",".join([str(i), *(repr(float(x)) for x in t), q]))
     (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
-    r = run("calibrate", "--tracks", tmp_path / "t.csv", "--poses", tmp_path / "p.csv", "--out", tmp_path / "o",
-            "--quiet")
+    return tmp_path / "t.csv", tmp_path / "p.csv"
+
+
+def test_pose_orientations_checked_and_strict_exit_4(tmp_path):
+    """poses.csv with qx,qy,qz,qw: a view whose orientation differs is reported, with its
+    angle; with --strict the run exits 4 (outputs still written)."""
+    from transcalib.io.calibration_file import load_calibration
+
+    t, p = _rotated_view_inputs(tmp_path)
+    r = run("calibrate", "--tracks", t, "--poses", p, "--out", tmp_path / "o", "--quiet", "--formats", "json")
     assert r.returncode == 0, r.stderr
-    cal = json.loads((tmp_path / "o" / "calibration.json").read_text())
-    assert "pose_orientation" in cal["diagnostic_codes"]
-    assert any("view 2: 0.298 deg" in d for d in cal["diagnostics"])
+    cal = load_calibration(tmp_path / "o")
+    assert "pose_orientation" in [d.code for d in cal.diagnostics]
+    assert any("view 2: 0.298 deg" in d for d in cal.diagnostics)
+    r = run("calibrate", "--tracks", t, "--poses", p, "--out", tmp_path / "s", "--quiet", "--formats", "json",
+            "--strict", "--json")
+    assert r.returncode == 4 and json.loads(r.stdout)["exit_code"] == 4
+    assert (tmp_path / "s" / "calibration.json").is_file()
+
+
+# --------------------------------------------------------------------------------------
+# checked before any work
+# --------------------------------------------------------------------------------------
+
+
+def _image_args():
+    images = sorted((EXAMPLES / "images").glob("view*.png"))
+    return ["calibrate", "--images", *images, "--poses", EXAMPLES / "images" / "poses.csv"]
+
+
+def _bad_outs(tmp_path):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    return {"existing file": (f, "is an existing file"), "under a file": (f / "sub", "is a file")}
+
+
+@pytest.mark.parametrize("case", ["existing file", "under a file"])
+def test_bad_out_fails_before_tracking(tmp_path, case, capsys):
+    """A bad --out on an image run fails in one line, exit 2, in well under a second
+    (measured in-process: the check comes before reading or tracking any image)."""
+    from transcalib.cli.main import main
+
+    out, words = _bad_outs(tmp_path)[case]
+    main(["simulate", "--out", str(tmp_path / "warm")])  # imports done: time the check only
+    capsys.readouterr()
+    t0 = time.perf_counter()
+    code = main([*map(str, _image_args()), "--out", str(out)])
+    elapsed = time.perf_counter() - t0
+    err = capsys.readouterr().err
+    assert code == 2 and "--out" in err and words in err and len(err.strip().splitlines()) == 1
+    assert elapsed < 1.0, elapsed
+    assert_clean_error(run(*_image_args(), "--out", out), "--out", words)
+
+
+@pytest.mark.skipif(os.geteuid() == 0 and shutil.which("chattr") is None, reason="needs chattr as root")
+def test_unwritable_out(tmp_path):
+    """A read-only (non-root) or immutable (root, chattr +i) folder is refused up front."""
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    if os.geteuid() == 0:
+        if subprocess.run(["chattr", "+i", str(locked)], capture_output=True).returncode != 0:
+            pytest.skip("file system without the immutable attribute")
+    else:
+        locked.chmod(0o555)
+    try:
+        r = run("simulate", "--out", locked / "sim")
+        assert_clean_error(r, "--out", "not writable")
+        r = run(*_image_args(), "--out", locked)
+        assert_clean_error(r, "--out", "not writable")
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(locked)])
+        locked.chmod(0o755)
+
+
+def test_missing_truth_fails_first(simulated, tmp_path):
+    out = tmp_path / "o"
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", out,
+            "--truth", tmp_path / "nope.json")
+    assert_clean_error(r, "--truth", "does not exist")
+    assert not out.exists()
+    (tmp_path / "bad.json").write_text("{not json")
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", out,
+            "--truth", tmp_path / "bad.json")
+    assert_clean_error(r, "--truth", "not a truth.json")
+
+
+def test_track_output_onto_folder(tmp_path):
+    images = sorted((EXAMPLES / "images").glob("view*.png"))
+    r = run("track", *images, "-o", tmp_path)
+    assert_clean_error(r, "-o/--output", "is a folder")
+    r = run("track", *images, "-o", tmp_path / "tracks.txt")
+    assert_clean_error(r, "-o/--output", "extension")
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--preset", "random", "--views", "3"], ["--views", "at least 4"]),
+    (["--preset", "random", "--points", "-5"], ["--points", "positive integer"]),
+    (["--points", "100000"], ["--points", "--preset random"]),
+    (["--planar"], ["--planar", "--preset random"]),
+    (["--noise-px", "-1"], ["--noise-px", ">= 0"]),
+    (["--robot-noise", "nan"], ["--robot-noise", "finite"]),
+    (["--preset", "random", "--missing", "1.5"], ["--missing", "[0, 1)"]),
+    (["--preset", "random", "--points", "ten"], ["--points", "number"]),
+])
+def test_simulate_bad_options(tmp_path, args, words):
+    r = run("simulate", "--out", tmp_path / "o", *args)
+    assert_clean_error(r, *words)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--no-refine", "--robot-sigma", "0.1"], ["--no-refine", "--robot-sigma"]),
+    (["--no-refine", "--distortion", "radial2"], ["--no-refine", "distortion"]),
+    (["--no-robust", "--threshold-px", "3"], ["--no-robust"]),
+    (["--robot-sigma", "-1"], ["--robot-sigma", "positive"]),
+    (["--threshold-px", "0"], ["--threshold-px", "positive"]),
+    (["--image-size", "640"], ["--image-size", "WIDTHxHEIGHT"]),
+    (["--formats", "json,matlab"], ["--formats", "matlab"]),
+    (["--target", "squares"], ["--target", "--images"]),
+    (["--fix", "cx"], ["--fix", "NAME=VALUE"]),
+    (["--fix", "focal=3"], ["--fix", "unknown parameter"]),
+    (["--fix", "principal-point=centre", "--image-size", "0x0"], ["--image-size"]),
+])
+def test_calibrate_bad_options_name_the_option(simulated, tmp_path, args, words):
+    out = tmp_path / "o"
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", out,
+            *args)
+    assert_clean_error(r, *words)
+    assert "sigma_T" not in r.stderr and "threshold_px" not in r.stderr
+    assert not out.exists()
+
+
+def test_fix_and_square_pixels(simulated, tmp_path):
+    """--fix principal-point=centre (image size from --truth) and --square-pixels reach the fit."""
+    from transcalib.io.calibration_file import load_calibration
+
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", tmp_path,
+            "--truth", simulated / "truth.json", "--fix", "principal-point=centre", "--square-pixels", "--quiet",
+            "--formats", "json")
+    assert r.returncode == 0, r.stderr
+    cal = load_calibration(tmp_path)
+    w, h = cal.image_size
+    assert cal.K[0, 2] == (w - 1) / 2 and cal.K[1, 2] == (h - 1) / 2 and cal.K[0, 0] == cal.K[1, 1]
+    assert dict(cal.options.refinement.fix) == {"cx": (w - 1) / 2, "cy": (h - 1) / 2}
+
+
+def test_missing_inputs_name_the_option(simulated, tmp_path):
+    r = run("calibrate", "--tracks", tmp_path / "no.csv", "--poses", simulated / "poses.csv", "--out", tmp_path / "o")
+    assert_clean_error(r, "--tracks", "does not exist")
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", tmp_path / "no.csv", "--out", tmp_path / "o")
+    assert_clean_error(r, "--poses", "does not exist")
+    r = run("calibrate", "--images", tmp_path / "no.png", "--poses", simulated / "poses.csv", "--out", tmp_path / "o")
+    assert_clean_error(r, "--images", "does not exist")
+
+
+# --------------------------------------------------------------------------------------
+# undistort
+# --------------------------------------------------------------------------------------
+
+
+def test_undistort_matches_opencv(tmp_path):
+    import cv2
+
+    from test_io import full_calibration
+    from transcalib.io.calibration_file import save_calibration
+
+    cal = full_calibration()  # radial2, 640 x 480
+    save_calibration(cal, tmp_path / "cal")
+    img = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    img = cv2.GaussianBlur(img, (9, 9), 3)
+    cv2.imwrite(str(tmp_path / "a.png"), img)
+    r = run("undistort", tmp_path / "a.png", "--calibration", tmp_path / "cal", "--out", tmp_path / "u")
+    assert r.returncode == 0, r.stderr
+    got = cv2.imread(str(tmp_path / "u" / "a.png"))
+    np.testing.assert_array_equal(got, cv2.undistort(img, cal.K, cal.dist_opencv))
+    assert not np.array_equal(got, img)
+    r = run("undistort", tmp_path / "a.png", "--calibration", tmp_path / "cal", "--out", tmp_path)
+    assert_clean_error(r, "--out", "overwrite")
+    cv2.imwrite(str(tmp_path / "small.png"), img[:100])
+    r = run("undistort", tmp_path / "small.png", "--calibration", tmp_path / "cal", "--out", tmp_path / "u")
+    assert_clean_error(r, "640x480")
+
+
+def test_subcommands_registered_from_one_list():
+    import importlib
+
+    cli_main = importlib.import_module("transcalib.cli.main")
+    assert cli_main.COMMANDS == ("calibrate", "simulate", "track", "show", "undistort", "plan")
+    r = run("--help")
+    assert all(c in r.stdout for c in cli_main.COMMANDS)
+
+
+def test_json_on_failure_and_binary_tracks(tmp_path):
+    """--json also reports a failure on stdout; simulate --tracks-format npz feeds calibrate."""
+    r = run("simulate", "--preset", "random", "--points", 40, "--views", 5, "--tracks-format", "npz",
+            "--out", tmp_path / "s", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["outputs"][0].endswith("tracks.npz")
+    r = run("calibrate", "--tracks", tmp_path / "s" / "tracks.npz", "--poses", tmp_path / "s" / "poses.csv",
+            "--out", tmp_path / "o", "--formats", "json", "--json", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["n_points"] == 40
+    (tmp_path / "bad.csv").write_text("view,x,y,z\n0,0,0,0\n")
+    r = run("calibrate", "--tracks", tmp_path / "s" / "tracks.npz", "--poses", tmp_path / "bad.csv",
+            "--out", tmp_path / "o2", "--json")
+    d = json.loads(r.stdout)
+    assert r.returncode == 2 and d["status"] == "error" and d["exit_code"] == 2 and "not in the poses file" in d["error"]
+
+
+def test_progress_bar_on_a_terminal_plain_lines_otherwise():
+    import io
+
+    from transcalib.cli.common import Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty, pipe = Terminal(), io.StringIO()
+    for stream in (tty, pipe):
+        p = Progress(stream=stream)
+        for k in range(1, 9):
+            p.step("matching", k, 8)
+    assert "\r" in tty.getvalue() and "100%" in tty.getvalue()  # a tqdm bar
+    assert pipe.getvalue().splitlines() == ["  matching: 2/8", "  matching: 4/8", "  matching: 6/8", "  matching: 8/8"]
+    quiet = io.StringIO()
+    Progress(quiet=True, stream=quiet).step("x", 1, 1)
+    assert quiet.getvalue() == ""

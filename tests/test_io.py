@@ -125,5 +125,170 @@ def test_points_csv(tmp_path):
     tio.write_points_csv(tmp_path / "p.csv", ["a", "b"], X, X_std=np.ones((2, 3)), inliers=np.array([True, False]))
     lines = (tmp_path / "p.csv").read_text().splitlines()
     assert lines[0] == "point,x,y,z,sx,sy,sz,inlier"
-    assert lines[1] == "a,1.0,2.0,3.0,1.0,1.0,1.0,1"
-    assert lines[2] == "b,,,,1.0,1.0,1.0,0"
+    assert lines[1] == "a,1,2,3,1,1,1,1"
+    assert lines[2] == "b,,,,1,1,1,0"
+    assert b"\r" not in (tmp_path / "p.csv").read_bytes()
+
+
+def test_text_outputs_have_lf_endings(tmp_path):
+    uv = np.arange(4 * 3 * 2, dtype=float).reshape(4, 3, 2) / 7
+    tio.write_tracks_csv(tmp_path / "t.csv", uv)
+    tio.write_poses_csv(tmp_path / "p.csv", np.eye(4, 3), images=["a.png"] * 4)
+    tio.write_json(tmp_path / "a.json", {"x": [1, 2]})
+    for name in ("t.csv", "p.csv", "a.json"):
+        data = (tmp_path / name).read_bytes()
+        assert b"\r" not in data and data.endswith(b"\n"), name
+
+
+def _random_tracks(rng, n_views=5, n_points=200):
+    uv = rng.uniform(-10, 700, (n_views, n_points, 2))
+    uv[rng.random((n_views, n_points)) < 0.3] = np.nan
+    return uv
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz", ".parquet"])
+@pytest.mark.parametrize("ids", ["int", "text"])
+def test_tracks_round_trip_every_format(tmp_path, suffix, ids):
+    """Each tracks format reads back bit-exactly, points in order, views by id."""
+    rng = np.random.default_rng(4)
+    uv = _random_tracks(rng)
+    uv[:, 0] = [[0.1, 1 / 3], [1e-300, 2.5e5], [640.0, 479.999], [7, 8], [9, 10]]  # point 0 seen everywhere
+    point_ids = [f"p,{k}" if ids == "text" else str(k) for k in range(uv.shape[1])]
+    view_ids = ["10", "11", "12", "13", "14"]
+    path = tmp_path / f"tracks{suffix}"
+    tio.write_tracks(path, uv, point_ids, view_ids)
+    poses = tio.Poses(views=["14", "10", "11", "12", "13"], T=np.zeros((5, 3)))  # another view order
+    got, got_ids = tio.tracks_to_uv(path, poses)
+    seen = np.isfinite(uv[..., 0]).any(axis=0)
+    np.testing.assert_array_equal(got, uv[[4, 0, 1, 2, 3]][:, seen])
+    assert got_ids == [p for p, s in zip(point_ids, seen) if s]
+
+
+def test_fast_and_careful_csv_readers_agree(tmp_path):
+    """The vectorised reader and the line-by-line reader give the same table."""
+    from transcalib.io import tables
+
+    text = "View, Point ,u,v\n3, a ,1.5,2\n03,b,3,4\n\n1,a,5,6e-3\n"
+    path = write(tmp_path / "t.csv", text)
+    fast = tables._tracks_fast(path, tables._header(path, ["view", "point", "u", "v"], "tracks"))
+    assert fast is not None
+    assert fast.view_ids == ["3", "1"] and fast.point_ids == ["a", "b"]
+    np.testing.assert_array_equal(fast.view_index, [0, 0, 1])
+    np.testing.assert_array_equal(fast.uv, [[1.5, 2], [3, 4], [5, 6e-3]])
+    bad = write(tmp_path / "bad.csv", "view,point,u,v\n0,a,1,2\n0,b,inf,2\n")
+    with pytest.raises(InputError, match="line 3, column 'u'"):
+        tio.read_tracks(bad)
+
+
+def test_check_writable(tmp_path):
+    f = write(tmp_path / "file", "x")
+    with pytest.raises(InputError, match="--out .* is an existing file"):
+        tio.check_writable_dir(f)
+    with pytest.raises(InputError, match="--out .* is a file"):
+        tio.check_writable_dir(f / "sub")
+    with pytest.raises(InputError, match="-o .* is a folder"):
+        tio.check_writable_file(tmp_path, "-o")
+    assert tio.check_writable_dir(tmp_path / "new" / "deeper") == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists()  # checking creates nothing
+
+
+# --------------------------------------------------------------------------------------
+# calibration.json + arrays.npz
+# --------------------------------------------------------------------------------------
+
+
+def full_calibration(n_points=40, n_views=5, seed=0):
+    """A Calibration with every field set (NaNs, nested options, arrays in info)."""
+    from transcalib.errors import Diagnostic
+    from transcalib.geometry.camera import Camera, K_from_params
+    from transcalib.types import (CalibrateOptions, Calibration, LinearEstimate, RansacOptions,
+                                  RefineOptions)
+
+    rng = np.random.default_rng(seed)
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(rng.normal(size=3) * 0.3).as_matrix()
+    K = K_from_params(812.25, 809.5, 321.125, 239.75, 0.0)
+    camera = Camera(K, R, dist=[-0.1, 0.01], dist_model="radial2", image_size=(640, 480))
+    X = (rng.normal(size=(n_points, 3)) + [0, 0, 10]) @ R  # in front of the camera
+    X[3] = np.nan
+    res = rng.normal(size=(n_views, n_points, 2)) / 3
+    res[1, 5] = np.nan
+    lin = LinearEstimate(K=K * 1.01, R=R, A=K @ R, X=X + 0.01, depth=rng.uniform(5, 15, (n_views, n_points)),
+                         singular_values=np.array([1e-9, 0.3, 0.5]), n_used_points=n_points - 1,
+                         used=np.arange(n_points) != 3, method="fast")
+    opts = CalibrateOptions(robust=True, ransac=RansacOptions(threshold_px=3.5),
+                            refinement=RefineOptions(distortion="radial2", fix={"cx": 321.125},
+                                                     sigma_T=(0.0, 0.1, 0.1, 0.1, 0.2), loss="huber"),
+                            unit="mm")
+    names = ("fx", "fy", "cy", "k1", "k2", "rx", "ry", "rz")
+    cov = np.diag(np.arange(1.0, 9.0)) / 7
+    return Calibration(
+        camera=camera, X=X, residuals_px=res, rms_px=float(np.sqrt(np.nanmean(np.sum(res**2, 2)))),
+        T=rng.normal(size=(n_views, 3)) * 0.5, sigma_px=0.33,
+        diagnostics=[Diagnostic("few_points", "only 40 points: add points"), Diagnostic("x", "second, with ±")],
+        linear=lin, cov=cov, std={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)} | {"skew": np.nan},
+        param_names=names, X_std=np.abs(X) / 100, inliers=np.arange(n_points) % 7 != 0, options=opts,
+        info={"stages": ["robust", "refine"], "iterations": 7, "cost": 1.5, "converged": True,
+              "T_std": np.ones((n_views, 3)) / 3, "nan": float("nan"), "none": None, "refine_s": 0.25,
+              "pair": (1, 2)},
+    )
+
+
+def test_calibration_round_trip_every_field(tmp_path):
+    from transcalib.io.calibration_file import load_calibration, load_saved, save_calibration
+
+    cal = full_calibration()
+    ids = [f"pt{k}" for k in range(cal.n_points)]
+    json_path, arrays_path = save_calibration(cal, tmp_path / "out", point_ids=ids, inputs={"tracks": "t.csv"})
+    assert json_path.name == "calibration.json" and arrays_path.name == "arrays.npz"
+    back = load_calibration(tmp_path / "out")
+    assert back == cal
+    from dataclasses import fields
+    for f in fields(cal):  # each field on its own, so a failure names it
+        from transcalib.types import _same
+        assert _same(getattr(back, f.name), getattr(cal, f.name)), f.name
+    assert back.options == cal.options and back.options.refinement.sigma_T == (0.0, 0.1, 0.1, 0.1, 0.2)
+    assert [d.code for d in back.diagnostics] == ["few_points", "x"]
+    assert isinstance(back.info["T_std"], np.ndarray) and back.info["pair"] == (1, 2)
+    saved = load_saved(json_path)
+    assert saved.point_ids == ids and saved.inputs["tracks"] == "t.csv" and saved.inputs["n_points"] == 40
+    doc = json.loads(json_path.read_text())  # plain JSON: no NaN tokens
+    assert doc["schema_version"] == 1 and doc["image_size"] == [640, 480] and doc["software"]["name"] == "transcalib"
+    assert doc["timings_s"] == {"refine_s": 0.25}
+    # a changed field is detected (the test can fail)
+    from dataclasses import replace
+    assert load_calibration(json_path) != replace(cal, rms_px=cal.rms_px + 1e-12)
+
+
+def test_calibration_json_stays_small(tmp_path):
+    from transcalib.io.calibration_file import save_calibration
+
+    json_path, arrays_path = save_calibration(full_calibration(n_points=20000), tmp_path)
+    assert json_path.stat().st_size < 20_000 < arrays_path.stat().st_size
+
+
+def test_load_errors(tmp_path):
+    from transcalib.io.calibration_file import load_calibration, save_calibration
+
+    with pytest.raises(InputError, match="does not exist"):
+        load_calibration(tmp_path)
+    json_path, arrays_path = save_calibration(full_calibration(), tmp_path)
+    arrays_path.unlink()
+    with pytest.raises(InputError, match="sidecar"):
+        load_calibration(tmp_path)
+    doc = json.loads(json_path.read_text())
+    doc["schema_version"] = 99
+    json_path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="upgrade"):
+        load_calibration(json_path)
+
+
+def test_calibration_save_method_round_trip(tmp_path):
+    """``Calibration.save`` (types.py) writes what ``load_calibration`` reads back equal."""
+    from transcalib.io.calibration_file import load_calibration
+
+    cal = full_calibration(n_points=10)
+    cal.save(tmp_path / "c.json")
+    assert (tmp_path / "c.arrays.npz").is_file()
+    assert load_calibration(tmp_path / "c.json") == cal

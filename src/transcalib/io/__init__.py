@@ -1,7 +1,13 @@
-"""Readers and writers: tracks and poses in, calibration and points out."""
+"""Readers, writers and exports: tracks and poses in; calibration, points and exports out.
 
-from .tables import (Poses, atomic_write, read_poses, read_tracks, tracks_to_uv, write_json, write_points_csv,
-                     write_poses_csv, write_tracks_csv)
+``tables`` (CSV / binary tracks), ``files`` (atomic writes), ``calibration_file``
+(``calibration.json`` + ``arrays.npz``), ``export`` (OpenCV, ROS, COLMAP, PLY).
+"""
 
-__all__ = ["Poses", "read_poses", "read_tracks", "tracks_to_uv", "write_tracks_csv", "write_points_csv",
-           "write_json", "write_poses_csv", "atomic_write"]
+from .files import atomic_write, check_writable_dir, check_writable_file, write_json
+from .tables import (Poses, TrackTable, read_poses, read_track_table, read_tracks, tracks_to_uv, write_points_csv,
+                     write_poses_csv, write_tracks, write_tracks_csv)
+
+__all__ = ["Poses", "TrackTable", "read_poses", "read_tracks", "read_track_table", "tracks_to_uv", "write_tracks",
+           "write_tracks_csv", "write_points_csv", "write_json", "write_poses_csv", "atomic_write",
+           "check_writable_dir", "check_writable_file"]

@@ -1,41 +1,45 @@
-"""Readers and writers: tracks and poses CSV in, calibration JSON and points CSV out.
+"""Tables: tracks and poses in, points and tracks out (CSV, and binary tracks).
 
 File formats (see ``docs/formats.md``):
 
 ``tracks.csv``  header ``view,point,u,v``; one row per observation; ``point`` is any id.
+                Read by a vectorised parser (pyarrow); a file with a bad cell is read
+                again carefully to name its line and column. ``.npz`` (dense ``uv``,
+                ``view_ids``, ``point_ids``) and ``.parquet`` (the CSV's columns) are the
+                binary alternatives, chosen by extension.
 ``poses.csv``   header ``view,x,y,z`` with optional ``qx,qy,qz,qw`` (robot orientation,
                 checked to be constant) and ``image`` (file name of the view's image).
                 The row order of ``poses.csv`` is the view order.
 
 Outputs are written atomically: to a temporary file in the same folder, then renamed, so
-an interrupted run never leaves a partial file. Inputs are never modified.
+an interrupted run never leaves a partial file. Inputs are never modified. Text files
+have LF line endings.
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import math
-import os
-import tempfile
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..types import InputError
+from ..errors import InputError
+from .files import atomic_write
 
 __all__ = [
     "Poses",
+    "TrackTable",
     "read_poses",
     "read_tracks",
+    "read_track_table",
+    "read_parquet_tracks",
     "tracks_to_uv",
+    "write_tracks",
     "write_tracks_csv",
     "write_points_csv",
-    "write_json",
     "write_poses_csv",
-    "atomic_write",
 ]
 
 
@@ -143,6 +147,123 @@ def read_poses(path) -> Poses:
     return Poses(views=views, T=T, quaternions=quats, images=images)
 
 
+@dataclass(frozen=True, eq=False)
+class TrackTable:
+    """Observations of a tracks file, one per row, with integer codes for the ids.
+
+    Attributes
+    ----------
+    view_ids : list of str (n_distinct_views)   canonical view ids, first-appearance order
+    view_index : (n_obs,) int                   index into ``view_ids`` of each row
+    point_ids : list of str (n_points)          point ids, first-appearance order
+    point_index : (n_obs,) int                  index into ``point_ids`` of each row
+    uv : (n_obs, 2) float                       pixels
+    """
+
+    view_ids: list
+    view_index: np.ndarray
+    point_ids: list
+    point_index: np.ndarray
+    uv: np.ndarray
+
+
+def _header(path, required: list[str], what: str) -> list[str]:
+    """Lower-cased, stripped header cells of a CSV file; clear errors for a missing file,
+    an empty file or missing columns."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what} file {str(path)!r} does not exist")
+    with open(path, "rb") as fh:
+        first = fh.readline()
+    try:
+        header = [h.strip().lower() for h in first.decode("utf-8-sig").strip().split(",")]
+    except UnicodeDecodeError:
+        raise InputError(f"{what} file {str(path)!r} is not a UTF-8 text CSV file") from None
+    if header == [""]:
+        raise InputError(f"{what} file {str(path)!r} is empty; expected a header line {','.join(required)} and data rows")
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InputError(f"{what} file {str(path)!r} lacks column(s) {', '.join(missing)}; its header is "
+                         f"{first.decode('utf-8-sig', 'replace').strip()!r}, expected at least {','.join(required)}")
+    return header
+
+
+def _codes(values: list[str]) -> tuple[list[str], np.ndarray]:
+    """Distinct values in first-appearance order and the index of each value."""
+    arr = np.asarray(values)
+    ids, first, inverse = np.unique(arr, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return ids[order].tolist(), rank[inverse].ravel()
+
+
+def _tracks_fast(path, header: list[str]) -> TrackTable | None:
+    """Vectorised reader (pyarrow's CSV parser); None when the file needs the careful
+    reader to locate an error (bad cell, ragged row, non-finite value). Integer ids (the
+    common case) are parsed as integers, which is several times faster than text."""
+    import pyarrow as pa
+
+    table = _arrow_csv(path, header, pa.int64()) or _arrow_csv(path, header, pa.string())
+    if table is None or table.num_rows == 0:
+        return None
+    col = {h: f"c{k}" for k, h in enumerate(header)}
+    uv = np.column_stack([table[col["u"]].to_numpy(zero_copy_only=False),
+                          table[col["v"]].to_numpy(zero_copy_only=False)]).astype(float)
+    if not np.isfinite(uv).all():
+        return None
+    views, view_codes = _encode(table[col["view"]])
+    points, point_codes = _encode(table[col["point"]])
+    # canonical view ids ("03" is view 3) may merge dictionary entries: recode
+    view_ids, remap = _codes([_canonical_id(str(v)) for v in views])
+    return TrackTable(view_ids, remap[view_codes], [str(p) for p in points], point_codes, uv)
+
+
+def _arrow_csv(path, header: list[str], id_type):
+    """The four columns of a tracks CSV with ids of ``id_type``, or None if they do not parse."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    names = [f"c{k}" for k in range(len(header))]
+    col = {h: names[k] for k, h in enumerate(header)}
+    types = {col["view"]: id_type, col["point"]: id_type, col["u"]: pa.float64(), col["v"]: pa.float64()}
+    try:
+        return pcsv.read_csv(
+            path, read_options=pcsv.ReadOptions(skip_rows=1, column_names=names),
+            convert_options=pcsv.ConvertOptions(column_types=types, include_columns=list(types)))
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        return None
+
+
+def _encode(column) -> tuple[list, np.ndarray]:
+    """Distinct values of an Arrow column in first-appearance order (text stripped of
+    surrounding spaces) and the index of each row."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if pa.types.is_string(column.type):
+        column = pc.utf8_trim_whitespace(column)
+    enc = pc.dictionary_encode(column).combine_chunks()
+    return enc.dictionary.to_pylist(), enc.indices.to_numpy().astype(np.intp)
+
+
+def read_track_table(path) -> TrackTable:
+    """Read ``tracks.csv`` (``view,point,u,v``, one row per observation) fast.
+
+    Raises :class:`InputError` naming the file, line and column of a bad cell.
+    """
+    header = _header(path, ["view", "point", "u", "v"], "tracks")
+    fast = _tracks_fast(path, header)
+    if fast is not None:
+        return fast
+    header, rows = _read_table(path, ["view", "point", "u", "v"], "tracks")  # careful: locates errors
+    iv, ip = header.index("view"), header.index("point")
+    uv = _numbers(path, rows, header, ["u", "v"], "tracks")
+    view_ids, view_index = _codes([_canonical_id(row[iv]) for row in rows])
+    point_ids, point_index = _codes([row[ip].strip() for row in rows])
+    return TrackTable(view_ids, view_index, point_ids, point_index, uv)
+
+
 def read_tracks(path) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
     """Read ``tracks.csv``: ``view,point,u,v``, one row per observation.
 
@@ -153,133 +274,211 @@ def read_tracks(path) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
     point_index : (n_obs,) int, index into ``point_ids`` of each row
     uv : (n_obs, 2) float
     """
-    header, rows = _read_table(path, ["view", "point", "u", "v"], "tracks")
-    iv, ip = header.index("view"), header.index("point")
-    view_ids = [_canonical_id(row[iv]) for row in rows]
-    raw_points = np.array([row[ip].strip() for row in rows])
-    uv = _numbers(path, rows, header, ["u", "v"], "tracks")
-    ids, first, inverse = np.unique(raw_points, return_index=True, return_inverse=True)
-    order = np.argsort(first)  # first-appearance order
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.size)
-    return view_ids, ids[order].tolist(), rank[inverse], uv
+    t = read_track_table(path)
+    return np.asarray(t.view_ids, dtype=object)[t.view_index].tolist(), t.point_ids, t.point_index, t.uv
 
 
 def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, list[str]]:
-    """Observations of ``tracks.csv`` as ``uv (n_views, n_points, 2)`` in the view order of
-    ``poses``.
+    """Observations of a tracks file as ``uv (n_views, n_points, 2)`` in the view order of
+    ``poses``; the format follows the extension: ``.csv``, ``.npz`` or ``.parquet``.
 
     Raises :class:`InputError` for views in the tracks that have no pose and for
     duplicate (view, point) rows.
     """
-    view_ids, point_ids, point_index, obs = read_tracks(path_tracks)
+    suffix = Path(path_tracks).suffix.lower()
+    if suffix == ".npz":
+        return _npz_to_uv(path_tracks, poses)
+    t = read_parquet_tracks(path_tracks) if suffix == ".parquet" else read_track_table(path_tracks)
     view_pos = {v: k for k, v in enumerate(poses.views)}
-    unknown = sorted({v for v in view_ids if v not in view_pos})
+    unknown = [v for v in t.view_ids if v not in view_pos]
     if unknown:
         raise InputError(
             f"tracks file {str(path_tracks)!r} has view(s) {unknown[:10]} that are not in the poses file "
             f"(which has {poses.views[:10]}{'...' if len(poses.views) > 10 else ''}); give every view a pose"
         )
-    vidx = np.array([view_pos[v] for v in view_ids])
-    flat = vidx * len(point_ids) + point_index
-    uniq, counts = np.unique(flat, return_counts=True)
+    vidx = np.array([view_pos[v] for v in t.view_ids], dtype=np.intp)[t.view_index]
+    n_points = len(t.point_ids)
+    flat = vidx * n_points + t.point_index
+    counts = np.bincount(flat, minlength=len(poses.views) * n_points)
     if np.any(counts > 1):
-        dup = uniq[counts > 1][:5]
-        pairs = [(poses.views[d // len(point_ids)], point_ids[d % len(point_ids)]) for d in dup]
+        dup = np.flatnonzero(counts > 1)[:5]
+        pairs = [(poses.views[d // n_points], t.point_ids[d % n_points]) for d in dup]
         raise InputError(
             f"tracks file {str(path_tracks)!r} has more than one row for (view, point) {pairs}; "
             "give each point at most one position per view"
         )
-    uv = np.full((len(poses.views), len(point_ids), 2), np.nan)
-    uv[vidx, point_index] = obs
-    return uv, point_ids
+    uv = np.full((len(poses.views), n_points, 2), np.nan)
+    uv[vidx, t.point_index] = t.uv
+    return uv, t.point_ids
 
 
-@contextmanager
-def atomic_write(path, mode: str = "w", **kwargs):
-    """Open a temporary file beside ``path``; rename it to ``path`` only on success."""
+# --------------------------------------------------------------------------------------
+# binary tracks: .npz (dense uv) and .parquet (the CSV's columns)
+# --------------------------------------------------------------------------------------
+
+
+def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, list[str]]:
+    """``.npz`` tracks: ``uv (n_views, n_points, 2)``, ``view_ids (n_views,)``,
+    ``point_ids (n_points,)`` (strings)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    if not path.is_file():
+        raise InputError(f"tracks file {str(path)!r} does not exist")
     try:
-        with os.fdopen(fd, mode, **kwargs) as fh:
-            yield fh
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+        with np.load(path, allow_pickle=False) as z:
+            uv, view_ids, point_ids = z["uv"], z["view_ids"], z["point_ids"]
+    except (KeyError, ValueError, OSError) as exc:
+        raise InputError(f"tracks file {str(path)!r} is not a transcalib .npz tracks file (arrays uv, view_ids, "
+                         f"point_ids): {exc}") from None
+    if uv.ndim != 3 or uv.shape[2] != 2 or uv.shape[:2] != (len(view_ids), len(point_ids)):
+        raise InputError(f"tracks file {str(path)!r}: uv has shape {uv.shape}, expected (n_views, n_points, 2) = "
+                         f"({len(view_ids)}, {len(point_ids)}, 2)")
+    views = [_canonical_id(str(v)) for v in view_ids]
+    view_pos = {v: k for k, v in enumerate(poses.views)}
+    unknown = [v for v in views if v not in view_pos]
+    if unknown:
+        raise InputError(f"tracks file {str(path)!r} has view(s) {unknown[:10]} that are not in the poses file")
+    bad = ~np.isfinite(uv) & ~np.isnan(uv)
+    if bad.any():
+        raise InputError(f"tracks file {str(path)!r}: uv has infinite values; use NaN for unseen points")
+    out = np.full((len(poses.views), len(point_ids), 2), np.nan)
+    out[[view_pos[v] for v in views]] = uv
+    return out, [str(p) for p in point_ids]
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def read_parquet_tracks(path) -> TrackTable:
+    """``.parquet`` tracks: the columns of ``tracks.csv`` (``view``, ``point``, ``u``, ``v``)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"tracks file {str(path)!r} does not exist")
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise InputError(f"tracks file {str(path)!r} is not a Parquet file: {exc}") from None
+    names = {n.lower(): n for n in table.column_names}
+    missing = [c for c in ("view", "point", "u", "v") if c not in names]
+    if missing:
+        raise InputError(f"tracks file {str(path)!r} lacks column(s) {', '.join(missing)}")
+    uv = np.column_stack([table[names[c]].to_numpy(zero_copy_only=False) for c in ("u", "v")]).astype(float)
+    if not np.isfinite(uv).all():
+        raise InputError(f"tracks file {str(path)!r}: columns u, v must be finite numbers")
+    views = pc.dictionary_encode(table[names["view"]].cast(pa.string())).combine_chunks()
+    points = pc.dictionary_encode(table[names["point"]].cast(pa.string())).combine_chunks()
+    view_ids, remap = _codes([_canonical_id(v) for v in views.dictionary.to_pylist()])
+    return TrackTable(view_ids, remap[views.indices.to_numpy()], points.dictionary.to_pylist(),
+                      points.indices.to_numpy().astype(np.intp), uv)
 
 
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (np.floating, float)):
-        v = float(value)
-        return v if math.isfinite(v) else None  # JSON has no NaN: null
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    return value
+# --------------------------------------------------------------------------------------
+# writers (vectorised; LF line endings)
+# --------------------------------------------------------------------------------------
 
 
-def write_json(path, data: dict) -> None:
-    """Write ``data`` as indented JSON (NaN/inf become null), atomically."""
-    with atomic_write(path, encoding="utf-8") as fh:
-        json.dump(_jsonable(data), fh, indent=2)
-        fh.write("\n")
+def _id_column(ids):
+    """An Arrow column of ids: integers when every id is one (no quotes in the CSV)."""
+    import pyarrow as pa
+
+    arr = np.asarray(list(ids))
+    if arr.dtype.kind in "iu":
+        return pa.array(arr.astype(np.int64))
+    s = arr.astype(str)
+    if s.size and np.char.isdigit(s).all() and not np.any(np.char.startswith(s, "0") & (np.char.str_len(s) > 1)):
+        return pa.array(s.astype(np.int64))
+    return pa.array(s)
+
+
+def _write_arrow_csv(path, header: list[str], columns: list) -> None:
+    """Write Arrow columns as CSV with an unquoted ``header`` line, atomically."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    table = pa.table({name: c for name, c in zip(header, columns)})
+    needs_quotes = any(pa.types.is_string(c.type) and len(c) and
+                       pa.compute.any(pa.compute.match_substring_regex(c, '[,"\n\r]')).as_py()
+                       for c in table.columns)
+    opts = pcsv.WriteOptions(include_header=False, quoting_style="needed" if needs_quotes else "none")
+    with atomic_write(path, "wb") as fh:
+        fh.write((",".join(header) + "\n").encode())
+        pcsv.write_csv(table, fh, write_options=opts)
+
+
+def _float_column(x: np.ndarray):
+    """Arrow float column with NaN as null (an empty CSV cell)."""
+    import pyarrow as pa
+
+    x = np.asarray(x, dtype=float)
+    return pa.array(x, mask=~np.isfinite(x))
 
 
 def write_points_csv(path, point_ids, X: np.ndarray, X_std: np.ndarray | None = None, inliers=None) -> None:
-    """Write ``point,x,y,z[,sx,sy,sz][,inlier]`` (empty cells for points not reconstructed)."""
-    def fmt(x):
-        return repr(float(x)) if np.isfinite(x) else ""
+    """Write ``point,x,y,z[,sx,sy,sz][,inlier]`` (empty cells for points not reconstructed).
 
-    with atomic_write(path, newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["point", "x", "y", "z"] + (["sx", "sy", "sz"] if X_std is not None else [])
-                   + (["inlier"] if inliers is not None else []))
-        for j, pid in enumerate(point_ids):
-            row = [pid] + [fmt(x) for x in X[j]]
-            if X_std is not None:
-                row += [fmt(x) for x in X_std[j]]
-            if inliers is not None:
-                row.append(int(bool(inliers[j])))
-            w.writerow(row)
+    Parameters
+    ----------
+    point_ids : sequence (n_points)
+    X, X_std : (n_points, 3) float
+    inliers : (n_points,) bool, optional
+    """
+    import pyarrow as pa
+
+    header = ["point", "x", "y", "z"]
+    cols = [_id_column(point_ids)] + [_float_column(X[:, k]) for k in range(3)]
+    if X_std is not None:
+        header += ["sx", "sy", "sz"]
+        cols += [_float_column(X_std[:, k]) for k in range(3)]
+    if inliers is not None:
+        header.append("inlier")
+        cols.append(pa.array(np.asarray(inliers, dtype=bool).astype(np.int8)))
+    _write_arrow_csv(path, header, cols)
+
+
+def write_tracks(path, uv: np.ndarray, point_ids=None, view_ids=None) -> None:
+    """Write tracks in the format of the extension: ``.csv``, ``.npz`` or ``.parquet``.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        NaN where a point is not seen.
+    point_ids, view_ids : sequences, optional
+        Default ``0..n-1``.
+    """
+    suffix = Path(path).suffix.lower()
+    n_views, n_points = uv.shape[:2]
+    point_ids = np.arange(n_points) if point_ids is None else np.asarray(list(point_ids))
+    view_ids = np.arange(n_views) if view_ids is None else np.asarray(list(view_ids))
+    if suffix == ".npz":  # like the CSV, points never seen are left out
+        keep = np.isfinite(uv[..., 0]).any(axis=0)
+        with atomic_write(path, "wb") as fh:
+            np.savez(fh, uv=np.asarray(uv, float)[:, keep], view_ids=view_ids.astype(str),
+                     point_ids=point_ids[keep].astype(str))
+        return
+    j, i = np.nonzero(np.isfinite(uv[..., 0]).T)  # grouped by point: points read back in order
+    cols = [_id_column(view_ids)] + [_id_column(point_ids)]
+    cols = [cols[0].take(i), cols[1].take(j), _float_column(uv[i, j, 0]), _float_column(uv[i, j, 1])]
+    if suffix == ".parquet":
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        with atomic_write(path, "wb") as fh:
+            pq.write_table(pa.table({"view": cols[0], "point": cols[1], "u": cols[2], "v": cols[3]}), fh)
+        return
+    _write_arrow_csv(path, ["view", "point", "u", "v"], cols)
 
 
 def write_tracks_csv(path, uv: np.ndarray, point_ids=None, view_ids=None) -> None:
     """Write ``view,point,u,v`` for every finite observation of ``uv (n_views, n_points, 2)``,
     grouped by point (so that the points read back in the same order)."""
-    n_views, n_points = uv.shape[:2]
-    point_ids = list(range(n_points)) if point_ids is None else list(point_ids)
-    view_ids = list(range(n_views)) if view_ids is None else list(view_ids)
-    with atomic_write(path, newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["view", "point", "u", "v"])
-        for j, i in np.argwhere(np.isfinite(uv[..., 0]).T):
-            w.writerow([view_ids[i], point_ids[j], repr(float(uv[i, j, 0])), repr(float(uv[i, j, 1]))])
+    write_tracks(Path(path), uv, point_ids, view_ids)
 
 
 def write_poses_csv(path, T: np.ndarray, view_ids=None, images=None) -> None:
     """Write ``view,x,y,z[,image]``."""
     view_ids = list(range(len(T))) if view_ids is None else list(view_ids)
     with atomic_write(path, newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
+        w = csv.writer(fh, lineterminator="\n")
         w.writerow(["view", "x", "y", "z"] + (["image"] if images is not None else []))
         for i, t in enumerate(T):
             w.writerow([view_ids[i]] + [repr(float(x)) for x in t] + ([images[i]] if images is not None else []))

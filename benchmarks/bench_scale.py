@@ -1,0 +1,111 @@
+"""Scale end to end: ``transcalib calibrate`` on 10^5 and 10^6 points x 5 views.
+
+CSV in (``tracks.csv``, ``poses.csv``), every default output written (calibration.json +
+arrays.npz, points.csv, camera.yaml, camera_info.yaml, COLMAP model, points.ply, report).
+Each run is a fresh process; wall time and peak RSS come from the operating system
+(``os.wait4``), the stage breakdown from the command's ``--json`` summary.
+
+    python benchmarks/bench_scale.py            # 10^5 and 10^6 points
+    python benchmarks/bench_scale.py --quick    # 10^4 and 10^5 points
+    python benchmarks/run.py scale
+
+Targets (issue 10, a 2-core machine): 10^6 points <= 15 s and <= 2.5 GiB; 10^5 <= 2 s.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+TARGETS = {10**5: (2.0, None), 10**6: (15.0, 2.5)}  # seconds, GiB
+
+
+def make_inputs(folder: Path, n_points: int, n_views: int = 5, seed: int = 0) -> None:
+    """A random scene, 0.5 px noise, every point in every view (setup, not timed)."""
+    from transcalib import io as tio
+    from transcalib.synth import simulate
+
+    scene = simulate.random_scene(n_points, n_views, noise_px=0.5, rng=seed)
+    tio.write_tracks_csv(folder / "tracks.csv", scene.uv)
+    tio.write_poses_csv(folder / "poses.csv", scene.T)
+
+
+def run_cli(folder: Path, out: Path) -> dict:
+    """Run the command once; return its JSON summary plus ``wall_s`` and ``peak_rss_gib``."""
+    cmd = [sys.executable, "-m", "transcalib.cli", "calibrate", "--tracks", str(folder / "tracks.csv"),
+           "--poses", str(folder / "poses.csv"), "--out", str(out), "--json", "--quiet"]
+    t0 = time.perf_counter()
+    with tempfile.TemporaryFile() as stdout, tempfile.TemporaryFile() as stderr:
+        proc = subprocess.Popen(cmd, stdout=stdout, stderr=stderr)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+        stdout.seek(0)
+        stderr.seek(0)
+        text, err = stdout.read().decode(), stderr.read().decode()
+    if proc.returncode not in (0, 4):
+        raise RuntimeError(f"calibrate failed ({proc.returncode}): {err.strip()[-2000:]}")
+    summary = json.loads(text)
+    summary["wall_s"] = wall
+    summary["peak_rss_gib"] = usage.ru_maxrss * 1024 / 2**30  # ru_maxrss is in KiB on Linux
+    return summary
+
+
+def report(n: int, s: dict) -> None:
+    run = s["run_timings_s"]
+    inner = s.get("timings_s", {})
+    writes = s.get("write_timings_s", {})
+    startup = s["wall_s"] - run["total_s"]
+    t_target, m_target = TARGETS.get(n, (None, None))
+    verdict = []
+    if t_target:
+        verdict.append(f"time {'OK' if s['wall_s'] <= t_target else 'OVER'} (<= {t_target:g} s)")
+    if m_target:
+        verdict.append(f"memory {'OK' if s['peak_rss_gib'] <= m_target else 'OVER'} (<= {m_target:g} GiB)")
+    print(f"\n{n:>9,d} points x {s['n_views']} views: wall {s['wall_s']:.2f} s, peak RSS {s['peak_rss_gib']:.2f} GiB"
+          f"   {'; '.join(verdict)}")
+    print(f"  {'start-up (interpreter, imports)':34s} {startup:7.2f} s")
+    print(f"  {'read tracks + poses (CSV)':34s} {run['read_s']:7.2f} s")
+    print(f"  {'calibrate()':34s} {run['calibrate_s']:7.2f} s")
+    for k, v in inner.items():
+        if k in ("robust_s", "linear_s", "refine_s", "diagnostics_s"):
+            print(f"    {k[:-2]:32s} {v:7.2f} s")
+    print(f"  {'write outputs':34s} {run['write_s']:7.2f} s")
+    for k, v in writes.items():
+        print(f"    {k[:-2]:32s} {v:7.2f} s")
+    mem = s.get("memory_peak_gib", {})
+    if mem:
+        print("  peak RSS after " + ", ".join(f"{k.removeprefix('after_')} {v:.2f} GiB" for k, v in mem.items()))
+    print(f"  rms {s['rms_px']:.3f} px, {s['n_points_reconstructed']} points reconstructed, "
+          f"{len(s['diagnostics'])} warning(s)")
+
+
+def main(argv: list[str]) -> int:
+    sizes = [10**4, 10**5] if "--quick" in argv else [10**5, 10**6]
+    with tempfile.TemporaryDirectory(prefix="bench_scale_") as tmp:
+        for n in sizes:
+            folder = Path(tmp) / f"in{n}"
+            folder.mkdir()
+            t0 = time.perf_counter()
+            make_inputs(folder, n)
+            size_mb = (folder / "tracks.csv").stat().st_size / 1e6
+            print(f"(setup: {n:,d} points, tracks.csv {size_mb:.0f} MB, {time.perf_counter() - t0:.1f} s)", flush=True)
+            summary = run_cli(folder, Path(tmp) / f"out{n}")
+            report(n, summary)
+            out = Path(tmp) / f"out{n}"
+            total = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+            print(f"  outputs: {total / 1e6:.0f} MB in {sum(1 for p in out.rglob('*') if p.is_file())} files",
+                  flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main(sys.argv[1:]))

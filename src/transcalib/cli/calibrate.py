@@ -1,0 +1,286 @@
+"""``transcalib calibrate``: tracks (or images) and robot poses in; calibration, exports
+and report out.
+
+Order of work: (1) check every option, input file and the output folder (no
+computation yet); (2) read or track; (3) calibrate; (4) write every output atomically.
+A failure in (1) costs nothing; a failure later never leaves a partial file.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, existing_file, image_size, nonnegative_float,
+                     positive_float, print_json)
+
+NAME = "calibrate"
+HELP = "calibrate from tracks (or images) and robot poses; write calibration, exports and report"
+
+
+def add_parser(sub) -> None:
+    c = sub.add_parser(NAME, help=HELP, description=HELP)
+    src = c.add_mutually_exclusive_group(required=True)
+    src.add_argument("--tracks", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
+    src.add_argument("--images", nargs="+", metavar="IMAGE", help="images in view order (or named in poses.csv)")
+    c.add_argument("--poses", required=True, help="poses.csv: view,x,y,z[,qx,qy,qz,qw][,image]")
+    c.add_argument("--out", required=True, help="output folder (created if missing)")
+    c.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
+    c.add_argument("--image-size", type=image_size, metavar="WxH",
+                   help="image size in pixels, e.g. 640x480 (default: from the images or --truth)")
+    c.add_argument("--target", choices=["squares"], help="with --images: detect the corners of dark squares")
+    c.add_argument("--no-refine", action="store_true", help="stop at the paper's linear estimate")
+    rob = c.add_mutually_exclusive_group()
+    rob.add_argument("--robust", dest="robust", action="store_true", default=None,
+                     help="RANSAC against mismatched tracks (default: on from 8 points)")
+    rob.add_argument("--no-robust", dest="robust", action="store_false")
+    c.add_argument("--threshold-px", type=positive_float,
+                   help="RANSAC inlier threshold in pixels (default: from the pixel noise estimated from the data)")
+    c.add_argument("--distortion", choices=["auto", "none", "radial1", "radial2", "opencv5"],
+                   help="lens distortion model (OpenCV convention; default auto: chosen from the data)")
+    c.add_argument("--estimate-skew", action="store_true", help="estimate the skew (default: fixed at 0)")
+    c.add_argument("--fix", metavar="NAME=VALUE,...",
+                   help="known parameters held fixed, e.g. cx=320,cy=240 or principal-point=centre "
+                        "(the image centre; needs the image size); names: fx, fy, cx, cy, skew, k1, k2, p1, p2, k3")
+    c.add_argument("--square-pixels", action="store_true", help="one focal length: fx = fy")
+    c.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
+                   help="robot translation precision in --unit: treat translations as noisy measurements")
+    c.add_argument("--loss", choices=["linear", "huber", "cauchy"], help="refinement loss (default linear)")
+    c.add_argument("--loss-scale-px", type=positive_float,
+                   help="scale of a robust loss in pixels (default: from the estimated pixel noise)")
+    c.add_argument("--truth", help="truth.json of a simulated scene: print and plot the errors")
+    c.add_argument("--formats", default="all",
+                   help="comma-separated outputs among json,csv,opencv,ros,colmap,ply,report (default all)")
+    c.add_argument("--seed", type=int, default=0, help="random seed of RANSAC (default 0: repeatable)")
+    c.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
+    c.add_argument("--strict", action="store_true", help="exit with status 4 when the calibration has warnings")
+    c.add_argument("--quiet", action="store_true", help="no progress messages")
+    c.set_defaults(func=run)
+
+
+# --------------------------------------------------------------------------------------
+# (1) checks: no computation
+# --------------------------------------------------------------------------------------
+
+
+def read_truth(path) -> dict:
+    """``truth.json`` of a simulated scene (``K`` at least)."""
+    p = existing_file("--truth", path)
+    try:
+        truth = json.loads(p.read_text(encoding="utf-8"))
+        K = np.asarray(truth["K"], dtype=float)
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        raise OptionError("--truth", f"{str(p)!r} is not a truth.json written by transcalib simulate "
+                          "(a JSON object with K, R, points)") from None
+    if K.shape != (3, 3):
+        raise OptionError("--truth", f"{str(p)!r}: K must be 3x3, got shape {K.shape}")
+    return truth
+
+
+def parse_formats(text: str) -> tuple:
+    from ..io.export import FORMATS
+
+    names = tuple(f.strip().lower() for f in text.split(",") if f.strip())
+    if names in ((), ("all",)):
+        return FORMATS
+    unknown = [f for f in names if f not in FORMATS]
+    if unknown:
+        raise OptionError("--formats", f"unknown format(s) {', '.join(unknown)}; choose among {','.join(FORMATS)}")
+    return names
+
+
+def parse_fix(text: str | None, size) -> dict:
+    """``--fix``: ``NAME=VALUE`` pairs, ``principal-point=centre`` for the image centre
+    ``((w - 1) / 2, (h - 1) / 2)`` (pixel (0, 0) is the centre of the top-left pixel)."""
+    from ..types import FIXABLE
+
+    out = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        name, sep, value = (x.strip().lower() for x in item.partition("="))
+        if not sep:
+            raise OptionError("--fix", f"expected NAME=VALUE, got {item.strip()!r}")
+        if name == "principal-point":
+            if value not in ("centre", "center"):
+                raise OptionError("--fix", f"principal-point takes the value centre, got {value!r}")
+            if size is None:
+                raise OptionError("--fix", "principal-point=centre needs the image size: give --image-size WxH")
+            out.update(cx=(size[0] - 1) / 2, cy=(size[1] - 1) / 2)
+            continue
+        if name not in FIXABLE:
+            raise OptionError("--fix", f"unknown parameter {name!r}; expected some of {', '.join(FIXABLE)}, "
+                              "principal-point")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise OptionError("--fix", f"{name}={value!r} is not a number") from None
+    return out
+
+
+def build_options(args, size=None):
+    """The option dataclasses of the run, checked now (an option that would have no
+    effect, such as ``--distortion`` with ``--no-refine``, is an error)."""
+    from ..types import CalibrateOptions, RansacOptions, RefineOptions
+
+    fixed = parse_fix(args.fix, size)
+    ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
+    given = {"distortion": args.distortion, "sigma_T": args.robot_sigma, "loss": args.loss,
+             "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
+             "square_pixels": args.square_pixels or None, "fix": fixed or None}
+    refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
+    options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
+                               unit=args.unit)
+    if args.target and not args.images:
+        raise OptionError("--target", "applies to --images only")
+    return options
+
+
+def check_all(args) -> dict:
+    """Every check of step (1); returns what the later steps need."""
+    from ..io import check_writable_dir, read_poses
+
+    out = check_writable_dir(args.out, "--out")
+    plan = {"out": out, "formats": parse_formats(args.formats)}
+    build_options(args, args.image_size or (1, 1))  # every option but the image size checked now
+    plan["truth"] = read_truth(args.truth) if args.truth else None
+    if args.tracks:
+        plan["tracks"] = existing_file("--tracks", args.tracks)
+    poses = read_poses(existing_file("--poses", args.poses))
+    plan["poses"] = poses
+    size = args.image_size
+    if args.images:
+        images = [existing_file("--images", p) for p in args.images]
+        plan["images"] = _order_images(images, poses)
+        if len(images) != len(poses.views):
+            raise OptionError("--images", f"{len(images)} images but {len(poses.views)} poses in {args.poses}; "
+                              "give one pose per image")
+        size = size or _image_size_of(plan["images"][0])
+    elif size is None and plan["truth"] is not None and "image_size" in plan["truth"]:
+        size = tuple(int(v) for v in plan["truth"]["image_size"])
+    plan["image_size"] = size
+    plan["options"] = build_options(args, size)
+    return plan
+
+
+def _image_size_of(path: Path) -> tuple[int, int]:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise OptionError("--images", f"{str(path)!r} is not an image OpenCV can read")
+    return int(img.shape[1]), int(img.shape[0])
+
+
+def _order_images(images: list[Path], poses) -> list[Path]:
+    """Images in view order: by the ``image`` column of poses.csv when present."""
+    if poses.images is None:
+        return list(images)
+    by_name = {p.name: p for p in images}
+    missing = [name for name in poses.images if Path(name).name not in by_name]
+    if missing:
+        raise OptionError("--images", f"poses.csv names image(s) {missing[:5]} that are not among the images given")
+    return [by_name[Path(name).name] for name in poses.images]
+
+
+# --------------------------------------------------------------------------------------
+# (2)-(4) work
+# --------------------------------------------------------------------------------------
+
+
+def track_images(images, target, progress: Progress):
+    """Tracks from images: ``target="squares"`` finds the corners of dark squares."""
+    if target == "squares":
+        from ..images import track_squares
+
+        return track_squares([str(p) for p in images], progress=progress.step)
+    from ..images import track
+
+    return track([str(p) for p in images], progress=progress.step)
+
+
+def _observations(args, plan, progress: Progress):
+    """``(uv, point_ids, colors, view_names)`` from the images or the tracks file."""
+    from .. import io as tio
+
+    poses = plan["poses"]
+    if args.images:
+        progress.log(f"tracking {len(plan['images'])} images ...")
+        tracks = track_images(plan["images"], args.target, progress)
+        ids = [str(i) for i in tracks.ids]
+        tio.write_tracks_csv(plan["out"] / "tracks.csv", tracks.uv, ids, poses.views)
+        return tracks.uv, ids, tracks.colors, [p.name for p in plan["images"]]
+    uv, ids = tio.tracks_to_uv(plan["tracks"], poses)
+    names = poses.images or [f"view{v}.png" for v in poses.views]
+    return uv, ids, None, names
+
+
+def run(args) -> int:
+    t_start = time.perf_counter()
+    progress = args._progress = Progress(args.quiet)
+    plan = check_all(args)  # (1): before importing the numerics
+
+    from ..io.export import ExportContext, export_calibration
+    from ..pipeline import calibrate
+    from .summary import summary_json, summary_text
+
+    t_read = time.perf_counter()
+    uv, point_ids, colors, view_names = _observations(args, plan, progress)
+    progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({time.perf_counter() - t_read:.2f} s)")
+    opts = plan["options"]
+    memory = {"after_read": _peak_rss_gib()}
+    t_cal = time.perf_counter()
+    cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
+                    refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
+                    image_size=plan["image_size"], unit=args.unit, rng=args.seed, progress=progress.stage)
+    t_write = time.perf_counter()
+    memory["after_calibrate"] = _peak_rss_gib()
+    inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
+              "images": None if not args.images else [str(p) for p in plan["images"]],
+              "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
+              "image_size_from": _size_source(args, plan)}
+    ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
+                        truth=plan["truth"])
+    write_timings = {}
+    written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings)
+    if args.images:
+        written.insert(0, plan["out"] / "tracks.csv")
+    t_end = time.perf_counter()
+    memory["after_write"] = _peak_rss_gib()
+    timings = {"start_s": t_read - t_start, "read_s": t_cal - t_read, "calibrate_s": t_write - t_cal,
+               "write_s": t_end - t_write, "total_s": t_end - t_start}
+    simulated_ids = point_ids if args.tracks else []
+    status = EXIT_WARNINGS if args.strict and cal.diagnostics else EXIT_OK
+    if args.json:
+        summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)
+        summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
+                       outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings,
+                       memory_peak_gib=memory)
+        print_json(summary)
+    else:
+        print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
+        print(f"\nWrote {len(written)} files to {plan['out']} in {timings['total_s']:.2f} s "
+              f"(checks and imports {timings['start_s']:.2f} s, read {timings['read_s']:.2f} s, "
+              f"calibrate {timings['calibrate_s']:.2f} s, "
+              f"write {timings['write_s']:.2f} s)")
+    return status
+
+
+def _peak_rss_gib() -> float:
+    """Peak resident memory of this process so far (GiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
+
+
+def _size_source(args, plan) -> str | None:
+    if args.image_size:
+        return "--image-size"
+    if args.images:
+        return "images"
+    if plan["image_size"] is not None:
+        return "--truth"
+    return None

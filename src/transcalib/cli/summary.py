@@ -1,0 +1,101 @@
+"""The human-readable and the ``--json`` summary of a calibration (``calibrate``, ``show``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["summary_text", "summary_json", "point_errors"]
+
+
+def _fmt_param(cal, name: str, value: float) -> str:
+    std = cal.std.get(name)
+    pm = f" ± {std:<9.3g}" if std is not None and np.isfinite(std) else " " * 12
+    return f"{name:>5} = {value:12.4f}{pm}"
+
+
+def point_errors(cal, truth: dict | None, point_ids) -> np.ndarray | None:
+    """``|X - X_true|`` per point when the ids of simulated tracks index the true points."""
+    if truth is None or "points" not in truth or not point_ids or not all(str(p).isdigit() for p in point_ids):
+        return None
+    Xt = np.asarray(truth["points"], float)
+    idx = np.array([int(p) for p in point_ids])
+    if not idx.size or idx.max() >= len(Xt):
+        return None
+    return np.linalg.norm(cal.X - Xt[idx], axis=1)
+
+
+def _counts(cal, uv=None) -> tuple[int, int]:
+    """(points seen in >= 2 views, inliers among them): a point seen once is not an outlier.
+    Without the observations ``uv``, "seen" means "has a residual"."""
+    seen = np.isfinite((cal.residuals_px if uv is None else uv)[..., 0]).sum(axis=0) >= 2
+    inl = np.asarray(cal.inliers, bool) if cal.inliers is not None else np.isfinite(cal.X[:, 0])
+    return int(seen.sum()), int(np.sum(inl & seen))
+
+
+def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> str:
+    """Parameters with standard deviations, rotation, RMS, inliers, truth errors, warnings."""
+    K = cal.K
+    values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1]}
+    Kt = None if truth is None else np.asarray(truth["K"], float)
+    true_vals = None if Kt is None else {"fx": Kt[0, 0], "fy": Kt[1, 1], "cx": Kt[0, 2], "cy": Kt[1, 2],
+                                         "skew": Kt[0, 1]}
+    stages = " → ".join(cal.info.get("stages", []))
+    lines = [f"transcalib: {cal.n_points} points in {cal.n_views} views ({stages})", "", "Intrinsics [px]:"]
+    for name, v in values.items():
+        if name == "skew" and "skew" not in cal.std and v == 0:
+            continue
+        line = "  " + _fmt_param(cal, name, v)
+        if true_vals is not None:
+            line += f" truth {true_vals[name]:12.4f}   error {v - true_vals[name]:+.4f}"
+        lines.append(line)
+    if cal.dist.size:
+        from ..geometry.camera import DIST_MODELS
+
+        lines.append(f"Distortion ({cal.dist_model}, OpenCV order):")
+        for name, v in zip(DIST_MODELS[cal.dist_model], cal.dist):
+            lines.append("  " + _fmt_param(cal, name, v))
+    lines.append("Rotation R (robot → camera):")
+    lines += ["  [" + "  ".join(f"{x:+.6f}" for x in row) + "]" for row in cal.R]
+    if "rx" in cal.std:
+        lines.append("  std of rotation [deg]: " + ", ".join(f"{k} {cal.std[k]:.3g}" for k in ("rx", "ry", "rz")))
+    if truth is not None and "R" in truth:
+        from ..geometry.rotation import rotation_angle_deg
+
+        lines.append(f"  angle to truth: {rotation_angle_deg(cal.R @ np.asarray(truth['R']).T):.4f} deg")
+    n_rec = int(np.isfinite(cal.X[:, 0]).sum())
+    lines.append(f"Reprojection RMS: {cal.rms_px:.4f} px; {n_rec} points reconstructed [{unit}]")
+    if cal.inliers is not None:
+        tracked, inl = _counts(cal, uv)
+        lines.append(f"Inliers: {inl} of {tracked} points seen in 2 or more views")
+    err = point_errors(cal, truth, point_ids)
+    if err is not None and np.isfinite(err).any():
+        lines.append(f"Point error vs truth: median {np.nanmedian(err):.4g} {unit}, max {np.nanmax(err):.4g} {unit}")
+    if cal.diagnostics:
+        lines.append("Warnings:")
+        lines += [f"  - {d}" for d in cal.diagnostics]
+    else:
+        lines.append("No warnings.")
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:
+    """The machine-readable summary printed by ``--json``."""
+    tracked, inl = _counts(cal, uv)
+    out = {
+        "n_views": cal.n_views, "n_points": cal.n_points, "n_points_tracked": tracked,
+        "n_inliers": None if cal.inliers is None else inl,
+        "n_points_reconstructed": int(np.isfinite(cal.X[:, 0]).sum()), "unit": unit,
+        "image_size": None if cal.image_size is None else list(cal.image_size),
+        "K": cal.K, "dist_model": cal.dist_model, "dist": cal.dist, "dist_opencv": cal.dist_opencv,
+        "R_cam_world": cal.R, "rms_px": cal.rms_px, "sigma_px": cal.sigma_px, "std": cal.std,
+        "stages": list(cal.info.get("stages", [])),
+        "diagnostics": [{"code": getattr(d, "code", ""), "message": str(d)} for d in cal.diagnostics],
+        "timings_s": {k: v for k, v in cal.info.items() if k.endswith("_s") and np.isscalar(v)},
+    }
+    if truth is not None:
+        Kt = np.asarray(truth["K"], float)
+        out["truth_errors"] = {"K": cal.K - Kt}
+        err = point_errors(cal, truth, point_ids)
+        if err is not None and np.isfinite(err).any():
+            out["truth_errors"].update(point_median=float(np.nanmedian(err)), point_max=float(np.nanmax(err)))
+    return out

@@ -1,0 +1,326 @@
+"""Exports of a calibration for other tools: OpenCV, ROS, COLMAP, PLY, and all at once.
+
+=================  =====================================  ==================================
+format             file(s) in the output folder           read back by
+=================  =====================================  ==================================
+``json``           ``calibration.json`` + ``arrays.npz``  :func:`transcalib.load`
+``csv``            ``points.csv``                         any CSV reader
+``opencv``         ``camera.yaml``                        ``cv2.FileStorage``
+``ros``            ``camera_info.yaml``                   ROS ``camera_calibration_parsers``
+``colmap``         ``colmap/{cameras,images,points3D}.txt`` ``pycolmap.Reconstruction``
+``ply``            ``points.ply``                         ``plyfile``, MeshLab, Open3D
+``report``         ``report.html`` + ``figures/*.png``    a web browser
+=================  =====================================  ==================================
+
+Pixel conventions: transcalib and OpenCV put the centre of the top-left pixel at (0, 0),
+COLMAP at (0.5, 0.5); the COLMAP export shifts ``cx, cy`` and the 2-D points by +0.5.
+Every file is written atomically; the writers are vectorised over points.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .files import atomic_write
+
+__all__ = ["FORMATS", "DEFAULT_FORMATS", "ExportContext", "export_calibration", "write_opencv_yaml",
+           "write_ros_camera_info", "write_colmap", "write_ply", "image_size_or_extent"]
+
+FORMATS = ("json", "csv", "opencv", "ros", "colmap", "ply", "report")
+#: What ``calibrate --out`` and ``Calibration.export`` write unless told otherwise.
+DEFAULT_FORMATS = FORMATS
+
+
+@dataclass(frozen=True)
+class ExportContext:
+    """What a calibration does not hold but some exports need.
+
+    Attributes
+    ----------
+    point_ids : sequence of str (n_points), optional   default ``0..n-1``
+    view_names : sequence of str (n_views), optional   image file names (COLMAP)
+    colors : (n_points, 3) uint8, optional             RGB of each point (PLY, COLMAP)
+    uv : (n_views, n_points, 2) float, optional        observations (COLMAP tracks, report)
+    inputs : dict, optional                            summary for ``calibration.json``
+    truth : dict, optional                             ``truth.json`` of a simulation (report)
+    camera_name : str                                  ROS ``camera_name``
+    """
+
+    point_ids: object = None
+    view_names: object = None
+    colors: object = None
+    uv: object = None
+    inputs: object = None
+    truth: object = None
+    camera_name: str = "camera"
+
+
+def image_size_or_extent(cal, uv=None) -> tuple[int, int]:
+    """The calibration's image size; else the smallest size holding every observation
+    (from ``uv``, or the residual-bearing points); raises :class:`InputError` if neither."""
+    if cal.image_size is not None:
+        return tuple(cal.image_size)
+    if uv is not None and np.isfinite(uv).any():
+        w, h = np.nanmax(uv.reshape(-1, 2), axis=0)
+        return int(np.floor(w)) + 1, int(np.floor(h)) + 1
+    raise InputError("the image size is unknown (give --image-size WIDTHxHEIGHT, or images): "
+                     "camera.yaml, camera_info.yaml and COLMAP need it")
+
+
+def _opencv_matrix(name: str, a: np.ndarray) -> str:
+    a = np.atleast_2d(np.asarray(a, dtype=float))
+    data = ", ".join(repr(float(x)) for x in a.ravel())
+    return f"{name}: !!opencv-matrix\n   rows: {a.shape[0]}\n   cols: {a.shape[1]}\n   dt: d\n   data: [ {data} ]\n"
+
+
+def write_opencv_yaml(cal, path, image_size) -> Path:
+    """``camera.yaml`` in OpenCV FileStorage form: ``image_width``, ``image_height``,
+    ``camera_matrix``, ``distortion_coefficients`` (the five OpenCV coefficients),
+    ``R_cam_world`` (world -> camera), ``distortion_model`` (transcalib's name)."""
+    w, h = image_size
+    text = ("%YAML:1.0\n---\n"
+            f"image_width: {int(w)}\nimage_height: {int(h)}\n"
+            + _opencv_matrix("camera_matrix", cal.K)
+            + _opencv_matrix("distortion_coefficients", cal.dist_opencv[None, :])
+            + _opencv_matrix("R_cam_world", cal.R)
+            + f'distortion_model: "{cal.dist_model}"\n')
+    with atomic_write(path, encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def _ros_matrix(name: str, a: np.ndarray) -> str:
+    a = np.atleast_2d(np.asarray(a, dtype=float))
+    data = ", ".join(repr(float(x)) for x in a.ravel())
+    return f"{name}:\n  rows: {a.shape[0]}\n  cols: {a.shape[1]}\n  data: [{data}]\n"
+
+
+def write_ros_camera_info(cal, path, image_size, camera_name: str = "camera") -> Path:
+    """``camera_info.yaml`` as ROS ``camera_calibration_parsers`` writes it
+    (``distortion_model: plumb_bob``, identity rectification, ``P = [K | 0]``)."""
+    w, h = image_size
+    P = np.hstack([cal.K, np.zeros((3, 1))])
+    text = (f"image_width: {int(w)}\nimage_height: {int(h)}\ncamera_name: {camera_name}\n"
+            + _ros_matrix("camera_matrix", cal.K)
+            + "distortion_model: plumb_bob\n"
+            + _ros_matrix("distortion_coefficients", cal.dist_opencv[None, :])
+            + _ros_matrix("rectification_matrix", np.eye(3))
+            + _ros_matrix("projection_matrix", P))
+    with atomic_write(path, encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def _colmap_camera(cal, image_size) -> str:
+    """``cameras.txt`` line: PINHOLE, OPENCV or FULL_OPENCV (COLMAP's pixel centres)."""
+    fx, fy, cx, cy = cal.K[0, 0], cal.K[1, 1], cal.K[0, 2] + 0.5, cal.K[1, 2] + 0.5
+    k1, k2, p1, p2, k3 = cal.dist_opencv
+    if not np.any(cal.dist_opencv):
+        model, params = "PINHOLE", [fx, fy, cx, cy]
+    elif k3 == 0:
+        model, params = "OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2]
+    else:
+        model, params = "FULL_OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
+    w, h = image_size
+    return f"1 {model} {int(w)} {int(h)} " + " ".join(repr(float(p)) for p in params) + "\n"
+
+
+def _text(values):
+    """Arrow strings of a numpy column (shortest round-trip form of floats), or the
+    Arrow string column itself."""
+    import pyarrow as pa
+
+    if isinstance(values, pa.Array):
+        return values
+    return pa.array(np.asarray(values)).cast(pa.string())
+
+
+def _join(columns, sep: str = " "):
+    """Element-wise join of columns into lines (nulls skipped): no Python loop per row."""
+    import pyarrow.compute as pc
+
+    return pc.binary_join_element_wise(*[_text(c) for c in columns], sep, null_handling="skip")
+
+
+def _one_line(array) -> str:
+    """The strings of an Arrow ``array`` joined by spaces, in Arrow."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if not len(array):
+        return ""
+    lists = pa.ListArray.from_arrays(pa.array([0, len(array)], pa.int32()), array)
+    return pc.binary_join(lists, " ")[0].as_py()
+
+
+#: Points formatted at a time by the COLMAP writer (bounds its memory at any n).
+CHUNK = 200_000
+
+
+def _chunks(n: int):
+    return (slice(a, min(a + CHUNK, n)) for a in range(0, max(n, 1), CHUNK))
+
+
+def _write_images(path, cal, uv, seen, pid, names) -> np.ndarray:
+    """``images.txt``: pose line and POINTS2D line per view; returns the index of each
+    observation in its image's POINTS2D list ``(n_views, n_points)``."""
+    from scipy.spatial.transform import Rotation
+
+    n_views, n_points = seen.shape
+    qx, qy, qz, qw = (float(q) for q in Rotation.from_matrix(cal.R).as_quat())
+    idx2d = np.zeros((n_views, n_points), dtype=np.int64)
+    with atomic_write(path, encoding="utf-8", newline="\n") as fh:
+        fh.write(f"# Image list with two lines of data per image; {n_views} images\n")
+        for i in range(n_views):  # a loop over views, then chunks of points
+            cols = np.flatnonzero(seen[i])
+            idx2d[i, cols] = np.arange(cols.size)
+            t = (-cal.R @ cal.T[i]).tolist()
+            fh.write(f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {names[i]}\n")
+            pieces = (_one_line(_join([uv[i, c, 0] + 0.5, uv[i, c, 1] + 0.5, pid[c]]))
+                      for c in (cols[s] for s in _chunks(cols.size)))
+            fh.write(" ".join(p for p in pieces if p) + "\n")
+    return idx2d
+
+
+def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> list[Path]:
+    """A COLMAP text model (``cameras.txt``, ``images.txt``, ``points3D.txt``) in ``folder``.
+
+    Each view is an image with pose ``x_c = R x_w + t``, ``t = -R T_i`` (COLMAP's world to
+    camera); the reconstructed points are the 3-D points, with their observations in
+    ``uv (n_views, n_points, 2)`` as tracks and the RMS reprojection error as ``ERROR``.
+    Lines are formatted by Arrow, :data:`CHUNK` points at a time.
+    """
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.csv as pcsv
+
+    if uv is None:
+        raise InputError("the COLMAP export needs the observations uv")
+    folder = Path(folder)
+    n_views, n_points = uv.shape[:2]
+    names = list(view_names) if view_names is not None else [f"view{i:03d}.png" for i in range(n_views)]
+    ok = np.isfinite(cal.X[:, 0])
+    seen = np.isfinite(uv[..., 0]) & ok[None, :]          # observations that join a 3-D point
+    pid = np.cumsum(ok)                                     # COLMAP point ids 1..n_ok
+    out = [folder / "cameras.txt", folder / "images.txt", folder / "points3D.txt"]
+    with atomic_write(out[0], encoding="utf-8", newline="\n") as fh:
+        fh.write("# Camera list with one line of data per camera\n" + _colmap_camera(cal, image_size))
+    idx2d = _write_images(out[1], cal, uv, seen, pid, names)
+    r2 = np.where(seen, np.sum(np.nan_to_num(cal.residuals_px) ** 2, axis=2), 0.0)
+    err = np.sqrt(r2.sum(axis=0) / np.maximum(seen.sum(axis=0), 1))
+    rgb = np.full((n_points, 3), 128, dtype=np.int64) if colors is None else np.asarray(colors, dtype=np.int64)
+    j_all = np.flatnonzero(ok)
+    opts = pcsv.WriteOptions(include_header=False, quoting_style="none")
+    with atomic_write(out[2], "wb") as fh:
+        fh.write(f"# 3D point list; {j_all.size} points\n".encode())
+        for sl in _chunks(j_all.size):
+            j = j_all[sl]
+            if not j.size:
+                continue
+            # the track: "IMAGE_ID POINT2D_IDX" per view that sees the point (null: skipped)
+            track = [pc.if_else(pa.array(seen[i, j]), _join([np.full(j.size, i + 1), idx2d[i, j]]), None)
+                     for i in range(n_views)]
+            lines = _join([pid[j], cal.X[j, 0], cal.X[j, 1], cal.X[j, 2], rgb[j, 0], rgb[j, 1], rgb[j, 2], err[j],
+                           *track])
+            pcsv.write_csv(pa.table({"line": lines}), fh, write_options=opts)
+    return out
+
+
+def write_ply(cal, path, colors=None) -> Path:
+    """``points.ply`` (binary little endian): the reconstructed points' ``x, y, z`` (double,
+    user units), ``red, green, blue`` (uchar, when ``colors (n_points, 3)`` is given) and
+    their standard deviations ``sx, sy, sz`` (float, when known)."""
+    ok = np.isfinite(cal.X[:, 0])
+    dtype = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    if colors is not None:
+        dtype += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if cal.X_std is not None:
+        dtype += [("sx", "<f4"), ("sy", "<f4"), ("sz", "<f4")]
+    v = np.empty(int(ok.sum()), dtype=dtype)
+    v["x"], v["y"], v["z"] = cal.X[ok].T
+    if colors is not None:
+        c = np.asarray(colors)[ok]
+        v["red"], v["green"], v["blue"] = c[:, 0], c[:, 1], c[:, 2]
+    if cal.X_std is not None:
+        v["sx"], v["sy"], v["sz"] = cal.X_std[ok].T
+    types = {"<f8": "double", "u1": "uchar", "<f4": "float"}
+    header = ["ply", "format binary_little_endian 1.0", "comment written by transcalib",
+              f"element vertex {v.size}"] + [f"property {types[t]} {n}" for n, t in dtype] + ["end_header", ""]
+    with atomic_write(path, "wb") as fh:
+        fh.write("\n".join(header).encode("ascii"))
+        fh.write(v.tobytes())
+    return Path(path)
+
+
+def _write_json(cal, folder, ids, ctx):
+    from .calibration_file import save_calibration
+
+    return save_calibration(cal, folder, point_ids=ids, inputs=ctx.inputs)
+
+
+def _write_csv(cal, folder, ids):
+    from .tables import write_points_csv
+
+    write_points_csv(folder / "points.csv", ids, cal.X, cal.X_std, cal.inliers)
+    return [folder / "points.csv"]
+
+
+def _write_report(cal, folder, ids, ctx):
+    from ..report import write_report
+
+    return write_report(cal, folder, uv=ctx.uv, truth=ctx.truth, point_ids=ids)
+
+
+def export_calibration(cal, folder, formats=DEFAULT_FORMATS, context: ExportContext | None = None, *,
+                       timings: dict | None = None) -> list[Path]:
+    """Write ``cal`` to ``folder`` in each of ``formats`` (``Calibration.export``).
+
+    Parameters
+    ----------
+    cal : Calibration
+    folder : path-like
+        Output folder, created if missing.
+    formats : sequence of str
+        Any of :data:`FORMATS` (default: all); ``"all"`` means all.
+    context : ExportContext, optional
+        Point ids, image names, colours, observations, truth (what the calibration does
+        not hold). The COLMAP export needs ``uv``.
+    timings : dict, optional
+        Filled with the seconds each format took (``"json_s"``, ...).
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    formats = FORMATS if formats == "all" or formats == ("all",) else tuple(formats)
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise InputError(f"unknown export format(s) {', '.join(unknown)}; expected some of {', '.join(FORMATS)}")
+    ctx = context or ExportContext()
+    folder = Path(folder)
+    ids = ctx.point_ids if ctx.point_ids is not None else [str(k) for k in range(cal.n_points)]
+    written = []
+    needs_size = {"opencv", "ros", "colmap"} & set(formats)
+    size = image_size_or_extent(cal, ctx.uv) if needs_size else None
+    writers = {
+        "json": lambda: _write_json(cal, folder, ids, ctx),
+        "csv": lambda: _write_csv(cal, folder, ids),
+        "opencv": lambda: [write_opencv_yaml(cal, folder / "camera.yaml", size)],
+        "ros": lambda: [write_ros_camera_info(cal, folder / "camera_info.yaml", size, ctx.camera_name)],
+        "colmap": lambda: write_colmap(cal, folder / "colmap", size, ctx.uv, ctx.view_names, ctx.colors),
+        "ply": lambda: [write_ply(cal, folder / "points.ply", ctx.colors)],
+        "report": lambda: _write_report(cal, folder, ids, ctx),
+    }
+    for name in FORMATS:  # a fixed order: the JSON first
+        if name in formats:
+            t0 = time.perf_counter()
+            written += list(writers[name]())
+            if timings is not None:
+                timings[f"{name}_s"] = time.perf_counter() - t0
+    return written

@@ -1,0 +1,149 @@
+"""The calibration report: ``report.html`` (one self-contained file) and its figures as PNG.
+
+:func:`write_report` writes ``report.html`` with the parameters and their uncertainty,
+every diagnostic, the residuals (arrows per view and histogram), the reconstruction
+(front and oblique, with the camera positions), the projection-uncertainty map and, for
+simulated input, the errors against the truth. Figures are embedded as base64 PNG and
+also written to ``figures/``. No scripts, no external resources: the page opens offline.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..io.files import atomic_write
+
+__all__ = ["write_report", "FIGURES"]
+
+#: Figure files, in report order.
+FIGURES = ("residuals.png", "residual_histogram.png", "reconstruction.png", "uncertainty.png", "truth_errors.png")
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _row(name, value, std=None, truth=None, unit="") -> str:
+    def f(x):
+        return "" if x is None or not np.isfinite(x) else f"{x:.6g}"
+
+    err = "" if truth is None else f(value - truth)
+    return (f"<tr><td>{html.escape(name)}</td><td>{f(value)}</td><td>{f(std)}</td><td>{f(truth)}</td>"
+            f"<td>{err}</td><td>{html.escape(unit)}</td></tr>")
+
+
+def _parameters(cal, truth) -> str:
+    cam = cal.camera
+    K = cam.K
+    Kt = None if truth is None else np.asarray(truth["K"], float)
+    rows = []
+    for name, (a, b) in {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2), "skew": (0, 1)}.items():
+        rows.append(_row(name, K[a, b], cal.std.get(name), None if Kt is None else Kt[a, b], "px"))
+    from ..geometry.camera import DIST_MODELS
+
+    dt = None if truth is None else np.resize(np.asarray(truth.get("dist", []), float), 5)
+    for k, name in enumerate(("k1", "k2", "p1", "p2", "k3")):
+        if name in DIST_MODELS[cam.dist_model]:
+            rows.append(_row(name, cam.dist5[k], cal.std.get(name), None if dt is None else dt[k]))
+    for name in ("rx", "ry", "rz"):
+        if name in cal.std:
+            rows.append(_row(f"rotation {name}", None, cal.std[name], unit="deg"))
+    rows.append(_row("RMS reprojection", cal.rms_px, unit="px"))
+    if cal.sigma_px is not None:
+        rows.append(_row("pixel noise sigma", cal.sigma_px, unit="px per coordinate"))
+    R = "<br>".join(" ".join(f"{x:+.6f}" for x in r) for r in cam.R)
+    extra = ""
+    if truth is not None and "R" in truth:
+        from ..geometry.rotation import rotation_angle_deg
+
+        extra = f"<p>Angle between R and the true R: {rotation_angle_deg(cam.R @ np.asarray(truth['R']).T):.4g} deg</p>"
+    head = "<tr><th>parameter</th><th>value</th><th>std</th><th>truth</th><th>error</th><th>unit</th></tr>"
+    return (f"<table>{head}{''.join(rows)}</table>"
+            f"<p>Distortion model: <code>{html.escape(cam.dist_model)}</code>; image size: "
+            f"{'unknown' if cam.image_size is None else '%d x %d px' % cam.image_size}</p>"
+            f"<p>R (robot frame &rarr; camera frame):</p><pre>{R}</pre>{extra}")
+
+
+def _diagnostics(cal) -> str:
+    if not cal.diagnostics:
+        return "<p class='ok'>No warnings: every check passed.</p>"
+    items = "".join(f"<li><code>{html.escape(getattr(d, 'code', ''))}</code> {html.escape(str(d))}</li>"
+                    for d in cal.diagnostics)
+    return f"<ul class='warn'>{items}</ul>"
+
+
+def _figures(cal, uv, truth, point_ids, unit) -> dict:
+    from . import figures as F
+
+    out = {"residuals.png": ("Residuals per view", F.residual_arrows(cal, uv)),
+           "residual_histogram.png": ("Residual histogram", F.residual_histogram(cal)),
+           "reconstruction.png": ("Reconstruction", F.reconstruction(cal, unit)),
+           "uncertainty.png": ("Projection uncertainty", F.uncertainty_map(cal, uv))}
+    if truth is not None:
+        out["truth_errors.png"] = ("Errors against the truth", F.truth_errors(cal, truth, point_ids, unit))
+    return {name: (title, _png(fig)) for name, (title, fig) in out.items()}
+
+
+_CSS = ("body{font-family:sans-serif;max-width:1150px;margin:2em auto;color:#222}"
+        "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}"
+        "img{max-width:100%;border:1px solid #eee}.warn li{color:#a40}.ok{color:#080}")
+
+
+def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report") -> list:
+    """Write ``folder/report.html`` and ``folder/figures/*.png``.
+
+    Parameters
+    ----------
+    cal : Calibration
+    folder : path-like
+    uv : (n_views, n_points, 2) float, optional
+        The observations (default: prediction + residual).
+    truth : dict, optional
+        ``truth.json`` of a simulated scene: adds the errors against the truth.
+    point_ids : sequence of str (n_points), optional
+        Ids of the points; simulated ids index ``truth["points"]``.
+
+    Returns
+    -------
+    list of Path
+        ``report.html`` and the PNG files.
+    """
+    folder = Path(folder)
+    unit = cal.options.unit if getattr(cal, "options", None) is not None else "units"
+    if uv is None:
+        from .figures import observed_pixels
+
+        uv = observed_pixels(cal)  # once, for every figure
+    figs = _figures(cal, uv, truth, point_ids, unit)
+    written = []
+    for name, (_, png) in figs.items():
+        with atomic_write(folder / "figures" / name, "wb") as fh:
+            fh.write(png)
+        written.append(folder / "figures" / name)
+    from ..io.files import software_version
+
+    sections = [f"<h1>{html.escape(title)}</h1>",
+                f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
+                f"stages {html.escape(' → '.join(cal.info.get('stages', [])))}; transcalib {software_version()}; "
+                f"{time.strftime('%Y-%m-%d %H:%M')}</p>",
+                "<h2>Parameters</h2>", _parameters(cal, truth), "<h2>Diagnostics</h2>", _diagnostics(cal)]
+    for name, (fig_title, png) in figs.items():
+        data = base64.b64encode(png).decode("ascii")
+        sections.append(f"<h2>{html.escape(fig_title)}</h2><img alt='{html.escape(fig_title)}' "
+                        f"src='data:image/png;base64,{data}'>")
+    page = (f"<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{_CSS}</style></head><body>\n" + "\n".join(sections) + "\n</body></html>\n")
+    with atomic_write(folder / "report.html", encoding="utf-8", newline="\n") as fh:
+        fh.write(page)
+    return [folder / "report.html"] + written

@@ -1,0 +1,132 @@
+"""Every export read back by its real consumer (cv2, PyYAML as ROS reads it, pycolmap,
+plyfile), values compared with the calibration."""
+
+import numpy as np
+import pytest
+
+from transcalib.io import export
+from transcalib.io.export import ExportContext, export_calibration
+
+from test_io import full_calibration
+
+
+@pytest.fixture(scope="module")
+def cal():
+    return full_calibration(n_points=60, n_views=5, seed=1)
+
+
+@pytest.fixture(scope="module")
+def uv(cal):
+    """Observations consistent with the calibration: projections plus the residuals."""
+    from transcalib.geometry.camera import project
+
+    uv = project(cal.K, cal.R, np.nan_to_num(cal.X), cal.T, cal.dist) + np.nan_to_num(cal.residuals_px)
+    uv[np.isnan(cal.residuals_px)] = np.nan
+    uv[2, :10] = np.nan  # some points unseen in view 2
+    return uv
+
+
+def test_opencv_yaml_read_by_cv2(cal, tmp_path):
+    import cv2
+
+    export.write_opencv_yaml(cal, tmp_path / "camera.yaml", (640, 480))
+    fs = cv2.FileStorage(str(tmp_path / "camera.yaml"), cv2.FILE_STORAGE_READ)
+    assert fs.isOpened()
+    np.testing.assert_array_equal(fs.getNode("camera_matrix").mat(), cal.K)
+    np.testing.assert_array_equal(fs.getNode("distortion_coefficients").mat().ravel(), cal.dist_opencv)
+    np.testing.assert_array_equal(fs.getNode("R_cam_world").mat(), cal.R)
+    assert fs.getNode("image_width").real() == 640 and fs.getNode("image_height").real() == 480
+    assert fs.getNode("distortion_model").string() == "radial2"
+    fs.release()
+
+
+def test_ros_camera_info(cal, tmp_path):
+    import yaml
+
+    export.write_ros_camera_info(cal, tmp_path / "camera_info.yaml", (640, 480), "wrist")
+    d = yaml.safe_load((tmp_path / "camera_info.yaml").read_text())
+    assert d["image_width"] == 640 and d["image_height"] == 480 and d["camera_name"] == "wrist"
+    assert d["distortion_model"] == "plumb_bob"
+    np.testing.assert_array_equal(np.reshape(d["camera_matrix"]["data"], (3, 3)), cal.K)
+    np.testing.assert_array_equal(d["distortion_coefficients"]["data"], cal.dist_opencv)
+    np.testing.assert_array_equal(np.reshape(d["rectification_matrix"]["data"], (3, 3)), np.eye(3))
+    P = np.reshape(d["projection_matrix"]["data"], (3, 4))
+    np.testing.assert_array_equal(P[:, :3], cal.K)
+    assert d["projection_matrix"]["rows"] == 3 and d["projection_matrix"]["cols"] == 4
+
+
+def test_colmap_model_read_by_pycolmap(cal, uv, tmp_path):
+    import pycolmap
+
+    export.write_colmap(cal, tmp_path, (640, 480), uv, view_names=[f"im{i}.png" for i in range(5)])
+    rec = pycolmap.Reconstruction(str(tmp_path))
+    assert rec.num_cameras() == 1 and rec.num_images() == 5
+    ok = np.isfinite(cal.X[:, 0])
+    assert rec.num_points3D() == ok.sum()
+    cam = rec.cameras[1]
+    assert cam.model.name == "OPENCV" and (cam.width, cam.height) == (640, 480)
+    np.testing.assert_allclose(cam.params[:4], [cal.K[0, 0], cal.K[1, 1], cal.K[0, 2] + 0.5, cal.K[1, 2] + 0.5])
+    np.testing.assert_allclose(cam.params[4:6], cal.dist)
+    X_ok = cal.X[ok]
+    for image_id, image in rec.images.items():
+        i = image_id - 1
+        assert image.name == f"im{i}.png"
+        pose = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
+        M = pose.matrix()
+        np.testing.assert_allclose(M[:, :3], cal.R, atol=1e-12)
+        np.testing.assert_allclose(M[:, 3], -cal.R @ cal.T[i], atol=1e-9)
+        # COLMAP projects its own points with its own camera onto the observations
+        seen = np.isfinite(uv[i, :, 0]) & ok
+        assert len(image.points2D) == seen.sum()
+        xy = np.array([p.xy for p in image.points2D])
+        np.testing.assert_allclose(xy - 0.5, uv[i, seen], atol=1e-9)
+        ids = [p.point3D_id for p in image.points2D]
+        X_col = np.array([rec.points3D[k].xyz for k in ids])
+        np.testing.assert_allclose(X_col, cal.X[seen], atol=1e-12)
+        proj = np.array([cam.img_from_cam(M[:, :3] @ x + M[:, 3]) for x in X_col])
+        from transcalib.geometry.camera import project
+
+        ours = project(cal.K, cal.R, X_col, cal.T[i:i + 1], cal.dist)[0]
+        np.testing.assert_allclose(proj - 0.5, ours, atol=1e-6)
+    assert len(rec.points3D[1].track.elements) == np.isfinite(uv[:, np.flatnonzero(ok)[0], 0]).sum()
+    del X_ok
+
+
+def test_ply_read_by_plyfile(cal, tmp_path):
+    from plyfile import PlyData
+
+    colors = np.random.default_rng(0).integers(0, 256, (cal.n_points, 3)).astype(np.uint8)
+    export.write_ply(cal, tmp_path / "points.ply", colors)
+    v = PlyData.read(str(tmp_path / "points.ply"))["vertex"]
+    ok = np.isfinite(cal.X[:, 0])
+    np.testing.assert_array_equal(np.column_stack([v["x"], v["y"], v["z"]]), cal.X[ok])
+    np.testing.assert_array_equal(np.column_stack([v["red"], v["green"], v["blue"]]), colors[ok])
+    np.testing.assert_allclose(np.column_stack([v["sx"], v["sy"], v["sz"]]), cal.X_std[ok], rtol=1e-6)
+
+
+def test_export_all_and_errors(cal, uv, tmp_path):
+    from transcalib.io.calibration_file import load_calibration
+
+    fmts = [f for f in export.FORMATS if f != "report"]
+    written = export_calibration(cal, tmp_path, fmts, ExportContext(uv=uv))
+    names = sorted(str(p.relative_to(tmp_path)) for p in written)
+    assert names == sorted(["calibration.json", "arrays.npz", "points.csv", "camera.yaml", "camera_info.yaml",
+                            "colmap/cameras.txt", "colmap/images.txt", "colmap/points3D.txt", "points.ply"])
+    assert load_calibration(tmp_path) == cal
+    from transcalib.errors import InputError
+    with pytest.raises(InputError, match="unknown export format"):
+        export_calibration(cal, tmp_path, ["opencv", "matlab"])
+    from dataclasses import replace
+    no_size = replace(cal, camera=replace(cal.camera, image_size=None))
+    with pytest.raises(InputError, match="image size is unknown"):
+        export_calibration(no_size, tmp_path / "x", ["opencv"])
+    assert export.image_size_or_extent(no_size, np.array([[[639.4, 10.0]], [[5.0, 479.6]]])) == (640, 480)
+
+
+def test_colmap_in_chunks_reads_back_the_same(cal, uv, tmp_path, monkeypatch):
+    """Formatting a few points at a time (as at 10^6 points) writes the same model."""
+    export.write_colmap(cal, tmp_path / "one", (640, 480), uv)
+    monkeypatch.setattr(export, "CHUNK", 7)
+    export.write_colmap(cal, tmp_path / "many", (640, 480), uv)
+    for name in ("cameras.txt", "images.txt", "points3D.txt"):
+        assert (tmp_path / "one" / name).read_text() == (tmp_path / "many" / name).read_text(), name

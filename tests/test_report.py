@@ -1,0 +1,80 @@
+"""The report opens in a real (headless) browser: the page loads, every figure decodes,
+no console error; figures are also PNG files on disk."""
+
+import os
+
+import numpy as np
+import pytest
+
+import browser
+from test_io import full_calibration
+
+needs_chromium = pytest.mark.skipif(
+    browser.chromium() is None and not os.environ.get("CI"),
+    reason="chromium not installed (make test installs it; CI requires it)")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    from transcalib.report import write_report
+
+    cal = full_calibration(n_points=300)
+    folder = tmp_path_factory.mktemp("report")
+    truth = {"K": (cal.K * 1.0005).tolist(), "R": cal.R.tolist(), "dist": [0.0, 0.0], "points": cal.X.tolist()}
+    written = write_report(cal, folder, truth=truth, point_ids=[str(k) for k in range(cal.n_points)])
+    return folder, written
+
+
+def test_report_files(report):
+    import cv2
+
+    folder, written = report
+    from transcalib.report import FIGURES
+
+    assert [p.name for p in written] == ["report.html", *FIGURES]
+    for p in written[1:]:
+        img = cv2.imread(str(p))
+        assert img is not None and img.shape[0] > 100 and img.shape[1] > 100, p
+    page = (folder / "report.html").read_text()
+    assert "<script" not in page and "http" not in page.split("</style>")[0]  # self-contained
+    for word in ("fx", "cy", "k2", "few_points", "only 40 points", "truth"):
+        assert word in page, word
+
+
+@needs_chromium
+def test_report_loads_in_browser(report):
+    folder, written = report
+    shown = browser.inspect(folder / "report.html")
+    assert shown["title"] == "transcalib report"
+    assert len(shown["images"]) == len(written) - 1
+    assert all(src.startswith("data:image/png") and complete and width > 0
+               for src, complete, width in shown["images"]), shown["images"]
+    assert shown["errors"] == []
+
+
+@needs_chromium
+def test_browser_check_can_fail(tmp_path):
+    """The harness sees a broken image and a console error (so the test above can fail)."""
+    page = tmp_path / "bad.html"
+    page.write_text("<html><body><img src='data:image/png;base64,AAAA'>"
+                    "<script>console.error('boom')</script></body></html>")
+    shown = browser.inspect(page)
+    assert shown["images"][0][2] == 0 and "boom" in shown["errors"]
+
+
+def test_uncertainty_grows_away_from_the_centre():
+    """The projection-uncertainty map is smallest near the principal point when only the
+    focal length is uncertain (std grows linearly with the distance to cx, cy)."""
+    from dataclasses import replace
+
+    from transcalib.report.figures import projection_std
+
+    cal = full_calibration()
+    cov = np.zeros((8, 8))
+    cov[0, 0] = 4.0  # fx only: std 2 px of focal length
+    cal = replace(cal, cov=cov)
+    u, v, std = projection_std(cal)
+    iu, iv = np.argmin(abs(u - cal.K[0, 2])), np.argmin(abs(v - cal.K[1, 2]))
+    assert std[iv, iu] < 0.05 * std.max()
+    x = (u[-1] - cal.K[0, 2]) / cal.K[0, 0]  # du = x dfx at the right edge (ignoring distortion)
+    assert abs(std[iv, -1] - 2.0 * abs(x)) < 0.2 * 2.0 * abs(x)
