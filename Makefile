@@ -20,6 +20,14 @@ demo: $(STAMP)
 	@echo "== 2. From images: 5 rendered views at known translations, tracked, calibrated =="
 	$(BIN)/transcalib calibrate --images examples/images/view*.png --poses examples/images/poses.csv \
 		--unit mm --out out/demo-images --truth examples/images/truth.json
+	@echo
+	@echo "== 3. Two sessions (2-axis moves at two wrist orientations): full K, R_X and 2 of 3 components of t_X =="
+	$(BIN)/transcalib calibrate --images examples/sessions2/view*.png --poses examples/sessions2/poses.csv \
+		--unit mm --out out/demo-sessions2 --truth examples/sessions2/truth.json
+	@echo
+	@echo "== 4. Three sessions: K and the full camera-to-flange transform, no target =="
+	$(BIN)/transcalib calibrate --images examples/sessions3/view*.png --poses examples/sessions3/poses.csv \
+		--unit mm --out out/demo-sessions3 --truth examples/sessions3/truth.json
 
 test: $(STAMP) chromium
 	$(BIN)/python -m pytest -q

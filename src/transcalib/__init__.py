@@ -35,6 +35,7 @@ _LAZY = {
     "RobustEstimate": (".estimate.robust", "RobustEstimate"),
     "refine": (".estimate.refine", "refine"),
     "calibrate_sessions": (".handeye.calibrate", "calibrate_sessions"),
+    "load": (".io.calibration_file", "load_calibration"),
     "crlb": (".estimate.covariance", "crlb"),
     "diagnose": (".check", "diagnose"),
     "track": (".images", "track"),

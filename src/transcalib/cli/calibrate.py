@@ -26,7 +26,15 @@ def add_parser(sub) -> None:
     src = c.add_mutually_exclusive_group(required=True)
     src.add_argument("--tracks", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
     src.add_argument("--images", nargs="+", metavar="IMAGE", help="images in view order (or named in poses.csv)")
-    c.add_argument("--poses", required=True, help="poses.csv: view,x,y,z[,qx,qy,qz,qw][,image]")
+    c.add_argument("--poses", required=True,
+                   help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]; orientations that "
+                        "vary between sessions select the hand-eye (several sessions) model")
+    c.add_argument("--rotation-format", default="quaternion",
+                   choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
+                   help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
+                        "or a,b,c (KUKA Z-Y-X Euler, degrees); default quaternion")
+    c.add_argument("--session-tolerance-deg", type=positive_float, default=1.0,
+                   help="views whose orientations differ by less than this form one session (default 1 deg)")
     c.add_argument("--out", required=True, help="output folder (created if missing)")
     c.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
     c.add_argument("--image-size", type=image_size, metavar="WxH",
@@ -149,7 +157,9 @@ def check_all(args) -> dict:
     plan["truth"] = read_truth(args.truth) if args.truth else None
     if args.tracks:
         plan["tracks"] = existing_file("--tracks", args.tracks)
-    poses = read_poses(existing_file("--poses", args.poses))
+    poses_path = existing_file("--poses", args.poses)
+    plan["sessions"] = _sessions(args, poses_path)
+    poses = read_poses(poses_path) if plan["sessions"] is None else plan["sessions"].as_poses()
     plan["poses"] = poses
     size = args.image_size
     if args.images:
@@ -164,6 +174,35 @@ def check_all(args) -> dict:
     plan["image_size"] = size
     plan["options"] = build_options(args, size)
     return plan
+
+
+def _sessions(args, path: Path):
+    """The robot poses with orientation when they vary between sessions (the hand-eye
+    model), else None."""
+    from ..handeye.poses import read_robot_poses
+
+    header = path.read_text(encoding="utf-8-sig").split("\n", 1)[0].lower() if path.suffix != ".json" else ""
+    columns = {"quaternion": "qw", "rotvec": "rx", "ur": "rx", "euler_zyx": "a", "kuka": "a"}[args.rotation_format]
+    if path.suffix != ".json" and columns not in [c.strip() for c in header.split(",")]:
+        return None
+    unit = args.unit if args.unit in ("mm", "m") else "mm"
+    poses = read_robot_poses(path, rotation_format=args.rotation_format, unit=unit)
+    return _SessionPoses(poses, args.session_tolerance_deg) if poses.varying_orientation(
+        args.session_tolerance_deg) else None
+
+
+class _SessionPoses:
+    """Poses of several sessions: the robot poses and their grouping."""
+
+    def __init__(self, poses, tolerance_deg: float):
+        self.poses, self.tolerance_deg = poses, tolerance_deg
+        self.grouping = poses.sessions(tolerance_deg)
+
+    def as_poses(self):
+        from ..io.tables import Poses
+
+        p = self.poses
+        return Poses(views=list(p.views), T=p.T, quaternions=None, images=p.images)
 
 
 def _image_size_of(path: Path) -> tuple[int, int]:
@@ -191,15 +230,21 @@ def _order_images(images: list[Path], poses) -> list[Path]:
 # --------------------------------------------------------------------------------------
 
 
-def track_images(images, target, progress: Progress):
-    """Tracks from images: ``target="squares"`` finds the corners of dark squares."""
+def track_images(images, target, progress: Progress, T=None, sessions=None):
+    """Tracks from images: ``target="squares"`` finds the corners of dark squares; with
+    the robot translations ``T`` the epipoles are checked against them; several
+    ``sessions`` are tracked each alone and linked."""
+    if sessions is not None:
+        from ..images import track_sessions
+
+        return track_sessions([str(p) for p in images], sessions.grouping.session_of_view, T=T)
     if target == "squares":
         from ..images import track_squares
 
         return track_squares([str(p) for p in images], progress=progress.step)
     from ..images import track
 
-    return track([str(p) for p in images], progress=progress.step)
+    return track([str(p) for p in images], progress=progress.step, T=T)
 
 
 def _observations(args, plan, progress: Progress):
@@ -209,7 +254,7 @@ def _observations(args, plan, progress: Progress):
     poses = plan["poses"]
     if args.images:
         progress.log(f"tracking {len(plan['images'])} images ...")
-        tracks = track_images(plan["images"], args.target, progress)
+        tracks = track_images(plan["images"], args.target, progress, T=poses.T, sessions=plan["sessions"])
         ids = [str(i) for i in tracks.ids]
         tio.write_tracks_csv(plan["out"] / "tracks.csv", tracks.uv, ids, poses.views)
         return tracks.uv, ids, tracks.colors, [p.name for p in plan["images"]]
@@ -225,6 +270,7 @@ def run(args) -> int:
 
     from ..io.export import ExportContext, export_calibration
     from ..pipeline import calibrate
+    from .handeye import calibrate_hand_eye, hand_eye_text, write_hand_eye
     from .summary import summary_json, summary_text
 
     t_read = time.perf_counter()
@@ -233,9 +279,14 @@ def run(args) -> int:
     opts = plan["options"]
     memory = {"after_read": _peak_rss_gib()}
     t_cal = time.perf_counter()
-    cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
-                    refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
-                    image_size=plan["image_size"], unit=args.unit, rng=args.seed, progress=progress.stage)
+    hand_eye = None
+    if plan["sessions"] is not None:
+        hand_eye = calibrate_hand_eye(uv, plan, opts, args, progress)
+        cal = hand_eye.calibration
+    else:
+        cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
+                        refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
+                        image_size=plan["image_size"], unit=args.unit, rng=args.seed, progress=progress.stage)
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
@@ -246,6 +297,8 @@ def run(args) -> int:
                         truth=plan["truth"])
     write_timings = {}
     written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings)
+    if hand_eye is not None:
+        written += write_hand_eye(hand_eye, plan["out"], args.unit)
     if args.images:
         written.insert(0, plan["out"] / "tracks.csv")
     t_end = time.perf_counter()
@@ -262,6 +315,8 @@ def run(args) -> int:
         print_json(summary)
     else:
         print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
+        if hand_eye is not None:
+            print(hand_eye_text(hand_eye, args.unit, plan["truth"]))
         print(f"\nWrote {len(written)} files to {plan['out']} in {timings['total_s']:.2f} s "
               f"(checks and imports {timings['start_s']:.2f} s, read {timings['read_s']:.2f} s, "
               f"calibrate {timings['calibrate_s']:.2f} s, "

@@ -175,6 +175,8 @@ def _arrays(cal, point_ids) -> dict:
         arrays["inliers"] = np.asarray(cal.inliers)
     if cal.linear is not None:
         arrays.update(linear_X=cal.linear.X, linear_depth=cal.linear.depth, linear_used=np.asarray(cal.linear.used))
+        if cal.linear.static is not None:
+            arrays["linear_static"] = np.asarray(cal.linear.static)
     if point_ids is not None:
         ids = np.asarray([str(p) for p in point_ids])
         if ids.shape != (cal.n_points,):
@@ -288,7 +290,8 @@ def _linear(doc, arrays):
     return LinearEstimate(
         K=_matrix(lin["K"]), R=_matrix(lin["R"]), A=_matrix(lin["A"]), X=arrays["linear_X"],
         depth=arrays["linear_depth"], singular_values=_matrix(lin["singular_values"]),
-        n_used_points=int(lin["n_used_points"]), used=arrays["linear_used"], method=lin["method"])
+        n_used_points=int(lin["n_used_points"]), used=arrays["linear_used"], method=lin["method"],
+        static=arrays["linear_static"] if "linear_static" in arrays else None)
 
 
 def load_saved(path) -> Saved:

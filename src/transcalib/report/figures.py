@@ -170,7 +170,8 @@ def projection_std(cal, grid=(48, 36), uv=None) -> tuple[np.ndarray, np.ndarray,
     xc = np.moveaxis(rays * depth, -1, 0)  # (3, gh, gw)
     p = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc, jacobian=True)
     order = ("fx", "fy", "cx", "cy", "skew")
-    J = np.stack([p.J_intr[order.index(names[k])] if names[k] in order else p.J_dist[DIST_NAMES.index(names[k])]
+    J_intr = p.intrinsic_jacobian(np.eye(5))
+    J = np.stack([J_intr[order.index(names[k])] if names[k] in order else p.J_dist[DIST_NAMES.index(names[k])]
                   for k in idx], axis=-1)  # (2, gh, gw, p)
     S = cal.cov[np.ix_(idx, idx)]
     C = np.einsum("a...p,pq,b...q->...ab", J, S, J)  # (gh, gw, 2, 2)
