@@ -227,8 +227,9 @@ def _untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
     the largest ``alpha`` of the good tracks' errors, so ``sigma^2`` (and every variance
     scaled by it) comes out low by :func:`truncation_factor` (about 2 %)."""
     c = truncation_factor(k, alpha)
-    return replace(cal, sigma_px=cal.sigma_px / np.sqrt(c), cov=cal.cov / c,
-                   std={name: v / np.sqrt(c) for name, v in cal.std.items()}, X_std=cal.X_std / np.sqrt(c),
+    root = float(np.sqrt(c))
+    return replace(cal, sigma_px=float(cal.sigma_px / root), cov=cal.cov / c,
+                   std={name: float(v / root) for name, v in cal.std.items()}, X_std=cal.X_std / root,
                    info={**cal.info, "sigma_truncation_factor": c})
 
 

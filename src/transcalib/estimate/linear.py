@@ -301,9 +301,11 @@ def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=No
         good = mu
         converged = model.truncation(mu) <= tol
         model = _TaylorModel(arrow.E, mu, G)  # exact at mu
-        if converged:
-            break
         mu = model.root(0.0, hi)
+        if converged:  # the step from a validated mu is below the truncation tolerance
+            break
+    else:  # no convergence in the budget: the last exact model (below every pole) it is
+        mu = model.mu0
     w, v = np.linalg.eigh(model.S(mu))
     a = v[:, 0]
     return a, arrow.depths(mu, a), mu, w
