@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .check import diagnose
+from .check import diagnose, skipped
 from .errors import InputError
 from .estimate.coplanar import fit_coplanar, fit_coplanar_robust
 from .estimate.degeneracy import explain_span
@@ -118,7 +118,8 @@ def calibrate(
     timings = {}
     t0 = time.perf_counter()
     span = _explain_span(T, opts)  # degeneracy first: raises naming what the motion cannot determine
-    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify, coplanar=span is not None)
+    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify, coplanar=span is not None,
+                                                     image_size=image_size)
     timings[f"{stages[0]}_s"] = time.perf_counter() - t0
     if opts.refine:
         t1 = time.perf_counter()
@@ -136,6 +137,9 @@ def calibrate(
                      check_rotation=opts.check_rotation and opts.refine, unit=unit, robust=rob, all_uv=uv)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
+    if opts.check_rotation and not opts.refine:
+        found.append(skipped("rotation test (did the robot rotate between views?)",
+                             "it needs the refined calibration (refine=False, CLI --no-refine)"))
     result.diagnostics.extend(found)
     result.info["diagnostics_s"] = time.perf_counter() - t2
     notify("diagnostics", {"warnings": len(found)})
@@ -166,13 +170,29 @@ def _explain_span(T, opts: CalibrateOptions):
                         tol=COPLANAR_TOL)
 
 
-def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool = False):
+def _coplanar_start_fix(uv, fix, image_size) -> dict:
+    """Known parameters for the coplanar linear start: the user's, plus the image centre
+    as principal point when only the focal lengths are known (the refinement then frees
+    it again; the start needs one)."""
+    fix = dict(fix)
+    if "cx" not in fix or "cy" not in fix:
+        if image_size is not None:
+            centre = (0.5 * (image_size[0] - 1), 0.5 * (image_size[1] - 1))
+        else:  # the middle of the observed pixels
+            lo, hi = np.nanmin(uv, axis=(0, 1)), np.nanmax(uv, axis=(0, 1))
+            centre = tuple(0.5 * (lo + hi))
+        fix.setdefault("cx", float(centre[0]))
+        fix.setdefault("cy", float(centre[1]))
+    return fix
+
+
+def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool = False, image_size=None):
     """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages, robust
     estimate or None)``; coplanar translations take the known-parameter linear start."""
     n_tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
     robust = n_tracked >= ROBUST_MIN_POINTS if opts.robust is None else bool(opts.robust)
     if coplanar:
-        r = opts.refinement
+        r = replace(opts.refinement, fix=_coplanar_start_fix(uv, opts.refinement.fix, image_size))
         if robust:
             linear, inliers, sigma = fit_coplanar_robust(
                 uv, T, fix=r.fix, square_pixels=r.square_pixels, threshold_px=opts.ransac.threshold_px,

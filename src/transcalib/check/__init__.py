@@ -3,13 +3,14 @@
 Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
 stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
 and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
-:mod:`.points`, :mod:`.rotation`, :mod:`.poses`.
+:mod:`.points`, :mod:`.tracks`, :mod:`.rotation`, :mod:`.poses`.
 
 =========================  ==============================================================
 code                       meaning
 =========================  ==============================================================
 ``translations_coplanar``  the translations nearly lie in a plane (or on a line)
 ``translations_small``     the translations are tiny compared with the scene distance
+``translations_coplanar_known_params``  coplanar translations made identifiable by known parameters
 ``null_space_2d``          the linear system has a nearly two-dimensional null space
 ``points_behind_camera``   reconstructed points behind the camera in some view
 ``view_few_points``        views that see very few points
@@ -79,8 +80,9 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
     Returns
     -------
     list of Diagnostic
-        In the order: translations, null space, points behind, views, outliers, rotation,
-        poses; a ``check_skipped`` entry for each check that could not run.
+        In the order: translations, null space, points behind, tracks (parallax, inliers,
+        threshold, plausibility), views, outliers, rotation, poses; a ``check_skipped``
+        entry for each check that could not run.
     """
     uv, T = as_uv_T(uv, T)
     K, R, X = (np.asarray(a, float) for a in (calibration.K, calibration.R, calibration.X))

@@ -73,8 +73,10 @@ def translation_basis(T) -> tuple[np.ndarray, np.ndarray]:
     -------
     P : (3, 3) float
         Columns ``p1, p2, p3``: right singular vectors of ``T_i - T_mean`` (descending),
-        each signed so that its largest component is positive, and ``p3 = p1 x p2``
-        (so ``P`` is a rotation). With coplanar translations ``p3`` is the plane normal.
+        ``p1`` signed so that its largest component is positive, ``p3 = p1 x p2`` with its
+        largest component positive (``p2`` signed for that), so ``P`` is a rotation. With
+        coplanar translations ``p3`` is the plane normal (+z for an XY table); with
+        collinear ones ``p1`` is the line.
     s : (3,) float
         Singular values of ``T_i - T_0``, descending.
     """
@@ -84,9 +86,8 @@ def translation_basis(T) -> tuple[np.ndarray, np.ndarray]:
     for k in range(2):
         P[:, k] *= np.sign(P[np.argmax(np.abs(P[:, k])), k])
     P[:, 2] = np.cross(P[:, 0], P[:, 1])
-    if P[np.argmax(np.abs(P[:, 2])), 2] < 0:  # canonical normal (+z for an XY table): swap p1, p2
-        P = P[:, [1, 0, 2]]
-        P[:, 2] = -P[:, 2]
+    if P[np.argmax(np.abs(P[:, 2])), 2] < 0:  # canonical normal (+z for an XY table): flip p2
+        P[:, 1:] = -P[:, 1:]
     return P, translation_singular_values(T)
 
 

@@ -181,6 +181,10 @@ class _Arrowhead:
             return None
         return q, 1.0 / s, 1.0 / delta
 
+    def below_poles(self, mu: float) -> bool:
+        """Is every ``D_j - mu I`` positive definite (``mu`` below the smallest pole)?"""
+        return all(self._inverse(g, mu) is not None for g in self.groups())
+
     def taylor(self, mu: float) -> tuple[np.ndarray, np.ndarray] | None:
         """First two Taylor coefficients of ``F(nu) = sum_j B_j^T (D_j - nu I)^-1 B_j`` at
         ``mu``: ``G_1 = sum B^T W B`` and ``G_2 = sum B^T W^2 B``, ``W_j = (D_j - mu I)^-1``.
@@ -304,7 +308,7 @@ def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=No
         mu = model.root(0.0, hi)
         if converged:  # the step from a validated mu is below the truncation tolerance
             break
-    else:  # no convergence in the budget: the last exact model (below every pole) it is
+    if not arrow.below_poles(mu):  # the last step crossed a pole: the last exact model it is
         mu = model.mu0
     w, v = np.linalg.eigh(model.S(mu))
     a = v[:, 0]
@@ -420,12 +424,17 @@ def estimate_linear(uv, T, *, method: str = "fast", weighting: str = "depth") ->
         ``"fast"``: exact O(n) solution through the block structure (default).
         ``"dense"``: SVD of the full system, O(n^3); for reference and tests
         (at most ``DENSE_MAX_POINTS`` points).
+    weighting : {"depth", "none"}
+        ``"depth"`` (default): rows weighted by 1 / depth so that far, low-parallax tracks
+        do not dominate (:func:`fit_linear`); ``"none"``: the paper's TLS as published.
+        Noise-free data give the same exact answer.
 
     Returns
     -------
     LinearEstimate
         ``K``, ``R``, ``A``, ``X`` (triangulated from all views), ``depth``,
-        ``singular_values``, ``n_used_points``, ``used``.
+        ``singular_values``, ``n_used_points``, ``used``, ``static`` (tracks left out
+        because they do not move at all).
 
     Raises
     ------

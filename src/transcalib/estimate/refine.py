@@ -86,8 +86,9 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
         Starting point: ``K``, ``R``, ``X`` (and the distortion of a Calibration).
         Points with non-finite ``X``, seen in fewer than 2 views, or behind the camera in
         some view are left out (NaN in the result, counted in ``info``).
-    distortion : {"none", "radial1", "radial2", "opencv5"}, optional
-        Lens distortion model (overrides ``options.distortion``).
+    distortion : {"auto", "none", "radial1", "radial2", "opencv5"}, optional
+        Lens distortion model (overrides ``options.distortion``; ``"auto"``, the default
+        of :class:`RefineOptions`, chooses it from the data).
     sigma_T : float or (n_views,) float, optional
         Robot translation precision (overrides ``options.sigma_T``).
     options : RefineOptions, optional

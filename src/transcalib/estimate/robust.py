@@ -15,7 +15,7 @@ threshold (``RansacOptions.threshold_px``) replaces the estimated ``sigma`` by
 
 Problems with more than ``SCORE_POINTS`` points draw and score hypotheses on a random
 subset of that many points; every track is then classified. The final model is the
-paper's TLS on the inliers, with ``sigma`` and the inliers re-estimated from it until
+linear TLS (depth-weighted, :func:`.linear.fit_linear`) on the inliers, with ``sigma`` and the inliers re-estimated from it until
 they settle.
 """
 
@@ -52,7 +52,7 @@ class RobustEstimate:
     Attributes
     ----------
     linear : LinearEstimate
-        The paper's linear estimate refitted on the inliers (``linear.used == inliers``;
+        The linear estimate (:func:`.linear.fit_linear`) refitted on the inliers (``linear.used == inliers``;
         ``linear.X`` is NaN for outliers).
     inliers : (n_points,) bool
         Tracks whose error passes the chi-square rule under the final ``linear.A``.

@@ -69,10 +69,12 @@ def rq_decompose(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     A = np.asarray(A, dtype=float)
     if np.linalg.det(A) <= 0:
         raise MirroredError(
-            "the data imply a mirrored camera (det(K R) < 0): the robot frame looks "
-            "left-handed relative to the images. Check that the robot axes x, y, z form a "
-            "right-handed frame, that no two pose columns are swapped, and that the "
-            "images are not flipped; then run again."
+            "the data imply a mirrored camera (det(K R) < 0). Either the robot frame is "
+            "left-handed relative to the images (check that the robot axes x, y, z form a "
+            "right-handed frame, that no two pose columns are swapped, and that the images "
+            "are not flipped), or a few bad tracks dominate the linear estimate: mismatches, "
+            "or tracks that barely move (far background, static overlays) - run the robust "
+            "estimator (the default from 8 points) or remove such tracks; then run again."
         )
     K, R = scipy.linalg.rq(A)
     signs = np.sign(np.diag(K))
