@@ -86,3 +86,16 @@ def opencv_board(obj_st, uv, image_size, fix_pp: bool):
     s = np.asarray(std_in).ravel()
     return {**k5(K), "std": {"fx": s[0], "fy": s[1], "cx": s[2], "cy": s[3]}, "rms": rms, "K": K,
             "rvecs": rv, "tvecs": tv}
+
+
+def rigid_align(X, Y, scale: bool = False):
+    """``X`` (n, 3) moved onto ``Y`` by the best rotation + translation (+ scale): returns
+    the moved ``X`` and the scale (1 without ``scale``). NaN rows are ignored in the fit."""
+    ok = np.isfinite(X).all(1) & np.isfinite(Y).all(1)
+    mx, my = X[ok].mean(0), Y[ok].mean(0)
+    A, B = X[ok] - mx, Y[ok] - my
+    U, S, Vt = np.linalg.svd(A.T @ B)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    Rm = U @ D @ Vt  # X -> Y: x @ Rm
+    k = float((S * np.diag(D)).sum() / (A**2).sum()) if scale else 1.0
+    return (X - mx) @ Rm * k + my, k

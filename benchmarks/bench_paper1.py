@@ -259,7 +259,7 @@ def main(argv=()) -> dict:
         "",
         "Why OpenCV needs the principal point fixed: all four views see the board with the same orientation "
         "(pure translation), so every homography gives Zhang's same two constraints on K; with a free principal "
-        "point the board route is degenerate (see its predicted std), which is exactly the situation in which "
+        "point the board route is degenerate, which is exactly the situation in which "
         "known translations still calibrate fully. Check on the exact (noise-free) projections: OpenCV with a "
         f"free principal point returns fx {exact['fx']:.1f}, fy {exact['fy']:.1f}, cx {exact['cx']:.1f}, "
         f"cy {exact['cy']:.1f} at rms {exact['rms']:.1e} px - its starting guess (principal point at the image "
