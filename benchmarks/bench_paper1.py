@@ -269,7 +269,7 @@ def main(argv=()) -> dict:
         "",
         "## Figs. 6 and 7: planarity and size of the reconstruction (mm)",
         "",
-        md_table(["estimate", "plane res. max", "plane res. rms", "mean side", "max |side - 30|",
+        md_table(["estimate", "plane res. max", "plane res. rms", "mean side", "max abs(side - 30)",
                   "rms side err", "rms 3-D point err", f"median plane max ({trials} runs)",
                   f"median max side err ({trials} runs)"], geo_rows),
         "",

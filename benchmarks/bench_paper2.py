@@ -99,7 +99,7 @@ def measures(X, n_grid):
     ang = np.array(ang)
     ang = ang[np.isfinite(ang)]
     out["box corner angles: mean (deg)"] = float(ang.mean())
-    out["box corner angles: max |90 - a| (deg)"] = float(np.abs(ang - 90).max())
+    out["box corner angles: max abs(90 - a) (deg)"] = float(np.abs(ang - 90).max())
     # grid: cell size from neighbouring corners, planarity, box top parallel to the grid
     n_s, n_t = 9, 7  # inner corners of the 10 x 8 board
     Gg = G.reshape(n_t, n_s, 3)
