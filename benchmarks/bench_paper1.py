@@ -224,6 +224,14 @@ def main(argv=()) -> dict:
     # the degeneracy of the board route under pure translation, shown on exact projections
     exact = opencv_board(st, project(K, R, corners, T), SIZE, fix_pp=False)
     err_all = np.concatenate([r["err_px"][np.isfinite(r["err_px"])] for r in runs])
+    # Cramer-Rao bound of this geometry (paper_scene: the same camera, board and moves), with the
+    # measured corner noise per coordinate and the robot noise, and with the corner noise alone
+    sig = float(np.sqrt(np.mean(err_all**2) / 2))
+    b_all = transcalib.crlb(simulate.paper_scene(noise_px=sig, robot_noise=ROBOT_SIGMA, rng=0), distortion="none")
+    b_px = transcalib.crlb(simulate.paper_scene(noise_px=sig, robot_noise=0.0, rng=0), distortion="none")
+    for lab, b in ((f"CRLB (corners {sig:.3f} px, robot {ROBOT_SIGMA} mm)", b_all),
+                   (f"CRLB (corners {sig:.3f} px, exact robot)", b_px)):
+        rows2.append([lab] + [f"({b[k]:.2f})" if k in b else "" for k in KEYS] + [f"{b['fx']:.2f} / {b['cx']:.2f}"])
     tt = np.mean([r["t_render"] for r in runs]), np.mean([r["t_track"] for r in runs]), np.mean([r["t_cal"] for r in runs])
     md = [
         "# Paper experiment 1 (Pajdla & Hlavac 1996, §3, Figs. 3-7) from rendered images",
@@ -247,7 +255,8 @@ def main(argv=()) -> dict:
         md_table(["method", *KEYS, "max focal error", "max pp error"], rows),
         "",
         "Errors of the shown run with the method's own predicted std in brackets (OpenCV: "
-        "`stdDeviationsIntrinsics`; refined: `Calibration.std`; the linear estimate has none), and the "
+        "`stdDeviationsIntrinsics`; refined: `Calibration.std`; the linear estimate has none; the CRLB rows: "
+        "the bound on the std of an unbiased estimate, `transcalib.crlb`), and the "
         f"empirical rms error of fx / cx over the {trials} renderings:",
         "",
         md_table(["method", *[f"{k} err (pred. std)" for k in KEYS], f"rms err fx / cx ({trials} runs)"], rows2),
