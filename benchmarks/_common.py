@@ -9,6 +9,16 @@ import numpy as np
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
+def results_dir(quick: bool) -> Path:
+    """Where a run writes: ``benchmarks/results`` for full runs; a scratch folder for
+    ``--quick`` runs, so that quick numbers never overwrite the published tables."""
+    import tempfile
+
+    d = Path(tempfile.gettempdir()) / "transcalib-bench-quick" if quick else RESULTS
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
 def k5(K) -> dict:
     """fx, fy, skew, cx, cy of ``K``."""
     K = np.asarray(K, float)

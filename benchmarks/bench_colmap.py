@@ -21,7 +21,7 @@ from them): COLMAP is expected to keep a wrong focal length.
 Without ``pycolmap`` the benchmark writes a note and skips. ``pip install pycolmap``
 (the ``bench`` extra of ``pyproject.toml``).
 
-    python benchmarks/bench_colmap.py [--quick]
+    python benchmarks/bench_colmap.py [--quick]     (--quick writes to a scratch folder)
 """
 
 from __future__ import annotations
@@ -37,9 +37,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import render  # noqa: E402
-from _common import RESULTS, k5, md_table, rigid_align  # noqa: E402
+from _common import RESULTS, results_dir, k5, md_table, rigid_align  # noqa: E402
 
-OUT = RESULTS / "colmap.md"
 SIZE = (752, 582)
 
 
@@ -117,7 +116,9 @@ def main(argv=()) -> dict:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(list(argv))
-    RESULTS.mkdir(exist_ok=True)
+    global RESULTS
+    RESULTS = results_dir(args.quick)
+    OUT = RESULTS / "colmap.md"
     cmd = f"`python benchmarks/bench_colmap.py{' --quick' if args.quick else ''}`"
     try:
         import pycolmap

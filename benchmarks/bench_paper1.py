@@ -19,7 +19,7 @@ precision, N(0, 0.1 mm) per coordinate. Outputs:
 
     python benchmarks/bench_paper1.py [--quick] [--trials N]
 
-Writes ``benchmarks/results/paper1.md``.
+Writes ``benchmarks/results/paper1.md`` and the PNGs (``--quick``: to a scratch folder instead).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import render, simulate  # noqa: E402
 from transcalib.geometry.camera import project  # noqa: E402
-from _common import RESULTS, k5, md_table, opencv_board, plane_fit, relabel  # noqa: E402
+from _common import RESULTS, results_dir, k5, md_table, opencv_board, plane_fit, relabel  # noqa: E402
 
 SIZE = (752, 582)
 ROBOT_SIGMA = 0.1  # mm, the paper's robot precision
@@ -177,10 +177,11 @@ def main(argv=()) -> dict:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--trials", type=int, default=None)
     args = ap.parse_args(list(argv))
+    global RESULTS
+    RESULTS = results_dir(args.quick)
     trials = args.trials or (3 if args.quick else 12)
     K, R, T, surf, corners, st = setup()
     truth = k5(K)
-    RESULTS.mkdir(exist_ok=True)
     runs = [one_run(1000 + s, K, R, T, surf, corners, st, keep_images=(s == 0)) for s in range(trials)]
     main_run = runs[0]
     cal = main_run["cal"]

@@ -16,7 +16,7 @@ Outputs: ``results/paper2_views.png`` (Fig. 8 analogue), ``results/paper2_fronta
 reconstructed sizes and angles against the truth (the shown draw, and mean +- std over
 ``--trials`` noise draws), for the linear (paper's) estimate and the refined one.
 
-    python benchmarks/bench_paper2.py [--quick] [--trials N]
+    python benchmarks/bench_paper2.py [--quick] [--trials N]     (--quick writes to a scratch folder)
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import render  # noqa: E402
-from _common import RESULTS, k5, md_table, plane_fit, rigid_align  # noqa: E402
+from _common import RESULTS, results_dir, k5, md_table, plane_fit, rigid_align  # noqa: E402
 
 SIZE = (752, 582)
 PIX_SIGMA = 2.0  # px, the paper's manual extraction
@@ -182,6 +182,8 @@ def main(argv=()) -> dict:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--trials", type=int, default=None)
     args = ap.parse_args(list(argv))
+    global RESULTS
+    RESULTS = results_dir(args.quick)
     trials = args.trials or (10 if args.quick else 50)
     K, R, T, surfaces, corners, kind, n_grid = setup()
     t0 = time.perf_counter()
@@ -212,7 +214,6 @@ def main(argv=()) -> dict:
     t_cal = (time.perf_counter() - t0) / trials
     uv, cal = shown
     figures(rd, uv, cal, n_grid)
-    RESULTS.mkdir(exist_ok=True)
     m_lin, m_ref = measures(cal.linear.X, n_grid), measures(cal.X, n_grid)
     rows = []
     for key, tv in truth.items():

@@ -19,7 +19,7 @@ centre, against transcalib on the same board tracks.
 
     python benchmarks/bench_studies.py [--quick]      (--quick: 12 trials instead of 60)
 
-Writes ``benchmarks/results/studies.md`` and ``results/studies_*.png``.
+Writes ``benchmarks/results/studies.md`` and ``results/studies_*.png`` (``--quick``: to a scratch folder).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import simulate  # noqa: E402
-from _common import RESULTS, md_table, plane_fit  # noqa: E402
+from _common import RESULTS, results_dir, md_table, plane_fit  # noqa: E402
 
 BASE = dict(n_points=50, n_views=4, noise_px=0.5, baseline=0.2)
 STUDIES = {
@@ -151,8 +151,9 @@ def main(argv=()) -> dict:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(list(argv))
+    global RESULTS
+    RESULTS = results_dir(args.quick)
     trials = 12 if args.quick else 60
-    RESULTS.mkdir(exist_ok=True)
     t_start = time.perf_counter()
     md = ["# Studies: accuracy against noise, points, translation, views; linear, refined, CRLB, OpenCV", "",
           f"Command: `python benchmarks/bench_studies.py{' --quick' if args.quick else ''}` ({trials} trials per "
