@@ -31,10 +31,12 @@ from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.check import ROTATION_ALPHA, locate_view_rotation
+from transcalib.check import locate_view_rotation
+from transcalib.check.rotation import ROTATION_ALPHA
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
 from transcalib.estimate.robust import estimate_robust
+from transcalib.types import RansacOptions
 from transcalib.geometry.triangulate import triangulate
 
 KEYS = ("fx", "fy", "cx", "cy")
