@@ -36,7 +36,7 @@ from transcalib.check.rotation import ROTATION_ALPHA
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
 from transcalib.estimate.robust import estimate_robust
-from transcalib.types import RansacOptions
+from transcalib.types import RansacOptions, RefineOptions
 from transcalib.geometry.triangulate import triangulate
 
 KEYS = ("fx", "fy", "cx", "cy")
@@ -62,7 +62,7 @@ def plant_outliers(scene, fraction, rng):
 
 
 def _refined_K(uv, T, initial, **kw):
-    return _k4(refine(uv, T, initial, **kw).K)
+    return _k4(refine(uv, T, initial, options=RefineOptions(distortion="none", **kw)).K)
 
 
 def outliers(trials: int, n_points: int = 500, seed: int = 0) -> list[str]:

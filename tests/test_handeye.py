@@ -334,3 +334,33 @@ def test_refinement_uses_each_views_own_rotation():
     assert he.sessions.n_sessions == 3
     _check_camera(he, sc)
     assert np.abs(he.t_flange_camera - sc.t_X).max() < 1e-8
+
+
+def test_cli_uses_the_sessions_model_when_orientations_vary(tmp_path):
+    """``transcalib calibrate`` with quaternions that differ between groups of views: the
+    hand-eye model, hand_eye.json / hand_eye.yaml, errors against the truth."""
+    import json
+    import subprocess
+    import sys
+
+    from transcalib import io as tio
+    from transcalib.handeye.poses import matrix_to_quaternion
+
+    sc = session_scene(4, n_sessions=3, moves="xy", noise_px=0.3, n_points=60)
+    tio.write_tracks_csv(tmp_path / "tracks.csv", sc.uv)
+    q = np.array([matrix_to_quaternion(R) for R in sc.R])
+    rows = ["view,x,y,z,qx,qy,qz,qw"] + [",".join(map(repr, [i, *map(float, sc.T[i]), *map(float, q[i])]))
+                                          for i in range(len(sc.T))]
+    (tmp_path / "poses.csv").write_text("\n".join(rows) + "\n")
+    truth = {"R_flange_camera": sc.R_X.tolist(), "t_flange_camera": list(map(float, sc.t_X)),
+             "K": sc.K.tolist(), "image_size": [640, 480]}
+    (tmp_path / "truth.json").write_text(json.dumps(truth))
+    r = subprocess.run([sys.executable, "-m", "transcalib.cli", "calibrate", "--tracks", str(tmp_path / "tracks.csv"),
+                        "--poses", str(tmp_path / "poses.csv"), "--out", str(tmp_path / "out"), "--quiet",
+                        "--truth", str(tmp_path / "truth.json"), "--formats", "json", "--distortion", "none"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "Camera in the flange (hand-eye)" in r.stdout and "error vs truth" in r.stdout
+    he = json.loads((tmp_path / "out" / "hand_eye.json").read_text())
+    assert np.linalg.norm(np.array(he["t_flange_camera"]) - sc.t_X) < 2.0  # mm, 0.3 px noise
+    assert "eye_on_hand: true" in (tmp_path / "out" / "hand_eye.yaml").read_text()

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, normal_equations, schur
 
-__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "linearise", "Linearised", "profile_step",
+__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "bound_std", "linearise", "Linearised", "profile_step",
            "IDENTIFIABILITY_RTOL"]
 
 #: Relative eigenvalue of the (Jacobi-scaled) reduced information below which a parameter
@@ -150,9 +150,15 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, f
     tw = np.zeros(n_views)
     tw[list(T_views)] = scene.noise_px / scene.robot_noise if T_views else 0.0
     data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
-    S = reduced_information(state, lay, data)[0]
+    return bound_std(reduced_information(state, lay, data)[0], lay, scene.noise_px)
+
+
+def bound_std(S: np.ndarray, lay: Layout, noise_px: float) -> dict:
+    """Standard deviations ``noise_px sqrt(diag(S^-1))`` by parameter name (rotations in
+    degrees; with square pixels ``f`` and also ``fx``, ``fy``) of a reduced information
+    ``S`` (unit pixel noise); raises naming the parameters if ``S`` is singular."""
     evals, evecs = check_identifiable(S, lay.names())
-    sd = scene.noise_px * np.sqrt(np.sum(evecs**2 / evals, axis=1))
+    sd = noise_px * np.sqrt(np.sum(evecs**2 / evals, axis=1))
     sd = np.where(lay.rotation_mask(), np.degrees(sd), sd)
     out = {nm: float(v) for nm, v in zip(lay.names(), sd)}
     if "f" in out:

@@ -27,7 +27,7 @@ import numpy as np
 import scipy.linalg
 
 from ..estimate.bundle import Layout, State, build_data, dist_indices, intrinsic_basis, normal_equations
-from ..estimate.covariance import check_identifiable, reduced_information
+from ..estimate.covariance import bound_std, check_identifiable, reduced_information
 from ..geometry.camera import pad_dist
 from ..geometry.rotation import matrix_to_rotvec
 
@@ -190,10 +190,4 @@ def sessions_crlb(scene, *, fix=None, square_pixels=False, estimate_skew=False, 
     uv = np.where(np.isfinite(scene.uv), scene.uv_true, np.nan)
     S, lay, _ = _fisher(scene.K, pad_dist(scene.dist), scene.R_X.T, scene.t_X, scene.X, uv, scene.T, F, dict(fix or {}),
                      estimate_skew, square_pixels, distortion, t_basis)
-    evals, evecs = check_identifiable(S, lay.names())
-    sd = scene.noise_px * np.sqrt(np.sum(evecs**2 / evals, axis=1))
-    sd = np.where(lay.rotation_mask(), np.degrees(sd), sd)
-    out = {nm: float(v) for nm, v in zip(lay.names(), sd)}
-    if "f" in out:
-        out["fx"] = out["fy"] = out["f"]
-    return out
+    return bound_std(S, lay, scene.noise_px)
