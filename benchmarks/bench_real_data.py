@@ -22,9 +22,12 @@ import sys
 import time
 from pathlib import Path
 
+from dataclasses import replace
+
 import numpy as np
 
-from transcalib import RefineOptions, calibrate, simulate
+from transcalib import MirroredError, RefineOptions, calibrate, simulate
+from transcalib.geometry.triangulate import triangulate
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
 
@@ -65,11 +68,20 @@ def _cell(noise: float, fraction: float, trials: int, seed: int) -> dict:
         rows["cx"].append(cal.K[0, 2] - truth[0, 2])
         rows["std_fx"].append(cal.std["fx"])
         clean = np.where(good[None, :, None], uv, np.nan)
-        oracle = refine(clean, scene.T, estimate_linear(clean, scene.T),
+        oracle = refine(clean, scene.T, _oracle_start(clean, scene.T, cal),
                         options=RefineOptions(distortion="none", sigma_px=noise))
         rows["fx_oracle"].append(oracle.K[0, 0] - truth[0, 0])
         rows["cx_oracle"].append(oracle.K[0, 2] - truth[0, 2])
     return {k: np.array(v) for k, v in rows.items()}
+
+
+def _oracle_start(clean, T, cal):
+    """The linear estimate of the true inliers, or (where it fails, as the paper's TLS can
+    at 3 px) the calibration's camera with the true inliers triangulated."""
+    try:
+        return estimate_linear(clean, T)
+    except MirroredError:
+        return replace(cal, X=triangulate(cal.A, clean, cal.T, K=cal.K, dist=cal.dist))
 
 
 def _rms(x):
@@ -88,7 +100,8 @@ def _selection(trials: int) -> tuple[float, float]:
 
 
 def main(argv: list[str]) -> int:
-    trials = 5 if "--quick" in argv else 50
+    quick = "--quick" in argv
+    trials = 5 if quick else 50
     t0 = time.perf_counter()
     lines = [f"Default `calibrate()`, random 3-D scene, 300 points x 5 views, {trials} trials a cell "
              "(`python benchmarks/bench_real_data.py`).", "",
@@ -113,8 +126,9 @@ def main(argv: list[str]) -> int:
             f"| {100 * kept:.0f} % | {100 * picked:.0f} % |", "",
             f"({time.perf_counter() - t0:.0f} s)"]
     print("\n".join(tail))
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "real_data.md").write_text("\n".join(lines + tail) + "\n")
+    if not quick:  # a smoke run does not overwrite the published table
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "real_data.md").write_text("\n".join(lines + tail) + "\n")
     return 0
 
 

@@ -31,6 +31,8 @@ from scipy import stats
 from ..errors import DegenerateError, MirroredError
 from ..types import LinearEstimate, RansacOptions
 from ..validate import as_uv_T, check_translations_span
+from ..geometry.rotation import rq_decompose
+from ..geometry.triangulate import triangulate
 from .linear import fit_linear
 from .minimal import forms, forms_sum, normalise, null_vectors, solve_minimal, to_pixels
 from .scoring import Scorer, inlier_rule, median_sigma, point_errors, sigma_from_threshold, truncated_sigma
@@ -295,28 +297,22 @@ class _Search:
 
 
 def _final_refit(uv, T, search: _Search, opts: RansacOptions):
-    """The paper's TLS on the inliers, with sigma and the inliers (all tracks) re-estimated
-    until they settle: ``(linear, sse, residuals, sigma, rule_sigma, refits)``."""
+    """The linear TLS on the inliers, with sigma and the inliers (all tracks) re-estimated
+    until they settle: ``(linear, sse, residuals, sigma, rule_sigma, refits)``. Where the
+    TLS on the inliers explains them worse than the best hypothesis (a few bad tracks left
+    among them can even mirror it), the hypothesis is kept."""
     k = np.isfinite(uv[..., 0]).sum(axis=0)
-    if len(search.subset) == uv.shape[1]:
-        sse = search.sse
-    else:
-        sse = point_errors(to_pixels(search.pb, search.a)[0], uv, T)[0]
+    A_best = to_pixels(search.pb, search.a)[0]
+    sse = search.sse if len(search.subset) == uv.shape[1] else point_errors(A_best, uv, T)[0]
     sigma = search.sigma if search.fixed_sigma is None else truncated_sigma(
         sse, k, median_sigma(sse, k), opts.false_rejection)
     rule_sigma = search.fixed_sigma or sigma
     inliers = inlier_rule(sse, k, rule_sigma, opts.false_rejection)
     refits = 0
     for _ in range(5):
-        try:
-            lin = fit_linear(np.where(inliers[None, :, None], uv, np.nan), T)
-        except MirroredError:
-            raise
-        except DegenerateError as exc:
-            raise DegenerateError(f"the {int(inliers.sum())} inliers found do not determine the camera: {exc}") \
-                from exc
+        masked = np.where(inliers[None, :, None], uv, np.nan)
+        lin, sse, res = _best_linear(masked, uv, T, A_best, inliers)
         refits += 1
-        sse, res = point_errors(lin.A, uv, T)
         sigma = truncated_sigma(sse, k, sigma, opts.false_rejection)
         rule_sigma = search.fixed_sigma or sigma
         new = inlier_rule(sse, k, rule_sigma, opts.false_rejection)
@@ -324,3 +320,36 @@ def _final_refit(uv, T, search: _Search, opts: RansacOptions):
             break
         inliers = new
     return lin, sse, res, sigma, rule_sigma, refits
+
+
+def _best_linear(masked, uv, T, A_hyp, inliers):
+    """The TLS on the inliers ``masked``, or the hypothesis ``A_hyp`` triangulated, whichever
+    explains the inliers better: ``(linear, sse of every track, residuals)``."""
+    try:
+        lin = fit_linear(masked, T)
+    except MirroredError:
+        lin = None
+    except DegenerateError as exc:
+        raise DegenerateError(f"the {int(inliers.sum())} inliers found do not determine the camera: {exc}") from exc
+    hyp_sse, hyp_res = point_errors(A_hyp, uv, T)
+    if lin is not None:
+        sse, res = point_errors(lin.A, uv, T)
+        if np.nansum(np.where(inliers, sse, 0.0)) <= np.nansum(np.where(inliers, hyp_sse, 0.0)):
+            return lin, sse, res
+    return _from_hypothesis(A_hyp, masked, T), hyp_sse, hyp_res
+
+
+def _from_hypothesis(A: np.ndarray, masked: np.ndarray, T: np.ndarray) -> LinearEstimate:
+    """A :class:`LinearEstimate` from a hypothesis ``A`` (its sign putting most points in
+    front): K and R by RQ (raises :class:`MirroredError` if ``det A < 0``), the points
+    triangulated."""
+    A = A / np.linalg.norm(A[2])
+    X = triangulate(A, masked, T)
+    z = np.einsum("a,vna->vn", A[2], X[None] - T[:, None])
+    if np.nanmedian(z[np.isfinite(masked[..., 0])]) < 0:
+        A, z = -A, -z
+    K, R = rq_decompose(A)
+    used = np.isfinite(masked[..., 0]).sum(axis=0) >= 2
+    depth = np.where(np.isfinite(masked[..., 0]), z, np.nan)
+    return LinearEstimate(K=K, R=R, A=K @ R, X=X, depth=depth, singular_values=np.full(3, np.nan),
+                          n_used_points=int(used.sum()), used=used, method="hypothesis")
