@@ -1,4 +1,5 @@
 # One command each: `make demo`, `make test`, `make bench`. Each creates .venv if missing.
+SHELL  := /bin/bash
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -38,7 +39,9 @@ chromium:
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
-	$(BIN)/python benchmarks/run.py
+	mkdir -p out
+	set -o pipefail; $(BIN)/python benchmarks/run.py 2>&1 | tee out/bench.log
+	$(BIN)/python benchmarks/make_results_doc.py out/bench.log
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info
