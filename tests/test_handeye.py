@@ -364,3 +364,13 @@ def test_cli_uses_the_sessions_model_when_orientations_vary(tmp_path):
     he = json.loads((tmp_path / "out" / "hand_eye.json").read_text())
     assert np.linalg.norm(np.array(he["t_flange_camera"]) - sc.t_X) < 2.0  # mm, 0.3 px noise
     assert "eye_on_hand: true" in (tmp_path / "out" / "hand_eye.yaml").read_text()
+
+
+def test_distortion_chosen_from_the_data_with_sessions():
+    """``distortion="auto"`` works on the sessions model too: none kept without a lens,
+    radial2 found with one (k1 = -0.1)."""
+    plain = session_scene(4, n_sessions=3, moves="xy", noise_px=0.3, n_points=80)
+    assert calibrate_sessions(plain.uv, plain.T, plain.R, distortion="auto").calibration.dist_model == "none"
+    lens = session_scene(4, n_sessions=3, moves="xy", noise_px=0.3, n_points=80, dist=(-0.1, 0.02))
+    he = calibrate_sessions(lens.uv, lens.T, lens.R, distortion="auto")
+    assert he.calibration.dist_model == "radial2" and abs(he.calibration.dist[0] + 0.1) < 0.005

@@ -14,9 +14,8 @@ def calibrate_hand_eye(uv, plan, opts, args, progress):
     sessions, r = plan["sessions"], opts.refinement
     progress.log(f"{sessions.grouping.n_sessions} sessions (orientations) in {len(sessions.poses.views)} views: "
                  "hand-eye model")
-    distortion = "radial2" if r.distortion == "auto" else r.distortion
     he = calibrate_sessions(uv, sessions.poses.T, sessions.poses.R, session_of_view=sessions.grouping.session_of_view,
-                            tolerance_deg=sessions.tolerance_deg, distortion=distortion, fix=dict(r.fix),
+                            tolerance_deg=sessions.tolerance_deg, distortion=r.distortion, fix=dict(r.fix),
                             square_pixels=r.square_pixels, estimate_skew=r.estimate_skew, sigma_T=r.sigma_T,
                             robust=opts.robust is not False, ransac=opts.ransac, rng=args.seed)
     progress.stage("hand-eye", {"sessions": sessions.grouping.n_sessions, "rms_px": he.calibration.rms_px})

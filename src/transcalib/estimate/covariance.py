@@ -201,10 +201,11 @@ class Linearised:
         return S, b, 2.0 * bundle.cost(self.state, layout, self.data, "linear", 1.0)
 
 
-def linearise(uv, T, calibration, opts, polish: int = 5) -> Linearised:
+def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Linearised:
     """The refined calibration's problem at its solution (``polish`` LM steps make sure it
     is the ML one): layout from ``opts`` (a RefineOptions), points with finite ``X``
-    among ``calibration.inliers``, translation priors from ``opts.sigma_T``."""
+    among ``calibration.inliers``, translation priors from ``opts.sigma_T``; with
+    ``flange`` (a :class:`transcalib.estimate.refine.FlangeModel`) the sessions model."""
     n_views = uv.shape[0]
     seen = np.isfinite(uv[..., 0])
     X = np.asarray(calibration.X, float)
@@ -215,12 +216,14 @@ def linearise(uv, T, calibration, opts, polish: int = 5) -> Linearised:
     t_sigma = np.zeros(n_views) if opts.sigma_T is None else np.broadcast_to(
         np.asarray(opts.sigma_T, float), (n_views,)).copy()
     E, names = intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
-    layout = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix), (), tuple(np.flatnonzero(t_sigma > 0)))
+    layout = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix), (), tuple(np.flatnonzero(t_sigma > 0)),
+                    None if flange is None else flange.t_basis)
     sigma_px = calibration.sigma_px or max(calibration.rms_px / np.sqrt(2), 1e-6)
     tw = np.where(t_sigma > 0, sigma_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
     T_start = np.asarray(calibration.T, float) if t_sigma.any() else T
     state = State(calibration.camera.intrinsics, calibration.camera.dist5, np.array(calibration.R),
-                  np.tile(np.eye(3), (n_views, 1, 1)), T_start.copy(), X[idx].copy())
+                  np.tile(np.eye(3), (n_views, 1, 1)), T_start.copy(), X[idx].copy(),
+                  None if flange is None else flange.F, np.zeros(3) if flange is None else np.array(flange.t0, float))
     data = build_data(uv, seen, idx, T, tw)
     dof = 2 * data.n_obs - layout.n_global_no_T - 3 * len(idx)
     if dof <= 3:

@@ -127,10 +127,7 @@ def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, prog
     ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
     estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined)."""
     if opts.distortion == "auto":
-        if flange is not None:
-            raise InputError("distortion='auto' is not available with several sessions yet; choose the model "
-                             "(none, radial1, radial2, opencv5)")
-        return _fit_auto(uv, T, initial, opts, progress)
+        return _fit_auto(uv, T, initial, opts, progress, flange)
     t_start = time.perf_counter()
     pb = _problem(uv, T, initial, opts, flange)
     fitter = _Fitter(pb, progress)
@@ -218,7 +215,7 @@ AUTO_CHAIN = ("none", "radial2", "opencv5")
 AUTO_ALPHA = 0.01
 
 
-def _fit_auto(uv, T, initial, opts: RefineOptions, progress) -> Calibration:
+def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Calibration:
     """Refine without distortion, then add coefficients while the data ask for them.
 
     At the solution of model ``m`` the score test of the coefficients ``m'`` adds
@@ -227,21 +224,24 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress) -> Calibration:
     suffices. ``m'`` is taken when ``p < AUTO_ALPHA`` and its refit determines every
     coefficient (its covariance exists); ``info["distortion_selection"]`` says why.
     """
-    cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress)
-    return climb_distortion(uv, T, cal, opts, progress)
+    cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress, flange)
+    return climb_distortion(uv, T, cal, opts, progress, flange)
 
 
-def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None) -> Calibration:
+def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None,
+                     flange: FlangeModel | None = None) -> Calibration:
     """From the refined ``cal`` (a model of :data:`AUTO_CHAIN`), add coefficients while
-    the score test asks for them (:func:`_fit_auto`); ``opts`` are recorded."""
+    the score test asks for them (:func:`_fit_auto`); ``opts`` are recorded. With
+    ``flange`` (several sessions) the hand-eye offset starts each refit where ``cal`` left it."""
     steps = []
     start = AUTO_CHAIN.index(cal.dist_model) if cal.dist_model in AUTO_CHAIN else len(AUTO_CHAIN) - 1
     for simpler, richer in zip(AUTO_CHAIN[start:], AUTO_CHAIN[start + 1:]):
-        F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer)
+        at = None if flange is None else replace(flange, t0=np.asarray(cal.info["flange_offset"], float))
+        F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer, at)
         step = {"model": richer, "F": F, "p_value": p, "alpha": AUTO_ALPHA, "chosen": bool(p < AUTO_ALPHA)}
         if step["chosen"]:
             try:
-                richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress)
+                richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress, at)
             except DegenerateError as exc:  # the added coefficients are not determined
                 step.update(chosen=False, reason=f"not determined: {exc}")
             else:
@@ -253,10 +253,11 @@ def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None
     return replace(cal, options=replace(cal.options, refinement=opts))
 
 
-def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str) -> tuple[float, float]:
+def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str,
+                      flange: FlangeModel | None = None) -> tuple[float, float]:
     """Score test at ``cal`` (the ML solution of ``simpler``) of the coefficients that
     ``richer`` adds: ``(F, p-value)``."""
-    lin = linearise(uv, T, cal, simpler, polish=0)
+    lin = linearise(uv, T, cal, simpler, polish=0, flange=flange)
     lay = replace(lin.layout, dist_free=dist_indices(richer, simpler.fix))
     added = [lay.i_dist + m for m, k in enumerate(lay.dist_free) if k not in lin.layout.dist_free]
     if not added:

@@ -155,7 +155,7 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, toleran
     F = np.transpose(R, (0, 2, 1))
     obs = offset_observability(lin.K, np.zeros(5), lin.R_X.T, lin.t_X, lin.X, uv, T, F, grouping.rotations,
                                grouping.labels, fix=opts.fix, estimate_skew=estimate_skew,
-                               square_pixels=square_pixels, distortion=distortion)
+                               square_pixels=square_pixels, distortion="none" if distortion == "auto" else distortion)
     lin = lin.with_offset_basis(obs.determined)
     cal = fit_refine(uv, T, lin.as_linear_estimate(), opts, flange=FlangeModel(F, lin.t_X, obs.determined))
     names = list(cal.param_names)
