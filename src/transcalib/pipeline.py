@@ -23,7 +23,7 @@ from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
 from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
-from .geometry.camera import Camera, project
+from .geometry.camera import Camera, project, project_camera_frame
 from .geometry.triangulate import triangulate
 from .types import CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
 from .validate import as_uv_T
@@ -256,10 +256,11 @@ def _untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
 def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
     """Sum of squared reprojection errors (px^2) of each track over the views that see it
     (n_points,); inf for tracks that cannot be triangulated or fall behind the camera."""
-    xc = np.einsum("ab,vnb->vna", cal.R, np.nan_to_num(X)[None] - cal.T[:, None])
-    r = uv - cal.camera.project(np.nan_to_num(X), cal.T)
+    xc = np.einsum("ab,vnb->avn", cal.R, np.nan_to_num(X)[None] - cal.T[:, None])  # camera frame, once
+    pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc).pred
+    r = uv - np.moveaxis(pred, 0, -1)
     e2 = np.where(np.isfinite(uv[..., 0]), np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)
-    behind = np.any(np.isfinite(uv[..., 0]) & (xc[..., 2] <= 0), axis=0)
+    behind = np.any(np.isfinite(uv[..., 0]) & (xc[2] <= 0), axis=0)
     return np.where(np.isfinite(X[:, 0]) & ~behind, e2.sum(axis=0), np.inf)
 
 
@@ -276,7 +277,9 @@ def _all_residuals(uv, cal: Calibration, inliers) -> np.ndarray:
     triangulated with the final camera for that (its ``X`` stays NaN)."""
     if inliers is None:
         return cal.residuals_px
-    X_eval = np.where(np.isfinite(cal.X), cal.X, triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist))
+    X_eval = cal.X.copy()
+    missing = ~np.isfinite(cal.X[:, 0])  # only these need triangulating
+    X_eval[missing] = triangulate(cal.A, uv[:, missing], cal.T, K=cal.K, dist=cal.dist)
     full = uv - cal.camera.project(np.nan_to_num(X_eval), cal.T)
     return np.where(np.isfinite(X_eval)[None, :, :1], full, np.nan)
 

@@ -13,6 +13,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import Diagnostic
+from ..estimate.linear import reference_motion
 from .common import fmt_list
 
 __all__ = ["check_parallax", "check_inliers", "check_threshold", "check_intrinsics", "track_motion_px",
@@ -28,8 +29,7 @@ def track_motion_px(uv: np.ndarray) -> np.ndarray:
     """Largest image motion (pixels) of each track from its first view (n_points,); NaN
     for tracks seen once."""
     seen = np.isfinite(uv[..., 0])
-    ref = np.argmax(seen, axis=0)
-    d = np.hypot(*(uv - uv[ref, np.arange(uv.shape[1])][None]).transpose(2, 0, 1))
+    d = reference_motion(uv)[0]
     out = np.where(seen, d, -np.inf).max(axis=0)
     return np.where(seen.sum(axis=0) >= 2, out, np.nan)
 

@@ -40,7 +40,7 @@ from ..geometry.triangulate import triangulate
 from ..types import DegenerateError, InputError, LinearEstimate
 from ..validate import as_uv_T, check_translations_span
 
-__all__ = ["estimate_linear", "fit_linear", "solve_tls", "DENSE_MAX_POINTS"]
+__all__ = ["estimate_linear", "fit_linear", "solve_tls", "reference_motion", "DENSE_MAX_POINTS"]
 
 #: Largest problem the dense reference accepts (its memory grows as n^2).
 DENSE_MAX_POINTS = 3000
@@ -496,14 +496,20 @@ def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast", weighting: s
         n_used_points=int(used.sum()), used=used, method=method, static=static)
 
 
+def reference_motion(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image motion of every observation from its track's first (reference) view:
+    ``(|uv_i - uv_r| (n_views, n_points) pixels, NaN where unseen; r (n_points,))``."""
+    ref = np.argmax(np.isfinite(uv[..., 0]), axis=0)
+    return np.hypot(*(uv - uv[ref, np.arange(uv.shape[1])][None]).transpose(2, 0, 1)), ref
+
+
 def _motion_per_length(uv: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Median over a track's views of ``|uv_i - uv_r| / |T_i - T_r|`` (pixels per unit of
     translation, ``r`` its first view): proportional to ``1 / depth`` (n_points,); NaN for
     tracks seen once."""
     seen = np.isfinite(uv[..., 0])
-    ref = np.argmax(seen, axis=0)
     cols = np.arange(uv.shape[1])
-    d = np.hypot(*(uv - uv[ref, cols][None]).transpose(2, 0, 1))  # (V, n)
+    d, ref = reference_motion(uv)  # (V, n)
     t = np.linalg.norm(T[:, None, :] - T[ref][None], axis=2)  # (V, n)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(seen & (t > 0), d / t, np.nan)
