@@ -23,9 +23,9 @@ from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
 from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
-from .geometry.camera import Camera, project, project_camera_frame
+from .geometry.camera import DIST_NAMES, Camera, project, project_camera_frame
 from .geometry.triangulate import triangulate
-from .types import CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
+from .types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
 from .validate import as_uv_T
 
 __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
@@ -35,6 +35,8 @@ ROBUST_MIN_POINTS = 8
 #: The refined camera's verdict refits only when it changes more than this fraction of
 #: the inliers (borderline tracks trading places at the false-rejection rate do not count).
 REJUDGE_FRACTION = 0.005
+#: Gauss-Newton steps with every track after the fit of a subset (see _extend_to_all_tracks).
+GAUSS_NEWTON_STEPS = 2
 #: Relative singular value of the translations below which they count as coplanar (a
 #: table whose measured height jitters is a 2-axis stage).
 COPLANAR_TOL = 1e-3
@@ -56,6 +58,7 @@ def calibrate(
     quaternions=None,
     image_size=None,
     unit: str = "units",
+    subset_points: int | None = SUBSET_POINTS,
     rng=None,
     progress=None,
 ) -> Calibration:
@@ -94,6 +97,10 @@ def calibrate(
         Recorded in the result's camera.
     unit : str
         Name of the length unit of ``T``, used in messages.
+    subset_points : int or None
+        With more tracks, the iterative stages run on a random subset of this many and
+        one Gauss-Newton step with every track finishes (:class:`CalibrateOptions`).
+        None: every stage uses every track.
     rng : seed or Generator
         Randomness of RANSAC.
     progress : callable, optional
@@ -113,28 +120,38 @@ def calibrate(
     """
     uv, T = as_uv_T(uv, T)
     opts = _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement,
-                    check_rotation, unit)
+                    check_rotation, unit, subset_points)
     notify = progress or (lambda stage, info: None)
     timings = {}
     t0 = time.perf_counter()
     span = _explain_span(T, opts)  # degeneracy first: raises naming what the motion cannot determine
-    linear, inliers, stages, rob = _initial_estimate(uv, T, opts, rng, notify, coplanar=span is not None,
+    subset = _fit_subset(uv, opts, rng)
+    uv_sub = uv if subset is None else uv[:, subset]
+    linear, inliers, stages, rob = _initial_estimate(uv_sub, T, opts, rng, notify, coplanar=span is not None,
                                                      image_size=image_size)
     timings[f"{stages[0]}_s"] = time.perf_counter() - t0
+    rotation_data = None
     if opts.refine:
         t1 = time.perf_counter()
-        cal, inliers, more = _refine_and_rejudge(uv, T, linear, inliers, opts, notify)
+        cal, inliers, more = _refine_and_rejudge(uv_sub, T, linear, inliers, opts, notify)
         stages += more
         timings["refine_s"] = time.perf_counter() - t1
+        if subset is not None:
+            t1 = time.perf_counter()
+            rotation_data = (_masked(uv_sub, inliers), cal)  # the rotation test runs on the subset's fit
+            cal, inliers = _extend_to_all_tracks(uv, T, cal, inliers, opts, notify)
+            linear = _widened(linear, subset, uv.shape[1])
+            stages.append("all tracks")
+            timings["all_tracks_s"] = time.perf_counter() - t1
     else:
-        cal = from_linear(np.where(inliers[None, :, None], uv, np.nan) if inliers is not None else uv, T, linear)
+        cal = from_linear(_masked(uv, inliers), T, linear)
     result = replace(cal, camera=replace(cal.camera, image_size=image_size), linear=linear, inliers=inliers,
                      residuals_px=_all_residuals(uv, cal, inliers), options=opts,
                      info={**cal.info, "stages": stages, **timings}, diagnostics=[])
     t2 = time.perf_counter()
-    uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
-    found = diagnose(uv_fit, T, result, linear=linear, quaternions=quaternions,
-                     check_rotation=opts.check_rotation and opts.refine, unit=unit, robust=rob, all_uv=uv)
+    found = diagnose(_masked(uv, inliers), T, result, linear=linear, quaternions=quaternions,
+                     check_rotation=opts.check_rotation and opts.refine, unit=unit, robust=rob, all_uv=uv,
+                     rotation_data=rotation_data)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     if opts.check_rotation and not opts.refine:
@@ -146,8 +163,84 @@ def calibrate(
     return result
 
 
+def _masked(uv: np.ndarray, inliers) -> np.ndarray:
+    """``uv`` with the outlier tracks set to NaN (``inliers`` None: all kept)."""
+    return uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
+
+
+def _fit_subset(uv: np.ndarray, opts: CalibrateOptions, rng) -> np.ndarray | None:
+    """Sorted indices of the tracks the iterative stages use (``opts.subset_points`` of
+    those seen in >= 2 views, drawn at random), or None when they use every track."""
+    m = opts.subset_points
+    if not opts.refine or m is None:
+        return None
+    tracked = np.flatnonzero(np.isfinite(uv[..., 0]).sum(axis=0) >= 2)
+    if len(tracked) <= m:
+        return None
+    return np.sort(np.random.default_rng(rng).choice(tracked, m, replace=False))
+
+
+def _param(cal: Calibration, name: str) -> float | None:
+    """Intrinsic or distortion parameter ``name`` of ``cal`` (None for other names)."""
+    cam = cal.camera
+    if name in ("fx", "fy", "cx", "cy", "skew", "f"):
+        K = cam.K
+        return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1], "f": K[0, 0]}[name]
+    if name in DIST_NAMES:
+        return float(cam.dist5[DIST_NAMES.index(name)])
+    return None
+
+
+def _widened(linear: LinearEstimate, subset: np.ndarray, n_points: int) -> LinearEstimate:
+    """The linear estimate of the tracks ``subset`` with its per-point arrays over all
+    ``n_points`` tracks (NaN / unused outside the subset)."""
+    def spread(a, fill, axis):
+        shape = list(np.shape(a))
+        shape[axis] = n_points
+        out = np.full(shape, fill, dtype=np.asarray(a).dtype)
+        out[(slice(None),) * axis + (subset,)] = a
+        return out
+
+    return replace(linear, X=spread(linear.X, np.nan, 0), depth=spread(linear.depth, np.nan, 1),
+                   used=spread(linear.used, False, 0),
+                   static=None if linear.static is None else spread(linear.static, False, 0))
+
+
+def _extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptions, notify):
+    """From the calibration of a subset of the tracks, the maximum-likelihood one of all
+    of them: every track triangulated and judged by the subset's camera (the inlier rule
+    of the robust stage), then :data:`GAUSS_NEWTON_STEPS` undamped steps of the camera
+    and every inlier track jointly, with the covariance at that solution. The subset's
+    solution is a few of its standard deviations from the full one, where the cost is
+    nearly quadratic: the first step lands within a few hundredths of a standard
+    deviation, the second within about 1e-4 (tests/test_pipeline.py). Returns
+    ``(cal, inliers)``."""
+    X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
+    k = np.isfinite(uv[..., 0]).sum(axis=0)
+    if inliers is not None:
+        inliers = inlier_rule(_track_sse(uv, cal, X_all), k, _rule_sigma(cal, opts), opts.ransac.false_rejection)
+    start = replace(cal, X=X_all if inliers is None else np.where(inliers[:, None], X_all, np.nan))
+    step = replace(opts.refinement, distortion=cal.dist_model, max_iterations=GAUSS_NEWTON_STEPS)
+    full = fit_refine(_masked(uv, inliers), T, start, step, near_solution=True)
+    if full.inliers is not None:  # the robust loss classified points too
+        inliers = full.inliers if inliers is None else inliers & full.inliers
+    if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
+        full = _untruncated(full, k[inliers], opts.ransac.false_rejection)
+    subset_info = {key: cal.info[key] for key in ("iterations", "stop_reason", "converged", "n_points_used")
+                   if key in cal.info}
+    moved = max((abs(_param(full, k) - _param(cal, k)) / v for k, v in full.std.items() if v > 0 and
+                 _param(cal, k) is not None), default=0.0)
+    info = {**full.info, "subset": subset_info, "distortion_selection": cal.info.get("distortion_selection", []),
+            "stop_reason": f"{full.info['iterations']} Gauss-Newton step(s) from the fit of "
+                           f"{subset_info.get('n_points_used')} tracks (which moved the camera by {moved:.2g} "
+                           "standard deviations at most)",
+            "converged": True}
+    notify("all tracks", {"points": full.info.get("n_points_used"), "rms_px": full.rms_px})
+    return replace(full, options=replace(full.options, refinement=opts.refinement), info=info), inliers
+
+
 def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement, check_rotation,
-             unit) -> CalibrateOptions:
+             unit, subset_points) -> CalibrateOptions:
     """The :class:`CalibrateOptions` of a call; keywords override ``refinement``'s fields."""
     r = refinement if refinement is not None else RefineOptions()
     overrides = {k: v for k, v in (("distortion", distortion), ("sigma_T", sigma_T), ("fix", fix),
@@ -157,7 +250,7 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
     if not refine and r.distortion not in ("none", "auto"):
         raise InputError(f"distortion={r.distortion!r} needs refine=True: the linear estimate has no distortion")
     return CalibrateOptions(refine=bool(refine), robust=robust, ransac=ransac or RansacOptions(), refinement=r,
-                            check_rotation=bool(check_rotation), unit=str(unit))
+                            check_rotation=bool(check_rotation), unit=str(unit), subset_points=subset_points)
 
 
 def _explain_span(T, opts: CalibrateOptions):
@@ -215,8 +308,7 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
     """Refine on the inliers; then judge every track again with the refined camera (RANSAC
     judged them with the linear, distortion-free one: this matters under strong
     distortion) and refit while the inlier set changes. Returns ``(cal, inliers, stages)``."""
-    uv_fit = uv if inliers is None else np.where(inliers[None, :, None], uv, np.nan)
-    cal = fit_refine(uv_fit, T, linear, opts.refinement)
+    cal = fit_refine(_masked(uv, inliers), T, linear, opts.refinement)
     notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px, "distortion": cal.dist_model})
     stages = ["refine"]
     chosen = replace(opts.refinement, distortion=cal.dist_model)  # refits keep the model chosen
@@ -230,10 +322,10 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
             break
         inliers = again
         start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
-        cal = fit_refine(np.where(inliers[None, :, None], uv, np.nan), T, start, chosen)
+        cal = fit_refine(_masked(uv, inliers), T, start, chosen)
         stages.append("reclassify+refine")
     if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
-        cal = climb_distortion(np.where(inliers[None, :, None], uv, np.nan), T, cal, opts.refinement)
+        cal = climb_distortion(_masked(uv, inliers), T, cal, opts.refinement)
         cal.info["distortion_selection"] = selection + cal.info["distortion_selection"]
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers

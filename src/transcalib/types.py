@@ -212,6 +212,11 @@ def _check_sigma_T(sigma_T):
     return float(s) if s.ndim == 0 else tuple(float(v) for v in s)
 
 
+#: Default of :attr:`CalibrateOptions.subset_points`, and its smallest allowed value.
+SUBSET_POINTS = 10_000
+MIN_SUBSET_POINTS = 100
+
+
 @dataclass(frozen=True)
 class CalibrateOptions:
     """Everything :func:`transcalib.calibrate` was asked to do (``Calibration.options``).
@@ -228,6 +233,13 @@ class CalibrateOptions:
         Test for views where the robot rotated (needs ``refine``).
     unit : str
         Name of the length unit of the translations (messages and files).
+    subset_points : int or None
+        With more tracks than this, the iterative stages (RANSAC, the refinement to
+        convergence, the distortion choice, the re-judging and the rotation test) run on
+        a random subset of this many tracks, and one Gauss-Newton step of the camera
+        with every track then gives the maximum-likelihood solution of all the data
+        (the subset's solution is within its own standard deviations of it, where the
+        problem is linear to many digits). None: every stage uses every track.
     """
 
     refine: bool = True
@@ -236,8 +248,12 @@ class CalibrateOptions:
     refinement: RefineOptions = field(default_factory=RefineOptions)
     check_rotation: bool = True
     unit: str = "units"
+    subset_points: int | None = SUBSET_POINTS
 
     def __post_init__(self):
+        n = self.subset_points
+        if n is not None and (isinstance(n, bool) or int(n) != n or n < MIN_SUBSET_POINTS):
+            raise InputError(f"subset_points must be None or an integer >= {MIN_SUBSET_POINTS}, got {n!r}")
         if not self.refine:
             changed = [f.name for f in fields(RefineOptions)
                        if getattr(self.refinement, f.name) != getattr(RefineOptions(), f.name)]

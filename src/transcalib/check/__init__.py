@@ -53,7 +53,8 @@ def skipped(check: str, reason) -> Diagnostic:
 
 
 def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quaternions=None,
-             check_rotation: bool = True, unit: str = "units", robust=None, all_uv=None) -> list:
+             check_rotation: bool = True, unit: str = "units", robust=None, all_uv=None,
+             rotation_data=None) -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
     Parameters
@@ -76,6 +77,9 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         The robust stage's result: its noise estimate against a user threshold.
     all_uv : (n_views, n_points, 2) float, optional
         Every track (outliers included), for the parallax and inlier-fraction checks.
+    rotation_data : (uv, Calibration), optional
+        What the rotation test runs on instead of ``uv`` and ``calibration``: the subset
+        of the tracks a large calibration was fitted on, and its fit (the test refits).
 
     Returns
     -------
@@ -102,8 +106,9 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         out += check_views(uv, calibration.residuals_px, used=calibration.inliers)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
         if check_rotation:
+            rot_uv, rot_cal = rotation_data if rotation_data is not None else (uv, calibration)
             try:
-                out += check_view_rotations(uv, T, calibration)
+                out += check_view_rotations(rot_uv, T, rot_cal)
             except DegenerateError as exc:
                 out.append(skipped("rotation test (did the robot rotate between views?)", exc))
     if quaternions is not None:

@@ -4,9 +4,9 @@ outlying residuals, gross outliers left in the residuals."""
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from ..errors import Diagnostic
+from ..estimate.distributions import f_sf
 from .common import depths, fmt_list
 
 MIN_VIEW_POINTS = 6
@@ -105,7 +105,7 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
             continue
         f = ms_i / ms_o
         if (f > residual_ratio and np.sqrt(ms_i) - np.sqrt(ms_o) >= min_excess_px
-                and stats.f.sf(f, n_res[i], n_res[others].sum()) < alpha):
+                and f_sf(f, n_res[i], n_res[others].sum()) < alpha):
             flagged.append((i, np.sqrt(ms_i), np.sqrt(ms_o)))
     if flagged:
         detail = ", ".join(f"view {i}: {a:.3g} px vs {b:.3g} px" for i, a, b in flagged)

@@ -52,10 +52,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 from ..errors import DegenerateError, Diagnostic
 from ..estimate.covariance import linearise, profile_step
+from ..estimate.distributions import chi2_ppf, f_sf
 from ..estimate.refine import refine
 from ..types import Calibration, RefineOptions
 from .common import fmt_list
@@ -168,7 +168,7 @@ def view_rotation_test(uv, T, calibration: Calibration, *, alpha: float = ROTATI
             std[i] = np.degrees(np.sqrt(np.maximum(np.diag(cov)[3 * k: 3 * k + 3] * s2, 0.0)))
         top, s2 = single[flagged[0]][0] * single[flagged[0]][4], single[flagged[0]][4]
         also = [i for i in views if i not in flagged and pval[i] < level
-                and (top - single[i][0] * single[i][4]) / s2 < stats.chi2.ppf(0.99, 3)]
+                and (top - single[i][0] * single[i][4]) / s2 < chi2_ppf(0.99, 3)]
     return {"rotation_deg": rot, "std_deg": std, "statistic": stat, "p_value": pval, "dof": red.dof,
             "sigma_px": float(np.sqrt(red.sse / red.dof)), "flagged": flagged, "also_consistent": also,
             "level": level}
@@ -182,7 +182,7 @@ def _single_view_tests(red: _Reduced, views) -> dict:
     for i in views:
         w, cov, r = red.step([i])
         s2 = max((red.sse - r) / d, 1e-300)
-        out[i] = (r / s2, float(stats.f.sf(r / s2 / 3.0, 3, d)), w, cov, s2)
+        out[i] = (r / s2, float(f_sf(r / s2 / 3.0, 3, d)), w, cov, s2)
     return out
 
 
@@ -196,7 +196,7 @@ def _forward_selection(red: _Reduced, views, single, level, min_angle_rad) -> li
         r, i = max((red.step(flagged + [i])[2], i) for i in views if i not in flagged)
         f = ((r - reduction) / 3.0) / max((red.sse - r) / d, 1e-300)
         w_i = red.step(flagged + [i])[0][-3:]
-        if not (stats.f.sf(f, 3, d) < level and single[i][1] < level and np.linalg.norm(w_i) >= min_angle_rad):
+        if not (f_sf(f, 3, d) < level and single[i][1] < level and np.linalg.norm(w_i) >= min_angle_rad):
             break
         flagged.append(i)
         reduction = r
@@ -226,7 +226,7 @@ def _fit_rotated_views(uv, T, calibration: Calibration, candidates):
         return None
     best = min(fits, key=lambda i: fits[i][0])
     s2 = fits[best][3] ** 2
-    ambiguous = [i for i in fits if i != best and (fits[i][0] - fits[best][0]) / s2 < stats.chi2.ppf(0.99, 3)]
+    ambiguous = [i for i in fits if i != best and (fits[i][0] - fits[best][0]) / s2 < chi2_ppf(0.99, 3)]
     return best, (np.asarray(fits[best][1]), np.asarray(fits[best][2])), ambiguous
 
 

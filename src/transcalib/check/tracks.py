@@ -10,9 +10,9 @@ about K (a static overlay, dust on the lens, a far background).
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from ..errors import Diagnostic
+from ..estimate.distributions import chi2_ppf, chi2_sf
 from ..estimate.linear import reference_motion
 from .common import fmt_list
 
@@ -93,8 +93,8 @@ def check_threshold(sigma_px: float, rule_sigma_px: float, threshold_px, alpha: 
     the rule then rejects good tracks far more often than ``alpha``."""
     if threshold_px is None or not sigma_px > 1.2 * rule_sigma_px:
         return []
-    q = stats.chi2.ppf(1 - alpha, 2)
-    rejected = float(stats.chi2.sf(q * (rule_sigma_px / sigma_px) ** 2, 2))
+    q = chi2_ppf(1 - alpha, 2)
+    rejected = float(chi2_sf(q * (rule_sigma_px / sigma_px) ** 2, 2))
     return [Diagnostic(
         "threshold_small",
         f"the inlier threshold {threshold_px:g} px is small for the pixel noise the data show ({sigma_px:.2g} px "

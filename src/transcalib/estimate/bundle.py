@@ -27,7 +27,7 @@ O(n) time and memory (batched 3x3 inverses, BLAS products; no loop over points).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
@@ -38,6 +38,7 @@ from ..geometry.rotation import rotvec_to_matrix
 from ..types import INTRINSIC_NAMES
 
 __all__ = ["Layout", "State", "Data", "build_data", "predict_view", "normal_equations", "schur", "solve_spd",
+           "Reduced", "reduced_system", "BLOCK_POINTS",
            "levenberg_marquardt", "cost", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
 
 _MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
@@ -203,6 +204,14 @@ class Data:
     @property
     def n_obs(self) -> int:
         return int(sum(len(p) for p in self.pts))
+
+    def points(self, lo: int, hi: int) -> "Data":
+        """The observations of the used points ``lo <= j < hi`` (renumbered from 0)."""
+        cuts = [np.searchsorted(p, (lo, hi)) for p in self.pts]
+        return Data(pts=[p[a:b] - lo for p, (a, b) in zip(self.pts, cuts)],
+                    uv=[u[:, a:b] for u, (a, b) in zip(self.uv, cuts)], T_meas=self.T_meas, t_weight=self.t_weight,
+                    n_points=hi - lo, full_uv=[None if f is None else f[:, lo:hi] for f in self.full_uv],
+                    full_seen=[None if f is None else f[lo:hi] for f in self.full_seen])
 
 
 def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
@@ -374,12 +383,13 @@ def _view_system(state, lay, data, i, loss, c, obs_weight):
     return r * seen, w, Jg, JX, np.arange(n)
 
 
-def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None):
+def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, priors: bool = True):
     """Assemble ``[[U, W], [W^T, V]] [dg; dX] = [b_g; b_X]`` (Gauss-Newton, IRLS weights).
 
     Returns ``U (p, p)``, ``W (p, 3, n)``, ``V (3, 3, n)``, ``b_g (p,)``, ``b_X (3, n)``
     (points last). ``obs_weight``: optional list of (n_i,) weights replacing the loss's
-    IRLS weights (the covariance uses ones).
+    IRLS weights (the covariance uses ones). ``priors``: include the translation priors
+    (once per system: not in each block of points).
     """
     p, n = lay.size, data.n_points
     U, W, V = np.zeros((p, p)), np.zeros((p, 3, n)), np.zeros((3, 3, n))
@@ -403,11 +413,17 @@ def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None):
     for a in range(3):
         for b in range(a):
             V[a, b] = V[b, a]
-    for i, s in lay.i_T.items():  # translation priors: residual t_w (T^meas - T), Jacobian t_w I
+    if priors:
+        _add_priors(U, bg, state, lay, data)
+    return U, W, V, bg, bX
+
+
+def _add_priors(U, bg, state, lay, data) -> None:
+    """Translation priors into ``U``, ``b_g``: residual ``t_w (T^meas - T)``, Jacobian ``t_w I``."""
+    for i, s in lay.i_T.items():
         tw2 = data.t_weight[i] ** 2
         U[s: s + 3, s: s + 3] += tw2 * np.eye(3)
         bg[s: s + 3] += tw2 * (data.T_meas[i] - state.T[i])
-    return U, W, V, bg, bX
 
 
 def inv3_spd(V: np.ndarray):
@@ -437,14 +453,87 @@ def schur(U, W, V, bg, bX):
     """Reduced system ``S dg = rhs`` with the points eliminated, and ``V^-1``.
 
     ``S = U - sum_j W_j V_j^-1 W_j^T``, ``rhs = b_g - sum_j W_j V_j^-1 b_j``; returns
-    ``S, rhs, V^-1, det`` (scaled determinants of the point blocks).
+    ``S, rhs, V^-1, det`` (scaled determinants of the point blocks) and ``Y = W V^-1
+    (p, 3, n)``.
     """
     Vinv, det = inv3_spd(V)
     p = U.shape[0]
     Y = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]  # W_j V_j^-1
     S = U - Y.reshape(p, -1) @ W.reshape(p, -1).T
     rhs = bg - Y.reshape(p, -1) @ bX.reshape(-1)
-    return 0.5 * (S + S.T), rhs, Vinv, det
+    return 0.5 * (S + S.T), rhs, Vinv, det, Y
+
+
+#: Points per block of :func:`reduced_system` (its temporaries stay in the CPU cache).
+BLOCK_POINTS = 8192
+
+
+@dataclass(frozen=True, eq=False)
+class Reduced:
+    """The normal equations with the points eliminated (:func:`reduced_system`).
+
+    ``S dg = rhs`` for the global parameters; per point ``V_j^-1`` (3, 3, n), ``Y_j =
+    W_j V_j^-1`` (p, 3, n), ``b_j`` (3, n) and the scaled determinants ``det`` (n,) of
+    ``V_j``: the points' step is ``dX_j = V_j^-1 b_j - Y_j^T dg`` and, with ``Sinv =
+    S^-1``, their covariance ``V_j^-1 + Y_j^T Sinv Y_j`` (module docstring).
+    """
+
+    S: np.ndarray
+    rhs: np.ndarray
+    Vinv: np.ndarray
+    Y: np.ndarray
+    bX: np.ndarray
+    det: np.ndarray
+
+    def point_step(self, dg: np.ndarray) -> np.ndarray:
+        """``dX (3, n)`` given the global step ``dg (p,)``."""
+        return matvec3(self.Vinv, self.bX) - np.tensordot(dg, self.Y, axes=1)
+
+    def point_variances(self, Sinv: np.ndarray) -> np.ndarray:
+        """Diagonal of each point's covariance ``(n, 3)`` (unit noise) given ``S^-1``."""
+        p, n = self.Y.shape[0], self.Y.shape[2]
+        out = np.empty((n, 3))
+        for lo in range(0, n, BLOCK_POINTS):
+            b = slice(lo, min(lo + BLOCK_POINTS, n))
+            Y = self.Y[:, :, b]
+            SY = (Sinv @ Y.reshape(p, -1)).reshape(Y.shape)
+            out[b] = (np.stack([self.Vinv[0, 0, b], self.Vinv[1, 1, b], self.Vinv[2, 2, b]])
+                      + np.sum(Y * SY, axis=0)).T
+        return out
+
+
+def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None) -> Reduced:
+    """The Schur-reduced normal equations of all points, assembled :data:`BLOCK_POINTS`
+    points at a time (the Schur complement is a sum over points): the same system as
+    :func:`normal_equations` then :func:`schur`, with small temporaries.
+
+    ``obs_weight``: per-view weights as in :func:`normal_equations`; ``ok (n,)`` bool:
+    the points that count (the others are left out of ``S``; their ``V`` is the
+    identity, their ``Y`` zero).
+    """
+    p, n = lay.size, data.n_points
+    S, rhs = np.zeros((p, p)), np.zeros(p)
+    Vinv, Y, bX, det = np.empty((3, 3, n)), np.empty((p, 3, n)), np.empty((3, n)), np.empty(n)
+    for lo in range(0, n, BLOCK_POINTS):
+        hi = min(lo + BLOCK_POINTS, n)
+        part = data.points(lo, hi)
+        weights = None
+        if obs_weight is not None:
+            weights = [w[slice(*np.searchsorted(pts, (lo, hi)))] for w, pts in zip(obs_weight, data.pts)]
+        if ok is not None:
+            keep = ok[lo:hi]
+            weights = [keep[q] * (1.0 if weights is None else weights[i]) for i, q in enumerate(part.pts)]
+        U, W, V, bg, b = normal_equations(replace(state, X=state.X[lo:hi]), lay, part, loss, c, weights,
+                                          priors=False)
+        if ok is not None:
+            for a in range(3):
+                V[a, a, ~keep] = 1.0  # left out: W is zero there
+        S_b, rhs_b, Vinv[:, :, lo:hi], det[lo:hi], Y[:, :, lo:hi] = schur(U, W, V, bg, b)
+        S += S_b
+        rhs += rhs_b
+        bX[:, lo:hi] = b
+    _add_priors(S, rhs, state, lay, data)
+    return Reduced(S, rhs, Vinv, Y, bX, det)
 
 
 def solve_spd(S: np.ndarray, rhs: np.ndarray):
@@ -488,7 +577,7 @@ def _damped_step(state, f, lay, data, system, mu, loss, c):
     Vd = V.copy()
     for a in range(3):
         Vd[a, a] += mu * dV[a]
-    S, rhs, Vinv, det = schur(U + np.diag(mu * dU), W, Vd, bg, bX)
+    S, rhs, Vinv, det, _ = schur(U + np.diag(mu * dU), W, Vd, bg, bX)
     dg = solve_spd(S, rhs) if np.all(det > 0) else None
     if dg is None:
         return None, np.inf, -1.0
@@ -501,8 +590,25 @@ def _damped_step(state, f, lay, data, system, mu, loss, c):
     return new, new_cost, gain
 
 
-def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None):
+def _gauss_newton_step(state, f, lay, data, loss, c):
+    """One undamped step on the block-wise reduced system (memory O(n) with a small
+    constant, any number of points): ``(new_state, new_cost)``, or ``(None, f)`` when it
+    does not decrease the cost ``f``."""
+    red = reduced_system(state, lay, data, loss, c)
+    dg = solve_spd(red.S, red.rhs) if np.all(red.det > 0) else None
+    if dg is None:
+        return None, f
+    new = apply_step(state, lay, dg, red.point_step(dg))
+    new_f = cost(new, lay, data, loss, c)
+    return (new, new_f) if new_f < f else (None, f)
+
+
+def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None,
+                        damping: float = _MU0):
     """Minimise the (robust) cost; returns ``(state, cost, iterations, stop reason)``.
+
+    ``damping`` is the first step's, relative to the diagonal of the normal matrix; 0
+    (a start near the solution) takes Gauss-Newton steps while they decrease the cost.
 
     Stops when a step decreases the cost by less than ``tol * sigma^2`` with
     ``sigma^2 = 2 cost / dof`` (the parameters moved by about ``sqrt(2 tol)`` standard
@@ -512,7 +618,7 @@ def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=1
     if not np.isfinite(f):
         raise DegenerateError("the initial estimate puts some used points behind the camera; "
                               "start from a better initial estimate (e.g. the linear one)")
-    mu, nu = _MU0, 2.0
+    mu, nu = damping, 2.0
     reason = f"max_iterations ({max_iterations}) reached"
     floor = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
     dof = max(2 * data.n_obs - lay.n_global_no_T - 3 * data.n_points, 1)
@@ -521,17 +627,22 @@ def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=1
         if f <= floor:
             reason = "converged: zero residual"
             break
-        system = normal_equations(state, lay, data, loss, c)
-        while True:
-            new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
-            if gain > 0:
-                mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-                nu = 2.0
-                break
-            mu *= nu
-            nu *= 2.0
-            if mu > 1e16:
-                return state, f, it, "converged: no step decreases the cost (minimum within numerical precision)"
+        new = None
+        if mu == 0:  # undamped while Gauss-Newton steps decrease the cost
+            new, new_f = _gauss_newton_step(state, f, lay, data, loss, c)
+            mu = 0.0 if new is not None else _MU0
+        if new is None:
+            system = normal_equations(state, lay, data, loss, c)
+            while True:
+                new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
+                if gain > 0:
+                    mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                    nu = 2.0
+                    break
+                mu *= nu
+                nu *= 2.0
+                if mu > 1e16:
+                    return state, f, it, "converged: no step decreases the cost (minimum within numerical precision)"
         it += 1
         decrease = f - new_f
         state, f = new, new_f

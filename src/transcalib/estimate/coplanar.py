@@ -49,13 +49,13 @@ the geometry is weak) and ends with :func:`fit_coplanar` on them.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from ..errors import DegenerateError, InputError
 from ..geometry.triangulate import triangulate
 from ..types import LinearEstimate
 from ..validate import SPAN_TOL, as_uv_T
 from .degeneracy import explain_span, translation_basis, translation_rank
+from .distributions import chi2_ppf
 from .minimal import Problem, forms, normalise
 from .scoring import Scorer, inlier_rule, median_sigma, sigma_from_threshold, track_dof, truncated_sigma
 
@@ -333,11 +333,11 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
     scorer = Scorer(pb)
     sse = scorer.sse(_plane_to_full(a, P))
     fixed = None if threshold_px is None else sigma_from_threshold(threshold_px, false_rejection)
-    m = stats.chi2.ppf(0.5, track_dof(k))
+    m = chi2_ppf(0.5, track_dof(k))
     if fixed is None:
         best = sse[int(np.argmin(np.median(np.where(scorer.ok, sse / m, np.inf), axis=1)))]
     else:
-        q = fixed**2 * stats.chi2.ppf(1 - false_rejection, track_dof(k))
+        q = fixed**2 * chi2_ppf(1 - false_rejection, track_dof(k))
         best = sse[int(np.argmin(np.sum(np.minimum(np.nan_to_num(sse, nan=0.0), q), axis=1)))]
     sigma = fixed or truncated_sigma(best, k, median_sigma(best, k), false_rejection)
     inl = inlier_rule(best, k, sigma, false_rejection)

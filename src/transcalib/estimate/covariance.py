@@ -20,7 +20,7 @@ from ..geometry.camera import DIST_MODELS, pad_dist
 from dataclasses import dataclass, replace
 
 from . import bundle
-from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, normal_equations, schur
+from .bundle import Layout, Reduced, State, build_data, dist_indices, intrinsic_basis, reduced_system
 
 __all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "bound_std", "linearise", "Linearised", "profile_step",
            "IDENTIFIABILITY_RTOL"]
@@ -30,21 +30,14 @@ __all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "b
 IDENTIFIABILITY_RTOL = 1e-10
 
 
-def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=None):
-    """``S (p, p)`` with the points eliminated, ``W``, ``V^-1`` and the point determinants.
+def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=None) -> Reduced:
+    """The reduced system (:func:`transcalib.estimate.bundle.reduced_system`) whose ``S
+    (p, p)`` is the information with the points eliminated.
 
     ``obs_weight``: per-view weights (default ones); ``ok`` (n,) bool: points that count
     (the others are left out of ``S``).
     """
-    weights = [np.ones(len(p)) for p in data.pts] if obs_weight is None else obs_weight
-    if ok is not None:
-        weights = [np.where(ok[pts], w, 0.0) for pts, w in zip(data.pts, weights)]
-    U, W, V, _, _ = normal_equations(state, lay, data, "linear", 1.0, obs_weight=weights)
-    if ok is not None:
-        for a in range(3):
-            V[a, a, ~ok] = 1.0  # excluded points: W is zero there, they do not enter S
-    S, _, Vinv, det = schur(U, W, V, np.zeros(lay.size), np.zeros((3, data.n_points)))
-    return S, W, Vinv, det
+    return reduced_system(state, lay, data, "linear", 1.0, obs_weight, ok)
 
 
 def check_identifiable(S: np.ndarray, names: tuple, hint="") -> tuple[np.ndarray, np.ndarray]:
@@ -80,20 +73,17 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "")
     weights = [np.ones(len(p)) for p in data.pts] if obs_weight is None else obs_weight
     n_w = np.zeros(data.n_points, int)
     for pts, w in zip(data.pts, weights):
-        np.add.at(n_w, pts, w > 0)
+        n_w += np.bincount(pts, weights=w > 0, minlength=data.n_points).astype(int)
     ok = n_w >= 2
     for _ in range(2):  # a second pass only if some points turn out undetermined
-        S, W, Vinv, det = reduced_information(state, lay, data, weights, ok)
-        undetermined = ok & (det <= 1e-12)  # rays (nearly) parallel: X_j not determined
+        red = reduced_information(state, lay, data, obs_weight, None if ok.all() else ok)
+        undetermined = ok & (red.det <= 1e-12)  # rays (nearly) parallel: X_j not determined
         if not undetermined.any():
             break
         ok &= ~undetermined
-    evals, evecs = check_identifiable(S, lay.names(), hint)
+    evals, evecs = check_identifiable(red.S, lay.names(), hint)
     Sinv = (evecs / evals) @ evecs.T
-    p, n = lay.size, data.n_points
-    Z = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]
-    SZ = (Sinv @ Z.reshape(p, -1)).reshape(p, 3, n)
-    var_X = (np.stack([Vinv[0, 0], Vinv[1, 1], Vinv[2, 2]]) + np.sum(Z * SZ, axis=0)).T  # (n, 3)
+    var_X = red.point_variances(Sinv)
     var_X[~ok] = np.nan
     return Sinv, var_X, ok
 
@@ -150,7 +140,7 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, f
     tw = np.zeros(n_views)
     tw[list(T_views)] = scene.noise_px / scene.robot_noise if T_views else 0.0
     data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
-    return bound_std(reduced_information(state, lay, data)[0], lay, scene.noise_px)
+    return bound_std(reduced_information(state, lay, data).S, lay, scene.noise_px)
 
 
 def bound_std(S: np.ndarray, lay: Layout, noise_px: float) -> dict:
@@ -196,9 +186,8 @@ class Linearised:
         """``(S, b, sse)``: reduced normal equations (points eliminated) of ``layout``
         (the calibration's plus extra parameters at their current values) and the
         residual sum of squares."""
-        U, W, V, bg, bX = normal_equations(self.state, layout, self.data)
-        S, b, _, _ = schur(U, W, V, bg, bX)
-        return S, b, 2.0 * bundle.cost(self.state, layout, self.data, "linear", 1.0)
+        red = reduced_system(self.state, layout, self.data)
+        return red.S, red.rhs, 2.0 * bundle.cost(self.state, layout, self.data, "linear", 1.0)
 
 
 def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Linearised:

@@ -203,7 +203,7 @@ def _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion)
         raise InputError(f"unknown distortion model {distortion!r}") from None
     state = State(intr, np.zeros(5), R, np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X)
     data = build_data(uv, np.ones((n_views, n), bool), np.arange(n), T, np.zeros(n_views))
-    return reduced_information(state, lay, data)[0], lay.names()
+    return reduced_information(state, lay, data).S, lay.names()
 
 
 def identifiability_hint(names, T=None, unit: str = "units") -> str:

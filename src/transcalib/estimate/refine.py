@@ -17,7 +17,6 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
@@ -28,6 +27,7 @@ from . import bundle
 from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
 from .covariance import _rot_views, covariance, linearise, profile_step
 from .degeneracy import identifiability_hint
+from .distributions import f_sf
 from .scoring import SIGMA_FLOOR_PX
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
@@ -122,15 +122,17 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
 
 
 def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, progress=None,
-               flange: FlangeModel | None = None) -> Calibration:
+               flange: FlangeModel | None = None, near_solution: bool = False) -> Calibration:
     """:func:`refine` on validated arrays and options (the pipeline's entry); with
     ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
-    estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined)."""
+    estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined).
+    ``near_solution``: ``initial`` is within a few standard deviations of the solution
+    (the fit of a subset of the tracks): undamped Gauss-Newton steps."""
     if opts.distortion == "auto":
         return _fit_auto(uv, T, initial, opts, progress, flange)
     t_start = time.perf_counter()
     pb = _problem(uv, T, initial, opts, flange)
-    fitter = _Fitter(pb, progress)
+    fitter = _Fitter(pb, progress, damping=0.0 if near_solution else bundle._MU0)
     return _result(pb, fitter, _fit(pb, fitter), initial, t_start)
 
 
@@ -269,7 +271,7 @@ def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: s
     if d <= 0:
         return 0.0, 1.0
     F = (red / k) / max((sse - red) / d, SIGMA_FLOOR_PX**2)
-    return float(F), float(stats.f.sf(F, k, d))
+    return float(F), float(f_sf(F, k, d))
 
 
 # ----------------------------------------------------------------------------------------
@@ -286,8 +288,8 @@ class _Fitter:
     expectation, the degrees of freedom).
     """
 
-    def __init__(self, pb: _Problem, progress):
-        self.pb, self.progress = pb, progress
+    def __init__(self, pb: _Problem, progress, damping: float = bundle._MU0):
+        self.pb, self.progress, self.damping = pb, progress, damping
         self.iterations = 0
         self.set_scale(pb.opts.loss_scale_px or 1.0)
 
@@ -306,7 +308,7 @@ class _Fitter:
     def _lm(self, state, lay, data, loss):
         o = self.pb.opts
         state, f, it, reason = levenberg_marquardt(state, lay, data, loss, self.c, o.max_iterations, o.tol,
-                                                   self.progress)
+                                                   self.progress, damping=self.damping)
         self.iterations += it
         return state, f, reason
 

@@ -26,13 +26,13 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 from ..errors import DegenerateError, MirroredError
 from ..types import LinearEstimate, RansacOptions
 from ..validate import as_uv_T, check_translations_span
 from ..geometry.rotation import rq_decompose
 from ..geometry.triangulate import triangulate
+from .distributions import chi2_ppf
 from .linear import fit_linear
 from .minimal import forms, forms_sum, normalise, null_vectors, solve_minimal, to_pixels
 from .scoring import Scorer, inlier_rule, median_sigma, point_errors, sigma_from_threshold, truncated_sigma
@@ -234,7 +234,7 @@ class _Search:
                 f"in 4 views); only {len(self.pool)} such point(s) among {n_points}. Track the points through "
                 "more views.")
         ok = self.scorer.ok
-        self.median_chi2 = np.where(ok, stats.chi2.ppf(0.5, np.maximum(2 * self.k - 3, 1)), 1.0)
+        self.median_chi2 = np.where(ok, chi2_ppf(0.5, np.maximum(2 * self.k - 3, 1)), 1.0)
         self.fixed_sigma = (None if opts.threshold_px is None
                             else sigma_from_threshold(opts.threshold_px, opts.false_rejection))
         self.score, self.a, self.sse, self.sigma, self.n_in = np.inf, None, None, np.nan, 0
@@ -246,7 +246,7 @@ class _Search:
         ok = self.scorer.ok
         if self.fixed_sigma is None:  # least median of normalised squares
             return np.median(sse[:, ok] / self.median_chi2[ok], axis=1)
-        q = self.fixed_sigma**2 * stats.chi2.ppf(1.0 - self.opts.false_rejection, np.maximum(2 * self.k - 3, 1))
+        q = self.fixed_sigma**2 * chi2_ppf(1.0 - self.opts.false_rejection, np.maximum(2 * self.k - 3, 1))
         return np.sum(np.minimum(np.nan_to_num(sse[:, ok], nan=0.0), q[ok]), axis=1)  # MSAC
 
     def consider(self, a: np.ndarray) -> bool:

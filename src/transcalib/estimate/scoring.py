@@ -23,9 +23,8 @@ the mean of the inliers' ``e^2`` corrected for the truncation at the threshold,
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
-
 from ..geometry.triangulate import triangulate
+from .distributions import chi2_cdf, chi2_ppf, chi2_ppf_table
 from .minimal import Problem
 
 __all__ = ["Scorer", "point_errors", "track_dof", "inlier_rule", "truncated_sigma", "median_sigma",
@@ -40,13 +39,12 @@ SIGMA_FLOOR_PX = 1e-6
 
 def track_dof(k: np.ndarray) -> np.ndarray:
     """Residual degrees of freedom ``2 k - 3`` of tracks seen in ``k`` views (at least 1)."""
-    return np.maximum(2 * np.asarray(k) - 3, 1)
+    return np.maximum(2 * np.asarray(k, dtype=np.intp) - 3, 1)
 
 
 def _quantile(nu: np.ndarray, p: float) -> np.ndarray:
-    """``chi2_nu(p)`` for an array of degrees of freedom (few distinct values: cached)."""
-    values, inverse = np.unique(nu, return_inverse=True)
-    return stats.chi2.ppf(p, values)[inverse.ravel()].reshape(np.shape(nu))
+    """``chi2_nu(p)`` for an integer array of degrees of freedom."""
+    return chi2_ppf_table(p, nu)
 
 
 def inlier_rule(sse: np.ndarray, k: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
@@ -66,9 +64,9 @@ def truncated_sigma(sse: np.ndarray, k: np.ndarray, sigma0: float, alpha: float,
     """
     nu = track_dof(k)
     q = _quantile(nu, 1.0 - alpha)
-    values, inverse = np.unique(nu, return_inverse=True)
-    qv = stats.chi2.ppf(1.0 - alpha, values)
-    factor = (values * stats.chi2.cdf(qv, values + 2) / stats.chi2.cdf(qv, values))[inverse.ravel()]
+    values = np.arange(1, int(nu.max()) + 1) if nu.size else np.ones(1)
+    qv = chi2_ppf(1.0 - alpha, values)
+    factor = (values * chi2_cdf(qv, values + 2) / chi2_cdf(qv, values))[nu - 1]
     sigma = max(float(sigma0), SIGMA_FLOOR_PX)
     finite = np.isfinite(sse)
     for _ in range(iterations):
@@ -88,8 +86,10 @@ def truncation_factor(k: np.ndarray, alpha: float) -> float:
     (about 0.98 at ``alpha = 0.01``). Dividing a variance estimated on the inliers by it
     undoes the bias."""
     nu = track_dof(k)
-    q = _quantile(nu, 1.0 - alpha)
-    return float(np.sum(nu * stats.chi2.cdf(q, nu + 2)) / np.sum(nu * stats.chi2.cdf(q, nu)))
+    values = np.arange(1, int(nu.max()) + 1)
+    qv = chi2_ppf(1.0 - alpha, values)
+    count = np.bincount(nu, minlength=values.size + 1)[1:]
+    return float(np.sum(count * values * chi2_cdf(qv, values + 2)) / np.sum(count * values * chi2_cdf(qv, values)))
 
 
 def median_sigma(sse: np.ndarray, k: np.ndarray) -> float:
@@ -104,7 +104,7 @@ def median_sigma(sse: np.ndarray, k: np.ndarray) -> float:
 def sigma_from_threshold(threshold_px: float, alpha: float) -> float:
     """The noise a user threshold implies: the norm of one observation's residual is below
     ``threshold_px`` with probability ``1 - alpha``: ``threshold / sqrt(chi2_2(1 - alpha))``."""
-    return float(threshold_px / np.sqrt(stats.chi2.ppf(1.0 - alpha, 2)))
+    return float(threshold_px / np.sqrt(chi2_ppf(1.0 - alpha, 2)))
 
 
 class Scorer:

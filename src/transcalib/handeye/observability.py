@@ -91,7 +91,7 @@ def _fisher(K, dist5, R_cam, t, X, uv, T, F, fix, estimate_skew, square_pixels, 
                   np.tile(np.eye(3), (len(T), 1, 1)), T, X[used], F, np.asarray(t, float))
     data = build_data(uv, seen, used, T, np.zeros(len(T)))
     U = normal_equations(state, lay, data)[0]
-    return reduced_information(state, lay, data)[0], lay, U
+    return reduced_information(state, lay, data).S, lay, U
 
 
 def _split(free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
