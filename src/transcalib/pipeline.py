@@ -369,11 +369,12 @@ def _all_residuals(uv, cal: Calibration, inliers) -> np.ndarray:
     triangulated with the final camera for that (its ``X`` stays NaN)."""
     if inliers is None:
         return cal.residuals_px
-    X_eval = cal.X.copy()
-    missing = ~np.isfinite(cal.X[:, 0])  # only these need triangulating
-    X_eval[missing] = triangulate(cal.A, uv[:, missing], cal.T, K=cal.K, dist=cal.dist)
-    full = uv - cal.camera.project(np.nan_to_num(X_eval), cal.T)
-    return np.where(np.isfinite(X_eval)[None, :, :1], full, np.nan)
+    out = cal.residuals_px.copy()
+    missing = ~np.isfinite(cal.X[:, 0])  # only these need triangulating and projecting
+    X = triangulate(cal.A, uv[:, missing], cal.T, K=cal.K, dist=cal.dist)
+    res = uv[:, missing] - cal.camera.project(np.nan_to_num(X), cal.T)
+    out[:, missing] = np.where(np.isfinite(X)[None, :, :1], res, np.nan)
+    return out
 
 
 def from_linear(uv: np.ndarray, T: np.ndarray, linear: LinearEstimate) -> Calibration:

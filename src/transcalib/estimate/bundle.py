@@ -39,7 +39,7 @@ from ..types import INTRINSIC_NAMES
 
 __all__ = ["Layout", "State", "Data", "build_data", "predict_view", "normal_equations", "schur", "solve_spd",
            "Reduced", "reduced_system", "BLOCK_POINTS",
-           "levenberg_marquardt", "cost", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
+           "levenberg_marquardt", "gauss_newton", "cost", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
 
 _MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
 _DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see Data
@@ -590,25 +590,37 @@ def _damped_step(state, f, lay, data, system, mu, loss, c):
     return new, new_cost, gain
 
 
-def _gauss_newton_step(state, f, lay, data, loss, c):
-    """One undamped step on the block-wise reduced system (memory O(n) with a small
-    constant, any number of points): ``(new_state, new_cost)``, or ``(None, f)`` when it
-    does not decrease the cost ``f``."""
-    red = reduced_system(state, lay, data, loss, c)
-    dg = solve_spd(red.S, red.rhs) if np.all(red.det > 0) else None
-    if dg is None:
-        return None, f
-    new = apply_step(state, lay, dg, red.point_step(dg))
-    new_f = cost(new, lay, data, loss, c)
-    return (new, new_f) if new_f < f else (None, f)
+def gauss_newton(state, lay, data, loss="linear", c=1.0, steps: int = 2, tol=1e-6, progress=None):
+    """Undamped Gauss-Newton steps from a start near the solution (the fit of a subset of
+    the points), each on the block-wise reduced system (:func:`reduced_system`: small
+    temporaries at any number of points). A step that does not lower the cost hands
+    over to :func:`levenberg_marquardt`.
+
+    Returns ``(state, cost, iterations, stop reason, system)`` with ``system`` the
+    :class:`Reduced` system of the last step (linearised one step before the returned
+    state; None after Levenberg-Marquardt).
+    """
+    f = cost(state, lay, data, loss, c)
+    if not np.isfinite(f):
+        raise DegenerateError("the initial estimate puts some used points behind the camera; "
+                              "start from a better initial estimate (e.g. the linear one)")
+    system = None
+    for it in range(steps):
+        red = reduced_system(state, lay, data, loss, c)
+        dg = solve_spd(red.S, red.rhs) if np.all(red.det > 0) else None
+        new = None if dg is None else apply_step(state, lay, dg, red.point_step(dg))
+        new_f = np.inf if new is None else cost(new, lay, data, loss, c)
+        if not new_f < f:
+            state, f, more, reason = levenberg_marquardt(state, lay, data, loss, c, steps - it, tol, progress)
+            return state, f, it + more, reason, None
+        state, f, system = new, new_f, red
+        if progress is not None:
+            progress({"iteration": it + 1, "cost": f, "damping": 0.0})
+    return state, f, steps, f"{steps} Gauss-Newton step(s)", system
 
 
-def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None,
-                        damping: float = _MU0):
+def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None):
     """Minimise the (robust) cost; returns ``(state, cost, iterations, stop reason)``.
-
-    ``damping`` is the first step's, relative to the diagonal of the normal matrix; 0
-    (a start near the solution) takes Gauss-Newton steps while they decrease the cost.
 
     Stops when a step decreases the cost by less than ``tol * sigma^2`` with
     ``sigma^2 = 2 cost / dof`` (the parameters moved by about ``sqrt(2 tol)`` standard
@@ -618,7 +630,7 @@ def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=1
     if not np.isfinite(f):
         raise DegenerateError("the initial estimate puts some used points behind the camera; "
                               "start from a better initial estimate (e.g. the linear one)")
-    mu, nu = damping, 2.0
+    mu, nu = _MU0, 2.0
     reason = f"max_iterations ({max_iterations}) reached"
     floor = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
     dof = max(2 * data.n_obs - lay.n_global_no_T - 3 * data.n_points, 1)
@@ -627,22 +639,17 @@ def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=1
         if f <= floor:
             reason = "converged: zero residual"
             break
-        new = None
-        if mu == 0:  # undamped while Gauss-Newton steps decrease the cost
-            new, new_f = _gauss_newton_step(state, f, lay, data, loss, c)
-            mu = 0.0 if new is not None else _MU0
-        if new is None:
-            system = normal_equations(state, lay, data, loss, c)
-            while True:
-                new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
-                if gain > 0:
-                    mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-                    nu = 2.0
-                    break
-                mu *= nu
-                nu *= 2.0
-                if mu > 1e16:
-                    return state, f, it, "converged: no step decreases the cost (minimum within numerical precision)"
+        system = normal_equations(state, lay, data, loss, c)
+        while True:
+            new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
+            if gain > 0:
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+                break
+            mu *= nu
+            nu *= 2.0
+            if mu > 1e16:
+                return state, f, it, "converged: no step decreases the cost (minimum within numerical precision)"
         it += 1
         decrease = f - new_f
         state, f = new, new_f

@@ -63,12 +63,14 @@ def check_identifiable(S: np.ndarray, names: tuple, hint="") -> tuple[np.ndarray
     return evals, evecs * d[:, None]
 
 
-def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = ""):
+def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "", system: Reduced | None = None):
     """Unscaled covariances at the solution: ``S^-1 (p, p)`` and each point's diagonal
     ``(n, 3)``, with the mask ``ok`` of points whose covariance exists.
 
     Observations with weight 0 are left out; so are points left with fewer than 2
     observations or whose 3x3 block is (numerically) singular (variances NaN).
+    ``system``: the reduced system of ``data`` linearised at (or one converging
+    Gauss-Newton step before) ``state``, used when every point is determined.
     """
     weights = [np.ones(len(p)) for p in data.pts] if obs_weight is None else obs_weight
     n_w = np.zeros(data.n_points, int)
@@ -76,7 +78,8 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "")
         n_w += np.bincount(pts, weights=w > 0, minlength=data.n_points).astype(int)
     ok = n_w >= 2
     for _ in range(2):  # a second pass only if some points turn out undetermined
-        red = reduced_information(state, lay, data, obs_weight, None if ok.all() else ok)
+        reuse = system is not None and obs_weight is None and ok.all()
+        red = system if reuse else reduced_information(state, lay, data, obs_weight, None if ok.all() else ok)
         undetermined = ok & (red.det <= 1e-12)  # rays (nearly) parallel: X_j not determined
         if not undetermined.any():
             break

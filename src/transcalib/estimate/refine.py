@@ -24,7 +24,7 @@ from ..geometry.rotation import matrix_to_rotvec
 from ..types import CalibrateOptions, Calibration, LinearEstimate, RefineOptions
 from ..validate import as_uv_T
 from . import bundle
-from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis, levenberg_marquardt
+from .bundle import Layout, State, build_data, dist_indices, gauss_newton, intrinsic_basis, levenberg_marquardt
 from .covariance import _rot_views, covariance, linearise, profile_step
 from .degeneracy import identifiability_hint
 from .distributions import f_sf
@@ -132,7 +132,7 @@ def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, prog
         return _fit_auto(uv, T, initial, opts, progress, flange)
     t_start = time.perf_counter()
     pb = _problem(uv, T, initial, opts, flange)
-    fitter = _Fitter(pb, progress, damping=0.0 if near_solution else bundle._MU0)
+    fitter = _Fitter(pb, progress, near_solution)
     return _result(pb, fitter, _fit(pb, fitter), initial, t_start)
 
 
@@ -288,8 +288,9 @@ class _Fitter:
     expectation, the degrees of freedom).
     """
 
-    def __init__(self, pb: _Problem, progress, damping: float = bundle._MU0):
-        self.pb, self.progress, self.damping = pb, progress, damping
+    def __init__(self, pb: _Problem, progress, near_solution: bool = False):
+        self.pb, self.progress, self.near_solution = pb, progress, near_solution
+        self.system = None
         self.iterations = 0
         self.set_scale(pb.opts.loss_scale_px or 1.0)
 
@@ -306,9 +307,15 @@ class _Fitter:
             self.thr = 3.0 * self.c if o.loss_scale_px is not None else _OBS_QUANTILE * sigma
 
     def _lm(self, state, lay, data, loss):
+        """Levenberg-Marquardt, or Gauss-Newton steps near the solution (then the last
+        step's reduced system is kept for the covariance: ``self.system``)."""
         o = self.pb.opts
-        state, f, it, reason = levenberg_marquardt(state, lay, data, loss, self.c, o.max_iterations, o.tol,
-                                                   self.progress, damping=self.damping)
+        if self.near_solution:
+            state, f, it, reason, self.system = gauss_newton(state, lay, data, loss, self.c, o.max_iterations, o.tol,
+                                                             self.progress)
+        else:
+            state, f, it, reason = levenberg_marquardt(state, lay, data, loss, self.c, o.max_iterations, o.tol,
+                                                       self.progress)
         self.iterations += it
         return state, f, reason
 
@@ -343,6 +350,7 @@ class _Fitter:
             if done:
                 break
         data = build_data(pb.uv, mask, idx, pb.T, self._weights(sigma))
+        self.system = None  # linearised with other prior weights than the final data's
         return state, bundle.cost(state, lay, data, loss, self.c), reason, data, sigma
 
 
@@ -426,7 +434,8 @@ def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
 def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calibration:
     """Covariance at the solution and the :class:`Calibration`."""
     lay, n_views, n_points = pb.lay, *pb.uv.shape[:2]
-    Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T))
+    Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T),
+                                 system=fitter.system)
     dof_fit = 2 * int(fit.mask[:, fit.idx].sum()) - lay.n_global_no_T - 3 * len(fit.idx)
     sigma = _sigma(pb, fit, dof_fit)
     names = lay.names()
@@ -471,7 +480,8 @@ def _sigma(pb: _Problem, fit: _Fit, dof_fit: int) -> float:
     if dof_fit <= 0:
         raise DegenerateError("no residual degrees of freedom left among the inliers to estimate the pixel "
                               "noise; pass sigma_px or track more points")
-    return float(np.sqrt(bundle.sum_sq(fit.last, pb.lay, fit.data) / dof_fit))
+    sse = 2.0 * fit.cost if not pb.lay.i_T else bundle.sum_sq(fit.last, pb.lay, fit.data)  # least squares: cost = sse / 2
+    return float(np.sqrt(sse / dof_fit))
 
 
 def _info(pb, fit, dof_fit, n_undetermined, t_start) -> dict:

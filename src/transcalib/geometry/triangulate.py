@@ -127,7 +127,7 @@ def _triangulate_chunk(uv, depth, A2, T, basis, per_view, K, dist, passes) -> np
     for _ in range(max(1, passes)):
         coef = np.stack([w, w * u, w * v, w * (u * u + v * v)])  # (4, V, n)
         M = coef.sum(axis=1).T @ basis.reshape(4, 9)  # (n, 9)
-        b = coef.reshape(4 * V, n).T @ per_view  # (n, 3)
+        b = (per_view.T @ coef.reshape(4 * V, n)).T  # (n, 3); this order keeps BLAS on contiguous rows
         X = solve_sym3(M.reshape(n, 3, 3), b)
         z = X @ A2 - (T @ A2)[:, None]  # depths (V, n)
         ok = seen & np.isfinite(z) & (z != 0)
