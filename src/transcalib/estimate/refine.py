@@ -437,7 +437,7 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T),
                                  system=fitter.system)
     dof_fit = 2 * int(fit.mask[:, fit.idx].sum()) - lay.n_global_no_T - 3 * len(fit.idx)
-    sigma = _sigma(pb, fit, dof_fit)
+    sigma = _sigma(pb, fit, fitter.cost, dof_fit)
     names = lay.names()
     scale = np.where(lay.rotation_mask(), np.degrees(1.0), 1.0)  # rotations in degrees
     cov = sigma**2 * Sinv * scale[:, None] * scale[None, :]
@@ -470,9 +470,9 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
         inliers=fit.inliers, options=CalibrateOptions(robust=False, refinement=pb.opts), info=info)
 
 
-def _sigma(pb: _Problem, fit: _Fit, dof_fit: int) -> float:
+def _sigma(pb: _Problem, fit: _Fit, cost: float, dof_fit: int) -> float:
     """Pixel noise per coordinate: the one the translation priors used, the known one, or
-    ``sqrt(sum |r|^2 / dof)`` of the final least-squares stage."""
+    ``sqrt(sum |r|^2 / dof)`` of the final least-squares stage (whose ``cost`` is half the sum)."""
     if fit.sigma_T_mode is not None:
         return fit.sigma_T_mode
     if pb.opts.sigma_px is not None:
@@ -480,7 +480,7 @@ def _sigma(pb: _Problem, fit: _Fit, dof_fit: int) -> float:
     if dof_fit <= 0:
         raise DegenerateError("no residual degrees of freedom left among the inliers to estimate the pixel "
                               "noise; pass sigma_px or track more points")
-    sse = 2.0 * fit.cost if not pb.lay.i_T else bundle.sum_sq(fit.last, pb.lay, fit.data)  # least squares: cost = sse / 2
+    sse = 2.0 * cost if not pb.lay.i_T else bundle.sum_sq(fit.last, pb.lay, fit.data)
     return float(np.sqrt(sse / dof_fit))
 
 
