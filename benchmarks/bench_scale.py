@@ -75,7 +75,7 @@ def report(n: int, s: dict) -> None:
     print(f"  {'read tracks + poses (CSV)':34s} {run['read_s']:7.2f} s")
     print(f"  {'calibrate()':34s} {run['calibrate_s']:7.2f} s")
     for k, v in inner.items():
-        if k in ("robust_s", "linear_s", "refine_s", "diagnostics_s"):
+        if k in ("robust_s", "linear_s", "refine_s", "all_tracks_s", "diagnostics_s"):
             print(f"    {k[:-2]:32s} {v:7.2f} s")
     print(f"  {'write outputs':34s} {run['write_s']:7.2f} s")
     for k, v in writes.items():

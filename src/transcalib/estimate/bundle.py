@@ -366,12 +366,14 @@ def all_residuals(state, lay, uv, seen, used_idx, T) -> np.ndarray:
 
 def _view_system(state, lay, data, i, loss, c, obs_weight):
     """Residuals, weights and Jacobians of view ``i`` over its points (or all points with a
-    mask): ``(r (2, m), w (m,), Jg, JX, pts)``."""
+    mask): ``(r (2, m), w (m,) or None for ones, Jg, JX, pts)``."""
     n, seen = data.n_points, data.full_seen[i]
     if seen is None:
         pred, _, Jg, JX = predict_view(state, lay, i, data.pts[i], True)
         r = data.uv[i] - pred
-        w = loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1] if obs_weight is None else obs_weight[i]
+        if obs_weight is not None:
+            return r, obs_weight[i], Jg, JX, data.pts[i]
+        w = None if loss == "linear" else loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1]
         return r, w, Jg, JX, data.pts[i]
     pred, _, Jg, JX = predict_view(state, lay, i, slice(None), True, valid=seen)
     r = data.full_uv[i] - pred
@@ -400,7 +402,7 @@ def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, pr
         r, w, Jg, JX, pts = _view_system(state, lay, data, i, loss, c, obs_weight)
         cols = lay.view_columns(i)
         q = len(cols)
-        Jw, JXw = Jg * w, JX * w
+        Jw, JXw = (Jg, JX) if w is None else (Jg * w, JX * w)
         U[np.ix_(cols, cols)] += Jw.reshape(q, -1) @ Jg.reshape(q, -1).T
         bg[cols] += Jw.reshape(q, -1) @ r.reshape(-1)
         at = slice(None) if len(pts) == n else pts  # every used point seen: no scatter
