@@ -255,7 +255,7 @@ def _draw_projection(ax, d: dict, V: np.ndarray, legend: bool) -> None:
     for name, axis in zip("xyz", d["axes"] @ V.T):  # the robot frame, as a small triad in a corner
         tip = origin + 0.12 * span * axis[:2]
         ax.plot([origin[0], tip[0]], [origin[1], tip[1]], color="0.3", lw=1)
-        ax.text(*(origin + 0.16 * span * axis[:2]), name, fontsize=_SMALL, color="0.3", ha="center", va="center")
+        ax.text(*(origin + 0.17 * span * axis[:2]), name, fontsize=_SMALL, color="0.3", ha="center", va="center")
     ax.set_aspect("equal", adjustable="datalim")
     ax.invert_yaxis()  # image convention: y down
     _few_ticks(ax)
@@ -273,7 +273,8 @@ def draw_reconstruction(d: dict):
         ax = fig.add_subplot(1, 2, k + 1)
         _draw_projection(ax, d, _view_rotation(azim, elev), legend=k == 0)
         ax.set_title(title, fontsize=10)
-        ax.set_xlabel(f"[{unit}]", fontsize=8)
+        ax.set_xlabel(f"camera x [{unit}]" if k == 0 else f"[{unit}]", fontsize=8)
+        ax.set_ylabel(f"camera y [{unit}]" if k == 0 else "", fontsize=8)
     fig.suptitle(f"Reconstruction: {d['n']} points, {len(d['T'])} camera positions; camera frame at T = 0, "
                  "colour = depth, x y z = robot axes", fontsize=10)
     return fig
