@@ -247,11 +247,12 @@ def _draw_projection(ax, d: dict, V: np.ndarray, legend: bool) -> None:
     X, T = d["X"] @ V.T, d["T"] @ V.T
     both = np.vstack([d["X"], d["T"]])
     span = float(np.ptp(both, axis=0).max()) if both.size else 1.0
-    ax.scatter(X[:, 0], X[:, 1], s=2, c=d["X"][:, 2], cmap="viridis", linewidths=0)
+    ax.scatter(X[:, 0], X[:, 1], s=2 if len(X) > 2000 else 8, c=d["X"][:, 2], cmap="viridis", linewidths=0)
     stub = (V @ [0.0, 0.0, 0.15 * span])[:2]  # the optical axis (camera z), drawn from each centre
     ax.plot(np.stack([T[:, 0], T[:, 0] + stub[0]]), np.stack([T[:, 1], T[:, 1] + stub[1]]), color="tab:red", lw=1)
     ax.plot(T[:, 0], T[:, 1], "^", color="tab:red", ms=6, label="camera centres")
-    origin = np.array([X[:, 0].min(), X[:, 1].max()]) if X.size else np.zeros(2)  # bottom left (y down)
+    corner = np.array([X[:, 0].min(), X[:, 1].max()]) if X.size else np.zeros(2)  # bottom left (y down)
+    origin = corner + 0.1 * span * np.array([1.0, -1.0])
     for name, axis in zip("xyz", d["axes"] @ V.T):  # the robot frame, as a small triad in a corner
         tip = origin + 0.12 * span * axis[:2]
         ax.plot([origin[0], tip[0]], [origin[1], tip[1]], color="0.3", lw=1)

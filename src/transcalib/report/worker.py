@@ -105,15 +105,22 @@ class ReportWorker:
 
         ctx = multiprocessing.get_context("spawn")
         self.timeout_s = timeout_s
+        self._ready = False
         self._conn, child = ctx.Pipe()
         self._process = ctx.Process(target=_serve, args=(child,), name="transcalib-report", daemon=True)
         self._process.start()
         child.close()
 
+    def wait_ready(self) -> None:
+        """Wait until the worker has imported matplotlib and drawn its first figure."""
+        if not self._ready:
+            self._receive("ready")
+            self._ready = True
+
     def submit(self, data, folder) -> PendingReport:
         """Draw ``data`` (a :class:`~transcalib.report.ReportData`) into ``folder`` in the
         worker; waits until the worker is warm (it usually is long before)."""
-        self._receive("ready")
+        self.wait_ready()
         try:
             self._conn.send((data, str(folder)))
         except (BrokenPipeError, ConnectionResetError):
