@@ -5,6 +5,11 @@ every diagnostic, the residuals (arrows per view and histogram), the reconstruct
 (front and oblique, with the camera positions), the projection-uncertainty map and, for
 simulated input, the errors against the truth. Figures are embedded as base64 PNG and
 also written to ``figures/``. No scripts, no external resources: the page opens offline.
+
+Two steps: :func:`report_data` reduces the calibration to a :class:`ReportData` of a
+few kilobytes (numpy, at any number of points); :func:`render_report` draws and writes
+it (matplotlib). ``transcalib calibrate`` runs the second in a
+:class:`~transcalib.report.worker.ReportWorker` process.
 """
 
 from __future__ import annotations
