@@ -43,7 +43,7 @@ ctx["total"] = f"{total:.0f}"
 ctx["total_min"] = f"{total / 60:.1f}"
 for f in R.glob("*.md"):
     ctx[f"inc_{f.stem}"] = include(f.name)
-for stem in ("bench_linear", "bench_refine", "bench_robust", "bench_rotation_test", "bench_tracks"):
+for stem in ("bench_linear", "bench_refine", "bench_robust", "bench_rotation_test", "bench_tracks", "bench_report"):
     ctx[f"out_{stem}"] = printed(stem)
 doc = PROSE
 for k, v in ctx.items():

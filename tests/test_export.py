@@ -130,3 +130,16 @@ def test_colmap_in_chunks_reads_back_the_same(cal, uv, tmp_path, monkeypatch):
     export.write_colmap(cal, tmp_path / "many", (640, 480), uv)
     for name in ("cameras.txt", "images.txt", "points3D.txt"):
         assert (tmp_path / "one" / name).read_text() == (tmp_path / "many" / name).read_text(), name
+
+
+def test_export_with_a_report_worker(cal, uv, tmp_path):
+    """With a worker, the same files in the same order; the report's timings recorded."""
+    from transcalib.report.worker import ReportWorker
+
+    timings = {}
+    alone = export_calibration(cal, tmp_path / "alone", ["csv", "report"], ExportContext(uv=uv))
+    with ReportWorker() as worker:
+        written = export_calibration(cal, tmp_path / "worker", ["csv", "report"], ExportContext(uv=uv),
+                                     timings=timings, report_worker=worker)
+    assert [p.relative_to(tmp_path / "worker") for p in written] == [p.relative_to(tmp_path / "alone") for p in alone]
+    assert timings["report_worker_s"] > 0 and timings["report_s"] >= 0 and "csv_s" in timings

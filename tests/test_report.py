@@ -78,3 +78,68 @@ def test_uncertainty_grows_away_from_the_centre():
     assert std[iv, iu] < 0.05 * std.max()
     x = (u[-1] - cal.K[0, 2]) / cal.K[0, 0]  # du = x dfx at the right edge (ignoring distortion)
     assert abs(std[iv, -1] - 2.0 * abs(x)) < 0.2 * 2.0 * abs(x)
+
+
+def test_report_data_is_small_whatever_n():
+    """The figures' data (what the worker receives) hold at most a few thousand marks."""
+    import pickle
+
+    from transcalib.report import report_data
+    from transcalib.report.figures import MAX_ARROWS, MAX_POINTS
+
+    cal = full_calibration(n_points=20_000)
+    data = report_data(cal)
+    assert len(pickle.dumps(data)) < 2_000_000
+    views = data.figures["residuals.png"][1]["views"]
+    assert all(len(v["xy"]) <= MAX_ARROWS + 50 for v in views)
+    assert len(data.figures["reconstruction.png"][1]["X"]) == MAX_POINTS
+    hist = data.figures["residual_histogram.png"][1]  # counted from every observation
+    assert hist["n_in"] + hist["n_out"] == np.isfinite(cal.residuals_px[..., 0]).sum()
+    assert hist["inliers"].sum() + hist["outliers"].sum() == hist["n_in"] + hist["n_out"]
+
+
+def test_worker_writes_the_same_report(report, tmp_path):
+    from transcalib.report import FIGURES, report_data
+    from transcalib.report.worker import ReportWorker
+
+    cal = full_calibration(n_points=300)
+    with ReportWorker() as worker:
+        written = worker.submit(report_data(cal), tmp_path).result()
+    assert [p.name for p in written] == ["report.html", *FIGURES[:4]]
+    assert all(p.stat().st_size > 1000 for p in written)
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_worker_failure_is_a_clear_error(tmp_path):
+    """A drawing that raises in the worker: ReportWorkerError naming the cause, no page."""
+    from transcalib.report import ReportData
+    from transcalib.report.worker import ReportWorker, ReportWorkerError
+
+    bad = ReportData(title="t", sections=[], figures={"residuals.png": ("Residuals", {"size": None})})
+    with ReportWorker() as worker:
+        pending = worker.submit(bad, tmp_path)
+        with pytest.raises(ReportWorkerError, match=r"report worker failed \(TypeError.*not written"):
+            pending.result()
+    assert not (tmp_path / "report.html").exists()
+
+
+def test_worker_that_dies_or_hangs_is_an_error(tmp_path):
+    """A killed worker and one past its timeout raise ReportWorkerError; nothing hangs."""
+    import os
+    import signal
+    import time
+
+    from transcalib.report import report_data
+    from transcalib.report.worker import ReportWorker, ReportWorkerError
+
+    data = report_data(full_calibration(n_points=300))
+    with ReportWorker() as worker:
+        os.kill(worker._process.pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        with pytest.raises(ReportWorkerError, match="stopped unexpectedly"):
+            worker.submit(data, tmp_path).result()
+        assert time.monotonic() - t0 < 10
+    with ReportWorker(timeout_s=0.01) as worker:
+        with pytest.raises(ReportWorkerError, match="did not answer within 0.01 s"):
+            worker.submit(data, tmp_path).result()
+    assert not list(tmp_path.rglob("*.tmp"))

@@ -267,7 +267,26 @@ def run(args) -> int:
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)  # (1): before importing the numerics
+    worker = _start_report_worker(plan["formats"])
+    try:
+        return _work(args, plan, progress, t_start, worker)
+    finally:
+        if worker is not None:
+            worker.close()
 
+
+def _start_report_worker(formats):
+    """A process drawing the report on the other core (it imports matplotlib while we
+    read and calibrate), or None when no report is asked for."""
+    if "report" not in formats:
+        return None
+    from ..report.worker import ReportWorker
+
+    return ReportWorker()
+
+
+def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
+    """Steps (2)-(4) of :func:`run`; the report is drawn by ``worker`` when given."""
     from ..io.export import ExportContext, export_calibration
     from ..pipeline import calibrate
     from .handeye import calibrate_hand_eye, hand_eye_text, write_hand_eye
@@ -296,7 +315,7 @@ def run(args) -> int:
     ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
                         truth=plan["truth"])
     write_timings = {}
-    written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings)
+    written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings, report_worker=worker)
     if hand_eye is not None:
         written += write_hand_eye(hand_eye, plan["out"], args.unit)
     if args.images:

