@@ -309,6 +309,8 @@ def test_simulate_bad_options(tmp_path, args, words):
     (["--fix", "cx"], ["--fix", "NAME=VALUE"]),
     (["--fix", "focal=3"], ["--fix", "unknown parameter"]),
     (["--fix", "principal-point=centre", "--image-size", "0x0"], ["--image-size"]),
+    (["--subset-points", "50"], ["--subset-points", "100"]),
+    (["--subset-points", "many"], ["--subset-points"]),
 ])
 def test_calibrate_bad_options_name_the_option(simulated, tmp_path, args, words):
     out = tmp_path / "o"
@@ -414,3 +416,20 @@ def test_progress_bar_on_a_terminal_plain_lines_otherwise():
     quiet = io.StringIO()
     Progress(quiet=True, stream=quiet).step("x", 1, 1)
     assert quiet.getvalue() == ""
+
+
+def test_subset_points_reaches_the_fit(tmp_path):
+    """--subset-points N: the iterative stages on N tracks, then every track (JSON summary
+    and the saved options say so); 'all' turns it off."""
+    from transcalib.io.calibration_file import load_calibration
+
+    sim = tmp_path / "sim"
+    assert run("simulate", "--preset", "random", "--points", 400, "--views", 5, "--noise-px", 0.3, "--seed", 2,
+               "--out", sim).returncode == 0
+    for arg, subset, stage in (("150", 150, "all tracks"), ("all", None, "refine")):
+        out = tmp_path / f"o{arg}"
+        r = run("calibrate", "--tracks", sim / "tracks.csv", "--poses", sim / "poses.csv", "--out", out,
+                "--subset-points", arg, "--formats", "json", "--json", "--quiet")
+        assert r.returncode == 0, r.stderr
+        assert load_calibration(out).options.subset_points == subset
+        assert json.loads(r.stdout)["stages"][-1] in (stage, "reclassify+refine")

@@ -8,17 +8,29 @@ A failure in (1) costs nothing; a failure later never leaves a partial file.
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
 from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, existing_file, image_size, nonnegative_float,
-                     positive_float, print_json)
+                     positive_float, positive_int, print_json)
 
 NAME = "calibrate"
 HELP = "calibrate from tracks (or images) and robot poses; write calibration, exports and report"
+
+
+def subset_points(text: str) -> int | None:
+    """``--subset-points``: ``all`` (None) or an integer of at least ``MIN_SUBSET_POINTS``."""
+    if text.strip().lower() == "all":
+        return None
+    value = positive_int(text)
+    if value < MIN_SUBSET_POINTS:
+        raise argparse.ArgumentTypeError(f"must be 'all' or at least {MIN_SUBSET_POINTS}, got {text!r}")
+    return value
 
 
 def add_parser(sub) -> None:
@@ -62,7 +74,10 @@ def add_parser(sub) -> None:
     c.add_argument("--truth", help="truth.json of a simulated scene: print and plot the errors")
     c.add_argument("--formats", default="all",
                    help="comma-separated outputs among json,csv,opencv,ros,colmap,ply,report (default all)")
-    c.add_argument("--seed", type=int, default=0, help="random seed of RANSAC (default 0: repeatable)")
+    c.add_argument("--subset-points", type=subset_points, default=SUBSET_POINTS, metavar="N|all",
+                   help=f"with more tracks, fit a random subset of N (default {SUBSET_POINTS}) to convergence, "
+                        "then take Gauss-Newton steps with every track; 'all': every stage uses every track")
+    c.add_argument("--seed", type=int, default=0, help="random seed of RANSAC and the subset (default 0: repeatable)")
     c.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
     c.add_argument("--strict", action="store_true", help="exit with status 4 when the calibration has warnings")
     c.add_argument("--quiet", action="store_true", help="no progress messages")
@@ -141,7 +156,7 @@ def build_options(args, size=None):
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
-                               unit=args.unit)
+                               unit=args.unit, subset_points=args.subset_points)
     if args.target and not args.images:
         raise OptionError("--target", "applies to --images only")
     return options
@@ -305,7 +320,8 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     else:
         cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
                         refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
-                        image_size=plan["image_size"], unit=args.unit, rng=args.seed, progress=progress.stage)
+                        image_size=plan["image_size"], unit=args.unit, subset_points=opts.subset_points,
+                        rng=args.seed, progress=progress.stage)
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
