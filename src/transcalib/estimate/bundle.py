@@ -27,6 +27,8 @@ O(n) time and memory (batched 3x3 inverses, BLAS products; no loop over points).
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -467,7 +469,9 @@ def schur(U, W, V, bg, bX):
 
 
 #: Points per block of :func:`reduced_system` (its temporaries stay in the CPU cache).
-BLOCK_POINTS = 8192
+BLOCK_POINTS = 32768
+#: Threads of :func:`reduced_system`: the cores of the machine, at most 4.
+THREADS = min(4, os.cpu_count() or 1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -507,16 +511,19 @@ class Reduced:
 def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None) -> Reduced:
     """The Schur-reduced normal equations of all points, assembled :data:`BLOCK_POINTS`
     points at a time (the Schur complement is a sum over points): the same system as
-    :func:`normal_equations` then :func:`schur`, with small temporaries.
+    :func:`normal_equations` then :func:`schur`, with small temporaries. The blocks run
+    on :data:`THREADS` threads (numpy releases the GIL in its loops); their sums are
+    added in block order, so the result does not depend on the threads.
 
     ``obs_weight``: per-view weights as in :func:`normal_equations`; ``ok (n,)`` bool:
     the points that count (the others are left out of ``S``; their ``V`` is the
     identity, their ``Y`` zero).
     """
     p, n = lay.size, data.n_points
-    S, rhs = np.zeros((p, p)), np.zeros(p)
     Vinv, Y, bX, det = np.empty((3, 3, n)), np.empty((p, 3, n)), np.empty((3, n)), np.empty(n)
-    for lo in range(0, n, BLOCK_POINTS):
+
+    def block(lo: int):
+        """Fill the block's per-point arrays; return its share of ``S`` and ``rhs``."""
         hi = min(lo + BLOCK_POINTS, n)
         part = data.points(lo, hi)
         weights = None
@@ -525,15 +532,24 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
         if ok is not None:
             keep = ok[lo:hi]
             weights = [keep[q] * (1.0 if weights is None else weights[i]) for i, q in enumerate(part.pts)]
-        U, W, V, bg, b = normal_equations(replace(state, X=state.X[lo:hi]), lay, part, loss, c, weights,
-                                          priors=False)
+        U, W, V, bg, bX[:, lo:hi] = normal_equations(replace(state, X=state.X[lo:hi]), lay, part, loss, c, weights,
+                                                     priors=False)
         if ok is not None:
             for a in range(3):
                 V[a, a, ~keep] = 1.0  # left out: W is zero there
-        S_b, rhs_b, Vinv[:, :, lo:hi], det[lo:hi], Y[:, :, lo:hi] = schur(U, W, V, bg, b)
+        S_b, rhs_b, Vinv[:, :, lo:hi], det[lo:hi], Y[:, :, lo:hi] = schur(U, W, V, bg, bX[:, lo:hi])
+        return S_b, rhs_b
+
+    starts = range(0, n, BLOCK_POINTS)
+    if THREADS > 1 and len(starts) > 1:
+        with ThreadPoolExecutor(THREADS) as pool:
+            parts = list(pool.map(block, starts))
+    else:
+        parts = [block(lo) for lo in starts]
+    S, rhs = np.zeros((p, p)), np.zeros(p)
+    for S_b, rhs_b in parts:
         S += S_b
         rhs += rhs_b
-        bX[:, lo:hi] = b
     _add_priors(S, rhs, state, lay, data)
     return Reduced(S, rhs, Vinv, Y, bX, det)
 
