@@ -216,7 +216,7 @@ def _tracks_fast(path, header: list[str]) -> TrackTable | None:
     points, point_codes = _encode(table[col["point"]])
     # canonical view ids ("03" is view 3) may merge dictionary entries: recode
     view_ids, remap = _codes([_canonical_id(str(v)) for v in views])
-    return TrackTable(view_ids, remap[view_codes], [str(p) for p in points], point_codes, uv)
+    return TrackTable(view_ids, remap[view_codes], points, point_codes, uv)
 
 
 def _arrow_csv(path, header: list[str], id_type):
@@ -236,15 +236,15 @@ def _arrow_csv(path, header: list[str], id_type):
 
 
 def _encode(column) -> tuple[list, np.ndarray]:
-    """Distinct values of an Arrow column in first-appearance order (text stripped of
-    surrounding spaces) and the index of each row."""
+    """Distinct values of an Arrow column as text, in first-appearance order (stripped of
+    surrounding spaces), and the index of each row."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
     if pa.types.is_string(column.type):
         column = pc.utf8_trim_whitespace(column)
     enc = pc.dictionary_encode(column).combine_chunks()
-    return enc.dictionary.to_pylist(), enc.indices.to_numpy().astype(np.intp)
+    return enc.dictionary.cast(pa.string()).to_pylist(), enc.indices.to_numpy().astype(np.intp)
 
 
 def read_track_table(path) -> TrackTable:
