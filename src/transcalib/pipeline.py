@@ -5,7 +5,10 @@
           ──refine (ML bundle adjustment)──▶ every track judged again, refit
           ──diagnose──▶ Calibration with warnings
 
-Input is checked here once; the stages take checked arrays and options.
+With more than ``subset_points`` tracks the stages up to the re-judging run on a random
+subset of them; "all tracks" then judges every track with that camera and takes
+Gauss-Newton steps with all of them (``_extend_to_all_tracks``). Input is checked here
+once; the stages take checked arrays and options.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
 from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
-from .geometry.camera import DIST_NAMES, Camera, project, project_camera_frame
+from .geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from .geometry.triangulate import triangulate
 from .types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
 from .validate import as_uv_T
@@ -99,8 +102,8 @@ def calibrate(
         Name of the length unit of ``T``, used in messages.
     subset_points : int or None
         With more tracks, the iterative stages run on a random subset of this many and
-        one Gauss-Newton step with every track finishes (:class:`CalibrateOptions`).
-        None: every stage uses every track.
+        Gauss-Newton steps with every track finish (:class:`CalibrateOptions`). None:
+        every stage uses every track.
     rng : seed or Generator
         Randomness of RANSAC.
     progress : callable, optional
@@ -348,7 +351,7 @@ def _untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
 def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
     """Sum of squared reprojection errors (px^2) of each track over the views that see it
     (n_points,); inf for tracks that cannot be triangulated or fall behind the camera."""
-    xc = np.einsum("ab,vnb->avn", cal.R, np.nan_to_num(X)[None] - cal.T[:, None])  # camera frame, once
+    xc = camera_frame(cal.R, np.nan_to_num(X), cal.T)  # once
     pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc).pred
     r = uv - np.moveaxis(pred, 0, -1)
     e2 = np.where(np.isfinite(uv[..., 0]), np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)

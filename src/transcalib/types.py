@@ -236,10 +236,11 @@ class CalibrateOptions:
     subset_points : int or None
         With more tracks than this, the iterative stages (RANSAC, the refinement to
         convergence, the distortion choice, the re-judging and the rotation test) run on
-        a random subset of this many tracks, and one Gauss-Newton step of the camera
-        with every track then gives the maximum-likelihood solution of all the data
-        (the subset's solution is within its own standard deviations of it, where the
-        problem is linear to many digits). None: every stage uses every track.
+        a random subset of this many tracks, and two Gauss-Newton steps of the camera
+        with every track then give the maximum-likelihood solution of all the data
+        (the subset's solution is a few of its standard deviations from it, where the
+        cost is nearly quadratic; docs/refinement.md §4a). None: every stage uses every
+        track.
     """
 
     refine: bool = True

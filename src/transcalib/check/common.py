@@ -17,4 +17,4 @@ def fmt_list(idx, limit: int = 10) -> str:
 
 def depths(R, X, T):
     """Camera z of every point in every view (n_views, n_points)."""
-    return np.einsum("b,vnb->vn", R[2], X[None] - T[:, None])
+    return (X @ R[2])[None, :] - (T @ R[2])[:, None]

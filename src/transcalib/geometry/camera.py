@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = [
+    "camera_frame",
     "DIST_MODELS",
     "DIST_NAMES",
     "dist_size",
@@ -227,6 +228,12 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
     return Projection(pred, P, d.xd, d.yd, J_dist)
 
 
+def camera_frame(R: np.ndarray, X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Camera-frame coordinates ``R (X_j - T_i)`` of every point in every view, ``(3,
+    n_views, n_points)``, as ``R X_j - R T_i`` (no (views, points, 3) temporary)."""
+    return (R @ X.T)[:, None, :] - (R @ T.T)[:, :, None]
+
+
 def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=()) -> np.ndarray:
     """Project scene points into every view: ``(n_views, n_points, 2)`` pixels.
 
@@ -241,7 +248,7 @@ def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=())
     dist : (k,) float, optional
         OpenCV distortion coefficients.
     """
-    xc = np.einsum("ab,vnb->avn", R, X[None, :, :] - T[:, None, :])
+    xc = camera_frame(R, X, T)
     intr = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]])
     return np.moveaxis(project_camera_frame(intr, pad_dist(dist), xc).pred, 0, -1)
 
@@ -350,7 +357,7 @@ class Camera:
     def _camera_frame(self, X, T):
         X = np.asarray(X, dtype=float).reshape(-1, 3)
         T = np.zeros((1, 3)) if T is None else np.asarray(T, dtype=float).reshape(-1, 3)
-        return np.einsum("ab,vnb->avn", self.R, X[None] - T[:, None])  # (3, V, n)
+        return camera_frame(self.R, X, T)  # (3, V, n)
 
     def project(self, X, T=None) -> np.ndarray:
         """Pixels ``(n_views, n_points, 2)`` of world points ``X (n_points, 3)`` seen from
