@@ -38,6 +38,8 @@ ROBUST_MIN_POINTS = 8
 #: The refined camera's verdict refits only when it changes more than this fraction of
 #: the inliers (borderline tracks trading places at the false-rejection rate do not count).
 REJUDGE_FRACTION = 0.005
+#: Tracks per block where every track is evaluated (small temporaries stay in cache).
+TRACK_BLOCK = 32768
 #: Gauss-Newton steps with every track after the fit of a subset (see _extend_to_all_tracks).
 GAUSS_NEWTON_STEPS = 2
 #: Relative singular value of the translations below which they count as coplanar (a
@@ -350,13 +352,19 @@ def _untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
 
 def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
     """Sum of squared reprojection errors (px^2) of each track over the views that see it
-    (n_points,); inf for tracks that cannot be triangulated or fall behind the camera."""
-    xc = camera_frame(cal.R, np.nan_to_num(X), cal.T)  # once
-    pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc).pred
-    r = uv - np.moveaxis(pred, 0, -1)
-    e2 = np.where(np.isfinite(uv[..., 0]), np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)
-    behind = np.any(np.isfinite(uv[..., 0]) & (xc[2] <= 0), axis=0)
-    return np.where(np.isfinite(X[:, 0]) & ~behind, e2.sum(axis=0), np.inf)
+    (n_points,); inf for tracks that cannot be triangulated or fall behind the camera.
+    Evaluated ``TRACK_BLOCK`` tracks at a time (small temporaries)."""
+    out = np.empty(uv.shape[1])
+    for lo in range(0, uv.shape[1], TRACK_BLOCK):
+        b = slice(lo, lo + TRACK_BLOCK)
+        xc = camera_frame(cal.R, np.nan_to_num(X[b]), cal.T)
+        pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc).pred
+        seen = np.isfinite(uv[:, b, 0])
+        r = uv[:, b] - np.moveaxis(pred, 0, -1)
+        e2 = np.where(seen, np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)
+        behind = np.any(seen & (xc[2] <= 0), axis=0)
+        out[b] = np.where(np.isfinite(X[b, 0]) & ~behind, e2.sum(axis=0), np.inf)
+    return out
 
 
 def _rule_sigma(cal: Calibration, opts: CalibrateOptions) -> float:

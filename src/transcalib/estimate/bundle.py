@@ -260,6 +260,8 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     JX : (3, 2, n) float
         d pred / d X_j.
     """
+    if not isinstance(pts, slice) and len(pts) == len(state.X):  # every point, in order: no gather
+        pts = slice(None)
     d = (state.X[pts] - state.T[i]).T  # (3, n)
     y = d if state.F is None else state.F[i] @ d
     if lay.t_free or np.any(state.t):
@@ -322,8 +324,15 @@ def loss_weights(e2: np.ndarray, loss: str, c: float):
 
 
 def _view_residuals(state, lay, data, i):
-    pred, z, _, _ = predict_view(state, lay, i, data.pts[i], jacobian=False)
-    return data.uv[i] - pred, z
+    """Residuals ``(2, n_i)`` and depths ``(n_i,)`` of view ``i``, :data:`BLOCK_POINTS`
+    points at a time (small temporaries: several times faster at 10^6 points)."""
+    pts = data.pts[i]
+    r, z = np.empty((2, len(pts))), np.empty(len(pts))
+    for lo in range(0, len(pts), BLOCK_POINTS):
+        b = slice(lo, lo + BLOCK_POINTS)
+        pred, z[b], _, _ = predict_view(state, lay, i, pts[b], jacobian=False)
+        np.subtract(data.uv[i][:, b], pred, out=r[:, b])
+    return r, z
 
 
 def cost(state: State, lay: Layout, data: Data, loss: str, c: float) -> float:

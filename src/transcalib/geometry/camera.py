@@ -103,8 +103,9 @@ def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool =
         ``x', y'`` of the module docstring (and derivatives).
     """
     k1, k2, p1, p2, k3 = dist5
-    r2 = x * x + y * y
-    if not np.any(dist5):  # pinhole: no temporaries on the hot path
+    pinhole = not np.any(dist5)
+    r2 = None if pinhole and not (jacobian and coefficients) else x * x + y * y
+    if pinhole:  # no temporaries on the hot path
         xd, yd = x, y
         radial = None
     else:
@@ -210,7 +211,13 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
     iz = 1.0 / z
     x, y = xc[0] * iz, xc[1] * iz
     d = distort(x, y, dist5, jacobian=jacobian, coefficients=dist_jacobian)
-    pred = np.stack([fx * d.xd + s * d.yd + cx, fy * d.yd + cy])
+    pred = np.empty((2,) + np.shape(d.xd))
+    np.multiply(fx, d.xd, out=pred[0])
+    if s:
+        pred[0] += s * d.yd
+    pred[0] += cx
+    np.multiply(fy, d.yd, out=pred[1])
+    pred[1] += cy
     if not jacobian:
         return Projection(pred)
     # M = [[fx, s], [0, fy]] d(x', y')/d(x, y);  P = M [[1, 0, -x], [0, 1, -y]] / z
