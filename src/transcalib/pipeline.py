@@ -28,7 +28,7 @@ from .estimate.robust import fit_robust
 from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
 from .geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from .geometry.triangulate import triangulate
-from .types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
+from .types import INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
 from .validate import as_uv_T
 
 __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
@@ -185,15 +185,12 @@ def _fit_subset(uv: np.ndarray, opts: CalibrateOptions, rng) -> np.ndarray | Non
     return np.sort(np.random.default_rng(rng).choice(tracked, m, replace=False))
 
 
-def _param(cal: Calibration, name: str) -> float | None:
-    """Intrinsic or distortion parameter ``name`` of ``cal`` (None for other names)."""
+def _camera_values(cal: Calibration) -> dict:
+    """Intrinsics and the five distortion coefficients of ``cal`` by parameter name
+    (``f`` too, for square pixels)."""
     cam = cal.camera
-    if name in ("fx", "fy", "cx", "cy", "skew", "f"):
-        K = cam.K
-        return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "skew": K[0, 1], "f": K[0, 0]}[name]
-    if name in DIST_NAMES:
-        return float(cam.dist5[DIST_NAMES.index(name)])
-    return None
+    values = dict(zip(INTRINSIC_NAMES + DIST_NAMES, np.concatenate([cam.intrinsics, cam.dist5])))
+    return {**values, "f": values["fx"]}
 
 
 def _widened(linear: LinearEstimate, subset: np.ndarray, n_points: int) -> LinearEstimate:
@@ -233,8 +230,8 @@ def _extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptio
         full = _untruncated(full, k[inliers], opts.ransac.false_rejection)
     subset_info = {key: cal.info[key] for key in ("iterations", "stop_reason", "converged", "n_points_used")
                    if key in cal.info}
-    moved = max((abs(_param(full, k) - _param(cal, k)) / v for k, v in full.std.items() if v > 0 and
-                 _param(cal, k) is not None), default=0.0)
+    before, after = _camera_values(cal), _camera_values(full)
+    moved = max((abs(after[k] - before[k]) / v for k, v in full.std.items() if v > 0 and k in before), default=0.0)
     info = {**full.info, "subset": subset_info, "distortion_selection": cal.info.get("distortion_selection", []),
             "stop_reason": f"{full.info['iterations']} Gauss-Newton step(s) from the fit of "
                            f"{subset_info.get('n_points_used')} tracks (which moved the camera by {moved:.2g} "

@@ -42,15 +42,10 @@ def track_dof(k: np.ndarray) -> np.ndarray:
     return np.maximum(2 * np.asarray(k, dtype=np.intp) - 3, 1)
 
 
-def _quantile(nu: np.ndarray, p: float) -> np.ndarray:
-    """``chi2_nu(p)`` for an integer array of degrees of freedom."""
-    return chi2_ppf_table(p, nu)
-
-
 def inlier_rule(sse: np.ndarray, k: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
     """Inlier tracks: ``sse < sigma^2 chi2_{2k-3}(1 - alpha)`` (module docstring); NaN
     (unscorable) and inf (behind the camera) are outliers."""
-    q = _quantile(track_dof(k), 1.0 - alpha)
+    q = chi2_ppf_table(1.0 - alpha, track_dof(k))
     with np.errstate(invalid="ignore"):
         return np.isfinite(sse) & (sse < sigma * sigma * q)
 
@@ -63,7 +58,7 @@ def truncated_sigma(sse: np.ndarray, k: np.ndarray, sigma0: float, alpha: float,
     with ``q_j = chi2_{nu_j}(1 - alpha)``, the inliers those of :func:`inlier_rule`.
     """
     nu = track_dof(k)
-    q = _quantile(nu, 1.0 - alpha)
+    q = chi2_ppf_table(1.0 - alpha, nu)
     values = np.arange(1, int(nu.max()) + 1) if nu.size else np.ones(1)
     qv = chi2_ppf(1.0 - alpha, values)
     factor = (values * chi2_cdf(qv, values + 2) / chi2_cdf(qv, values))[nu - 1]
@@ -97,7 +92,7 @@ def median_sigma(sse: np.ndarray, k: np.ndarray) -> float:
     finite = np.isfinite(sse)
     if not finite.any():
         return float("nan")
-    s = sse[finite] / _quantile(track_dof(k[finite]), 0.5)
+    s = sse[finite] / chi2_ppf_table(0.5, track_dof(k[finite]))
     return max(float(np.sqrt(np.median(s))), SIGMA_FLOOR_PX)
 
 
