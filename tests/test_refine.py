@@ -549,3 +549,53 @@ def test_robust_loss_with_a_point_left_out():
     cal = refine(scene.uv, scene.T, replace(lin, X=X), options=RefineOptions(loss="huber"))
     assert np.isnan(cal.X[3]).all() and not cal.inliers[3]
     assert cal.inliers.sum() >= 45
+
+
+@pytest.mark.parametrize("model, fix, square, skew, loss, missing, weighted", [
+    ("none", {}, False, False, "linear", 0.0, False),
+    ("radial2", {}, False, False, "linear", 0.0, False),
+    ("opencv5", {}, False, False, "linear", 0.2, False),
+    ("radial1", {"cx": 320.0}, True, False, "linear", 0.0, False),
+    ("none", {}, False, True, "linear", 0.0, False),
+    ("radial2", {}, False, False, "huber", 0.1, False),
+    ("none", {}, False, False, "linear", 0.1, True),
+])
+def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, square, skew, loss, missing, weighted):
+    """Oracle: the all-views assembly in camera axes (translation_block) gives the general
+    per-view assembly's reduced system, per-point blocks and cost to rounding, for every
+    camera layout it serves, weights, left-out points and missing observations."""
+    from transcalib.estimate import bundle, translation_block
+    from transcalib.estimate.bundle import build_data, dist_indices, reduced_system
+
+    scene = simulate.random_scene(1500, 6, noise_px=0.7, missing=missing, rng=1,
+                                  dist=(-0.1, 0.02) if model != "none" else ())
+    rng = np.random.default_rng(0)
+    seen = np.isfinite(scene.uv[..., 0])
+    used = np.flatnonzero(seen.sum(axis=0) >= 2)
+    lay = Layout(6, *intrinsic_basis(fix, skew, square), dist_indices(model, fix))
+    dist5 = {"none": np.zeros(5), "opencv5": np.array([-0.1, 0.02, 1e-3, -2e-3, 1e-3])}.get(
+        model, np.array([-0.1, 0.02, 0.0, 0.0, 0.0]))
+    K = scene.K
+    state = State(np.array([K[0, 0] * 1.01, K[1, 1], K[0, 2] + 2, K[1, 2], 0.3 if skew else 0.0]), dist5,
+                  scene.R.copy(), np.tile(np.eye(3), (6, 1, 1)), scene.T.copy(),
+                  scene.X[used] + rng.normal(0, 0.5, (len(used), 3)))
+    data = build_data(scene.uv, seen, used, scene.T, np.zeros(6))
+    ok = rng.random(len(used)) > 0.1 if weighted else None
+    weights = [rng.random(len(p)) + 0.5 for p in data.pts] if weighted else None
+    monkeypatch.setattr(bundle, "BLOCK_POINTS", 700)  # several blocks, a short last one
+    calls = []
+    block = translation_block.translation_block
+    monkeypatch.setattr(translation_block, "translation_block", lambda *a: calls.append(1) or block(*a))
+    stacked = reduced_system(state, lay, data, loss, 2.0, weights, ok)
+    assert len(calls) == 3  # the stacked path did the work
+    monkeypatch.setattr(translation_block, "applies", lambda state, lay: False)
+    general = reduced_system(state, lay, data, loss, 2.0, weights, ok)
+    keep = slice(None) if ok is None else ok
+
+    def close(a, b):
+        return np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
+
+    assert close(stacked.S, general.S) and close(stacked.rhs, general.rhs)
+    for name in ("Vinv", "Y", "bX", "det"):
+        assert close(getattr(stacked, name)[..., keep], getattr(general, name)[..., keep]), name
+    assert stacked.cost == pytest.approx(general.cost, rel=1e-12)

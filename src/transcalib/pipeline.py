@@ -154,7 +154,7 @@ def calibrate(
                      residuals_px=_all_residuals(uv, cal, inliers), options=opts,
                      info={**cal.info, "stages": stages, **timings}, diagnostics=[])
     t2 = time.perf_counter()
-    found = diagnose(_masked(uv, inliers), T, result, linear=linear, quaternions=quaternions,
+    found = diagnose(uv, T, result, linear=linear, quaternions=quaternions,
                      check_rotation=opts.check_rotation and opts.refine, unit=unit, robust=rob, all_uv=uv,
                      rotation_data=rotation_data)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
@@ -223,7 +223,7 @@ def _extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptio
         inliers = inlier_rule(_track_sse(uv, cal, X_all), k, _rule_sigma(cal, opts), opts.ransac.false_rejection)
     start = replace(cal, X=X_all if inliers is None else np.where(inliers[:, None], X_all, np.nan))
     step = replace(opts.refinement, distortion=cal.dist_model, max_iterations=GAUSS_NEWTON_STEPS)
-    full = fit_refine(_masked(uv, inliers), T, start, step, near_solution=True)
+    full = fit_refine(uv, T, start, step, near_solution=True)  # outliers have no X: not used
     if full.inliers is not None:  # the robust loss classified points too
         inliers = full.inliers if inliers is None else inliers & full.inliers
     if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:

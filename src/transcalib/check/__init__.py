@@ -34,7 +34,6 @@ import numpy as np
 from ..errors import DegenerateError, Diagnostic
 from ..types import Calibration, LinearEstimate
 from ..validate import as_uv_T
-from .common import depths
 from .linear import check_null_space
 from .points import check_outliers, check_points_behind, check_views
 from .poses import check_pose_orientations
@@ -60,7 +59,9 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
     Parameters
     ----------
     uv : (n_views, n_points, 2) float
-        The observations the calibration was computed from.
+        The observations the calibration was computed from (tracks outside
+        ``calibration.inliers`` may be included: every check but those on all tracks
+        leaves them out).
     T : (n_views, 3) float
         Measured robot translations.
     calibration : Calibration or LinearEstimate
@@ -90,11 +91,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
     """
     uv, T = as_uv_T(uv, T)
     K, R, X = (np.asarray(a, float) for a in (calibration.K, calibration.R, calibration.X))
-    seen = np.isfinite(uv[..., 0])
-    z = depths(R, X, T)
-    with np.errstate(invalid="ignore"):
-        zs = z[seen & np.isfinite(z) & (z > 0)]
-    distance = float(np.median(zs)) if zs.size else None
+    distance = _scene_distance(R, X, T)
     out = check_translations(T, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=distance, unit=unit)
     if linear is None:
         linear = calibration if isinstance(calibration, LinearEstimate) else calibration.linear
@@ -114,6 +111,15 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
     if quaternions is not None:
         out += check_pose_orientations(quaternions)
     return out
+
+
+def _scene_distance(R, X, T) -> float | None:
+    """Median over the points of their depth seen from the mean robot position (user
+    units; None without a point in front of it)."""
+    with np.errstate(invalid="ignore"):
+        z = X @ R[2] - np.mean(T, axis=0) @ R[2]
+        z = z[np.isfinite(z) & (z > 0)]
+    return float(np.median(z)) if z.size else None
 
 
 def _behind(uv, T, calibration) -> list:

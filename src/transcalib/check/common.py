@@ -18,3 +18,8 @@ def fmt_list(idx, limit: int = 10) -> str:
 def depths(R, X, T):
     """Camera z of every point in every view (n_views, n_points)."""
     return (X @ R[2])[None, :] - (T @ R[2])[:, None]
+
+
+def squared_norms(res: np.ndarray) -> np.ndarray:
+    """``|r|^2`` of each residual ``res (..., 2)`` (NaN where the residual is), in one pass."""
+    return np.einsum("...k,...k->...", res, res)

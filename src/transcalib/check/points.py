@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import Diagnostic
 from ..estimate.distributions import f_sf
-from .common import depths, fmt_list
+from .common import depths, fmt_list, squared_norms
 
 MIN_VIEW_POINTS = 6
 VIEW_RESIDUAL_RATIO = 2.0
@@ -21,7 +21,8 @@ def check_points_behind(uv, T, calibration) -> list:
     uv : (n_views, n_points, 2) float
     T : (n_views, 3) float
     calibration : Calibration or LinearEstimate
-        ``R`` and ``X`` (points with non-finite ``X`` are skipped).
+        ``R`` and ``X`` (points with non-finite ``X``, and outside its ``inliers``, are
+        skipped).
 
     Returns
     -------
@@ -34,6 +35,8 @@ def check_points_behind(uv, T, calibration) -> list:
     z = depths(np.asarray(calibration.R, float), X, T)
     with np.errstate(invalid="ignore"):
         behind = np.any(seen & np.isfinite(z) & (z <= 0), axis=0)
+    if getattr(calibration, "inliers", None) is not None:
+        behind &= calibration.inliers  # outliers are left out of the calibration
     if not behind.any():
         return []
     idx = np.flatnonzero(behind)
@@ -91,8 +94,7 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
             f"{len(few)} view(s) see very few usable points ({detail}; fewer than {min_points}): they constrain "
             "the calibration weakly and their errors go unnoticed. Track more points in those views (check the "
             "scene is in the field of view there) or drop those views."))
-    e2 = np.where(ok, np.sum(np.where(ok[..., None], res, 0.0) ** 2, axis=2), 0.0)
-    sse = e2.sum(axis=1)
+    sse = np.sum(squared_norms(res), axis=1, where=ok)
     n_res = 2 * counts
     flagged = []
     for i in range(n_views):  # one F test per view (few views)
@@ -130,7 +132,8 @@ def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, min_px: flo
         Points that count (e.g. the inliers).
     k_sigma : float
         An observation is gross when its residual norm exceeds ``k_sigma`` times the
-        robust noise ``sigma = 1.4826 median(|r|)`` per coordinate (Gaussian: probability
+        robust noise per coordinate ``sigma = sqrt(median(|r|^2) / (2 ln 2))`` (the median
+        of a chi-square with 2 degrees of freedom is ``2 ln 2``; Gaussian: probability
         ``exp(-k^2 / 2)``, 4e-6 for k = 5) ...
     min_px : float
         ... and ``min_px`` pixels: with very precise tracks (0.02 px) small tracking errors
@@ -143,25 +146,25 @@ def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, min_px: flo
     list of Diagnostic
         ``outliers``.
     """
-    res = np.asarray(residuals_px, float)
-    ok = np.isfinite(res[..., 0])
+    e2 = squared_norms(np.asarray(residuals_px, float))  # one pass: NaN where unseen
+    ok = np.isfinite(e2)
     if used is not None:
         ok &= np.asarray(used, bool)[None, :]
-    r = res[ok]
-    if len(r) < 10:
+    n_obs = int(ok.sum())
+    if n_obs < 10:
         return []
-    sigma = 1.4826 * np.median(np.abs(r))
+    sigma = float(np.sqrt(np.median(e2[ok]) / (2.0 * np.log(2.0))))
     if not sigma > 0:
         return []
     limit = max(k_sigma * sigma, min_px)
-    e = np.hypot(r[:, 0], r[:, 1])
-    gross = int(np.sum(e > limit))
-    if gross < 3 or gross <= max_fraction * len(e):
+    beyond = ok & (e2 > limit * limit)
+    gross = int(beyond.sum())
+    if gross < 3 or gross <= max_fraction * n_obs:
         return []
-    pts = np.flatnonzero(np.any(ok & (np.hypot(res[..., 0], res[..., 1]) > limit), axis=0))
+    pts = np.flatnonzero(beyond.any(axis=0))
     return [Diagnostic(
         "outliers",
-        f"{gross} of {len(e)} observations ({100 * gross / len(e):.1f}%, in {len(pts)} points: {fmt_list(pts)}) have "
+        f"{gross} of {n_obs} observations ({100 * gross / n_obs:.1f}%, in {len(pts)} points: {fmt_list(pts)}) have "
         f"residuals beyond {limit:.3g} px ({k_sigma:g} sigma, robust sigma {sigma:.3g} px): the tracks contain "
         "mismatches, which "
         "bias the calibration. Run the robust estimator (calibrate(..., robust=True), CLI --robust) or remove "

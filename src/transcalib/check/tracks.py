@@ -29,9 +29,8 @@ def track_motion_px(uv: np.ndarray) -> np.ndarray:
     """Largest image motion (pixels) of each track from its first view (n_points,); NaN
     for tracks seen once."""
     seen = np.isfinite(uv[..., 0])
-    d = reference_motion(uv)[0]
-    out = np.where(seen, d, -np.inf).max(axis=0)
-    return np.where(seen.sum(axis=0) >= 2, out, np.nan)
+    largest = np.max(reference_motion(uv)[0], axis=0, where=seen, initial=0.0)
+    return np.where(seen.sum(axis=0) >= 2, largest, np.nan)
 
 
 def check_parallax(uv: np.ndarray, sigma_px: float) -> list:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -38,10 +39,11 @@ from ..errors import DegenerateError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, project_camera_frame
 from ..geometry.rotation import rotvec_to_matrix
 from ..types import INTRINSIC_NAMES
+from . import translation_block
 
 __all__ = ["Layout", "State", "Data", "build_data", "predict_view", "normal_equations", "schur", "solve_spd",
            "Reduced", "reduced_system", "BLOCK_POINTS",
-           "levenberg_marquardt", "gauss_newton", "cost", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
+           "levenberg_marquardt", "gauss_newton", "cost", "view_residuals", "sum_sq", "all_residuals", "NormalEquations", "loss_weights", "intrinsic_basis"]
 
 _MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
 _DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see Data
@@ -216,6 +218,18 @@ class Data:
                     full_seen=[None if f is None else f[lo:hi] for f in self.full_seen])
 
 
+    def dense(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every view's observations over all points: ``uv (2, n_views, n)`` (0 where
+        unseen) and ``seen (n_views, n)`` bool."""
+        uv, seen = np.zeros((2, len(self.pts), self.n_points)), np.zeros((len(self.pts), self.n_points), bool)
+        for i, (pts, obs, full) in enumerate(zip(self.pts, self.uv, self.full_uv)):
+            if full is not None:
+                uv[:, i], seen[i] = full, self.full_seen[i]
+            else:
+                uv[:, i, pts], seen[i, pts] = obs, True
+        return uv, seen
+
+
 def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
     """Group the observations ``seen (V, n_all)`` of the points ``used_idx`` by view."""
     pts, obs, full_uv, full_seen = [], [], [], []
@@ -335,17 +349,37 @@ def _view_residuals(state, lay, data, i):
     return r, z
 
 
-def cost(state: State, lay: Layout, data: Data, loss: str, c: float) -> float:
-    """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0."""
-    total = 0.0
-    for i, pts in enumerate(data.pts):
-        if len(pts):
-            r, z = _view_residuals(state, lay, data, i)
-            if not np.all(z > 0):
-                return np.inf
-            total += np.sum(loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[0])
+def view_residuals(state: State, lay: Layout, data: Data) -> list | None:
+    """Residuals ``(2, n_i)`` of every view's observations, or None if a point is behind
+    the camera (a depth <= 0) in some view."""
+    out = []
+    for i in range(len(data.pts)):
+        r, z = _view_residuals(state, lay, data, i)
+        if not np.all(z > 0):
+            return None
+        out.append(r)
+    return out
+
+
+def _rho_sum(r: np.ndarray, loss: str, c: float) -> float:
+    """``sum rho(|r|^2)`` of residuals ``r (2, m)``."""
+    e2 = r[0] ** 2 + r[1] ** 2
+    return float(np.sum(e2 if loss == "linear" else loss_weights(e2, loss, c)[0]))
+
+
+def _prior_cost(state: State, data: Data) -> float:
+    """``sum_i t_w_i^2 |T_i - T_i^meas|^2`` (twice the translation priors' cost)."""
     dT = (state.T - data.T_meas) * data.t_weight[:, None]
-    return 0.5 * (total + np.sum(dT * dT))
+    return float(np.sum(dT * dT))
+
+
+def cost(state: State, lay: Layout, data: Data, loss: str, c: float, residuals: list | None = None) -> float:
+    """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0.
+    ``residuals``: those of :func:`view_residuals` at ``state``, when already known."""
+    residuals = view_residuals(state, lay, data) if residuals is None else residuals
+    if residuals is None:
+        return np.inf
+    return 0.5 * (sum(_rho_sum(r, loss, c) for r in residuals) + _prior_cost(state, data))
 
 
 def sum_sq(state, lay, data, loss="linear", thr=np.inf) -> float:
@@ -377,58 +411,76 @@ def all_residuals(state, lay, uv, seen, used_idx, T) -> np.ndarray:
 
 def _view_system(state, lay, data, i, loss, c, obs_weight):
     """Residuals, weights and Jacobians of view ``i`` over its points (or all points with a
-    mask): ``(r (2, m), w (m,) or None for ones, Jg, JX, pts)``."""
+    mask): ``(r (2, m), w (m,) or None for ones, Jg, JX, pts, rho)`` with ``rho`` the sum
+    of the loss over the view's observations (inf if one of them is behind the camera)."""
     n, seen = data.n_points, data.full_seen[i]
     if seen is None:
-        pred, _, Jg, JX = predict_view(state, lay, i, data.pts[i], True)
+        pred, z, Jg, JX = predict_view(state, lay, i, data.pts[i], True)
         r = data.uv[i] - pred
+        rho = _rho_sum(r, loss, c) if np.all(z > 0) else np.inf
         if obs_weight is not None:
-            return r, obs_weight[i], Jg, JX, data.pts[i]
+            return r, obs_weight[i], Jg, JX, data.pts[i], rho
         w = None if loss == "linear" else loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1]
-        return r, w, Jg, JX, data.pts[i]
-    pred, _, Jg, JX = predict_view(state, lay, i, slice(None), True, valid=seen)
-    r = data.full_uv[i] - pred
+        return r, w, Jg, JX, data.pts[i], rho
+    pred, z, Jg, JX = predict_view(state, lay, i, slice(None), True, valid=seen)
+    r = (data.full_uv[i] - pred) * seen
+    rho = _rho_sum(r[:, seen], loss, c) if np.all((z > 0) | ~seen) else np.inf
     if obs_weight is None:
         w = loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1] * seen
     else:
         w = np.zeros(n)
         w[data.pts[i]] = obs_weight[i]
-    return r * seen, w, Jg, JX, np.arange(n)
+    return r, w, Jg, JX, np.arange(n), rho
 
 
-def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, priors: bool = True):
-    """Assemble ``[[U, W], [W^T, V]] [dg; dX] = [b_g; b_X]`` (Gauss-Newton, IRLS weights).
+class NormalEquations(NamedTuple):
+    """``[[U, W], [W^T, V]] [dg; dX] = [b_g; b_X]`` (points last) and the cost at the
+    linearisation point (``0.5 sum rho``, inf if a point is behind the camera; without
+    the translation priors unless they were included)."""
 
-    Returns ``U (p, p)``, ``W (p, 3, n)``, ``V (3, 3, n)``, ``b_g (p,)``, ``b_X (3, n)``
-    (points last). ``obs_weight``: optional list of (n_i,) weights replacing the loss's
-    IRLS weights (the covariance uses ones). ``priors``: include the translation priors
-    (once per system: not in each block of points).
+    U: np.ndarray  # (p, p)
+    W: np.ndarray  # (p, 3, n)
+    V: np.ndarray  # (3, 3, n)
+    bg: np.ndarray  # (p,)
+    bX: np.ndarray  # (3, n)
+    cost: float
+
+
+def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, priors: bool = True) -> NormalEquations:
+    """Assemble the Gauss-Newton normal equations (IRLS weights for a robust loss).
+
+    ``obs_weight``: optional list of (n_i,) weights replacing the loss's IRLS weights (the
+    covariance uses ones). ``priors``: include the translation priors (once per system:
+    not in each block of points).
     """
     p, n = lay.size, data.n_points
     U, W, V = np.zeros((p, p)), np.zeros((p, 3, n)), np.zeros((3, 3, n))
     bg, bX = np.zeros(p), np.zeros((3, n))
+    rho = 0.0
     for i in range(len(data.pts)):
         if len(data.pts[i]) == 0:
             continue
-        r, w, Jg, JX, pts = _view_system(state, lay, data, i, loss, c, obs_weight)
+        r, w, Jg, JX, pts, rho_i = _view_system(state, lay, data, i, loss, c, obs_weight)
+        rho += rho_i
         cols = lay.view_columns(i)
         q = len(cols)
         Jw, JXw = (Jg, JX) if w is None else (Jg * w, JX * w)
         U[np.ix_(cols, cols)] += Jw.reshape(q, -1) @ Jg.reshape(q, -1).T
         bg[cols] += Jw.reshape(q, -1) @ r.reshape(-1)
+        # sums over the two rows of each observation (einsum: C loops, no temporaries)
+        dV, dbX, dW = (np.einsum("akn,bkn->abn", JXw, JX), np.einsum("akn,kn->an", JXw, r),
+                       np.einsum("qkn,dkn->qdn", Jw, JX))
         at = slice(None) if len(pts) == n else pts  # every used point seen: no scatter
-        for a in range(3):
-            for b in range(a, 3):
-                V[a, b, at] += JXw[a, 0] * JX[b, 0] + JXw[a, 1] * JX[b, 1]
-            bX[a, at] += JXw[a, 0] * r[0] + JXw[a, 1] * r[1]
-        for la, ga in enumerate(cols):
-            W[ga][:, at] += Jw[la, 0] * JX[:, 0] + Jw[la, 1] * JX[:, 1]
-    for a in range(3):
-        for b in range(a):
-            V[a, b] = V[b, a]
+        V[:, :, at] += dV
+        bX[:, at] += dbX
+        common = lay.n_common  # the leading columns are the common ones: a view of W, not a copy
+        W[:common, :, at] += dW[:common]
+        for la, ga in enumerate(cols[common:], start=common):
+            W[ga][:, at] += dW[la]
     if priors:
         _add_priors(U, bg, state, lay, data)
-    return U, W, V, bg, bX
+        rho += _prior_cost(state, data)
+    return NormalEquations(U, W, V, bg, bX, 0.5 * rho)
 
 
 def _add_priors(U, bg, state, lay, data) -> None:
@@ -471,7 +523,7 @@ def schur(U, W, V, bg, bX):
     """
     Vinv, det = inv3_spd(V)
     p = U.shape[0]
-    Y = W[:, 0:1] * Vinv[0][None] + W[:, 1:2] * Vinv[1][None] + W[:, 2:3] * Vinv[2][None]  # W_j V_j^-1
+    Y = np.einsum("pdn,den->pen", W, Vinv)  # W_j V_j^-1
     S = U - Y.reshape(p, -1) @ W.reshape(p, -1).T
     rhs = bg - Y.reshape(p, -1) @ bX.reshape(-1)
     return 0.5 * (S + S.T), rhs, Vinv, det, Y
@@ -490,7 +542,12 @@ class Reduced:
     ``S dg = rhs`` for the global parameters; per point ``V_j^-1`` (3, 3, n), ``Y_j =
     W_j V_j^-1`` (p, 3, n), ``b_j`` (3, n) and the scaled determinants ``det`` (n,) of
     ``V_j``: the points' step is ``dX_j = V_j^-1 b_j - Y_j^T dg`` and, with ``Sinv =
-    S^-1``, their covariance ``V_j^-1 + Y_j^T Sinv Y_j`` (module docstring).
+    S^-1``, their covariance ``V_j^-1 + Y_j^T Sinv Y_j`` (module docstring). ``cost``:
+    the cost at the linearisation point (:func:`cost`; inf if a point is behind the camera).
+    ``U_diag (p,)``: the information of each global parameter with the points held fixed
+    (the diagonal of ``U`` in the coordinates the system was assembled in), the scale
+    for deciding whether ``S`` is singular: in an undetermined direction ``S`` is a
+    difference of large sums, rounding noise at the scale of ``U``, not of itself.
     """
 
     S: np.ndarray
@@ -499,10 +556,12 @@ class Reduced:
     Y: np.ndarray
     bX: np.ndarray
     det: np.ndarray
+    cost: float
+    U_diag: np.ndarray
 
     def point_step(self, dg: np.ndarray) -> np.ndarray:
         """``dX (3, n)`` given the global step ``dg (p,)``."""
-        return matvec3(self.Vinv, self.bX) - np.tensordot(dg, self.Y, axes=1)
+        return np.einsum("abn,bn->an", self.Vinv, self.bX) - np.tensordot(dg, self.Y, axes=1)
 
     def point_variances(self, Sinv: np.ndarray) -> np.ndarray:
         """Diagonal of each point's covariance ``(n, 3)`` (unit noise) given ``S^-1``."""
@@ -517,7 +576,8 @@ class Reduced:
         return out
 
 
-def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None) -> Reduced:
+def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None,
+                   out: Reduced | None = None) -> Reduced:
     """The Schur-reduced normal equations of all points, assembled :data:`BLOCK_POINTS`
     points at a time (the Schur complement is a sum over points): the same system as
     :func:`normal_equations` then :func:`schur`, with small temporaries. The blocks run
@@ -526,41 +586,71 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
 
     ``obs_weight``: per-view weights as in :func:`normal_equations`; ``ok (n,)`` bool:
     the points that count (the others are left out of ``S``; their ``V`` is the
-    identity, their ``Y`` zero).
+    identity, their ``Y`` zero). ``out``: a system of the same problem whose per-point
+    arrays are no longer needed and are overwritten (hundreds of megabytes at 10^6
+    points, which a new allocation pays for again in page faults).
     """
     p, n = lay.size, data.n_points
-    Vinv, Y, bX, det = np.empty((3, 3, n)), np.empty((p, 3, n)), np.empty((3, n)), np.empty(n)
+    if out is not None and out.Y.shape == (p, 3, n):
+        Vinv, Y, bX, det = out.Vinv, out.Y, out.bX, out.det
+    else:
+        Vinv, Y, bX, det = np.empty((3, 3, n)), np.empty((p, 3, n)), np.empty((3, n)), np.empty(n)
+    stacked = translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * n
 
-    def block(lo: int):
-        """Fill the block's per-point arrays; return its share of ``S`` and ``rhs``."""
-        hi = min(lo + BLOCK_POINTS, n)
-        part = data.points(lo, hi)
+    def block_weights(lo: int, hi: int, part: Data):
+        """Per-view weights of the block's observations (None: ones), ``ok`` applied."""
         weights = None
         if obs_weight is not None:
             weights = [w[slice(*np.searchsorted(pts, (lo, hi)))] for w, pts in zip(obs_weight, data.pts)]
         if ok is not None:
             keep = ok[lo:hi]
             weights = [keep[q] * (1.0 if weights is None else weights[i]) for i, q in enumerate(part.pts)]
-        U, W, V, bg, bX[:, lo:hi] = normal_equations(replace(state, X=state.X[lo:hi]), lay, part, loss, c, weights,
-                                                     priors=False)
+        return weights
+
+    def block(lo: int):
+        """Fill the block's per-point arrays; return its share of ``S``, ``rhs`` and the cost."""
+        hi = min(lo + BLOCK_POINTS, n)
+        part, at = data.points(lo, hi), slice(lo, hi)
+        weights = block_weights(lo, hi, part)
+        sub = replace(state, X=state.X[lo:hi])
+        if stacked:  # every view at once (translation_block)
+            uv, seen = part.dense()
+            weight = None
+            if weights is not None:
+                weight = np.zeros(seen.shape)
+                for i, (q, w) in enumerate(zip(part.pts, weights)):
+                    weight[i, q] = w
+            S_b, rhs_b, Vinv[:, :, at], det[at], Y[:, :, at], bX[:, at], cost_b, U_diag = \
+                translation_block.translation_block(sub, lay, uv, seen, weight, loss, c, loss_weights)
+            if ok is not None:
+                det[at][~ok[lo:hi]] = 1.0  # left out (weight 0): not undetermined
+            return S_b, rhs_b, cost_b, U_diag
+        U, W, V, bg, bX[:, at], cost_b = normal_equations(sub, lay, part, loss, c, weights, priors=False)
         if ok is not None:
             for a in range(3):
-                V[a, a, ~keep] = 1.0  # left out: W is zero there
-        S_b, rhs_b, Vinv[:, :, lo:hi], det[lo:hi], Y[:, :, lo:hi] = schur(U, W, V, bg, bX[:, lo:hi])
-        return S_b, rhs_b
+                V[a, a, ~ok[lo:hi]] = 1.0  # left out: W is zero there
+        S_b, rhs_b, Vinv[:, :, at], det[at], Y[:, :, at] = schur(U, W, V, bg, bX[:, at])
+        return S_b, rhs_b, cost_b, np.diag(U).copy()
 
     starts = range(0, n, BLOCK_POINTS)
     if THREADS > 1 and len(starts) > 1:
-        with ThreadPoolExecutor(THREADS) as pool:
+        from threadpoolctl import threadpool_limits
+
+        # the blocks' small products on one BLAS thread each: BLAS's own threads would
+        # compete with ours for the same cores
+        with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(THREADS) as pool:
             parts = list(pool.map(block, starts))
     else:
         parts = [block(lo) for lo in starts]
-    S, rhs = np.zeros((p, p)), np.zeros(p)
-    for S_b, rhs_b in parts:
+    S, rhs, total, U_diag = np.zeros((p, p)), np.zeros(p), 0.0, np.zeros(p)
+    for S_b, rhs_b, cost_b, U_b in parts:
         S += S_b
         rhs += rhs_b
-    _add_priors(S, rhs, state, lay, data)
-    return Reduced(S, rhs, Vinv, Y, bX, det)
+        total += cost_b
+        U_diag += U_b
+    priors = np.zeros((p, p))
+    _add_priors(priors, rhs, state, lay, data)
+    return Reduced(S + priors, rhs, Vinv, Y, bX, det, total + 0.5 * _prior_cost(state, data), U_diag + np.diag(priors))
 
 
 def solve_spd(S: np.ndarray, rhs: np.ndarray):
@@ -597,7 +687,7 @@ def apply_step(state: State, lay: Layout, dg: np.ndarray, dX: np.ndarray) -> Sta
 def _damped_step(state, f, lay, data, system, mu, loss, c):
     """One damped Schur step from ``state`` (cost ``f``): ``(new_state, new_cost, gain)``,
     gain < 0 if rejected."""
-    U, W, V, bg, bX = system
+    U, W, V, bg, bX, _ = system
     dU = np.maximum(np.diag(U), 1e-12 * max(np.diag(U).max(), 1e-300))
     dV = np.stack([V[0, 0], V[1, 1], V[2, 2]])  # (3, n)
     dV = np.maximum(dV, 1e-12 * dV.max(axis=0))
@@ -620,30 +710,45 @@ def _damped_step(state, f, lay, data, system, mu, loss, c):
 def gauss_newton(state, lay, data, loss="linear", c=1.0, steps: int = 2, tol=1e-6, progress=None):
     """Undamped Gauss-Newton steps from a start near the solution (the fit of a subset of
     the points), each on the block-wise reduced system (:func:`reduced_system`: small
-    temporaries at any number of points). A step that does not lower the cost hands
-    over to :func:`levenberg_marquardt`.
+    temporaries at any number of points), which also gives the cost at its state: a
+    step is checked by the next step's system, the last by the residuals at the
+    solution. A step that does not lower the cost hands over to
+    :func:`levenberg_marquardt`.
 
-    Returns ``(state, cost, iterations, stop reason, system)`` with ``system`` the
-    :class:`Reduced` system of the last step (linearised one step before the returned
-    state; None after Levenberg-Marquardt).
+    Returns ``(state, cost, iterations, stop reason, system, residuals)`` with ``system``
+    the :class:`Reduced` system of the last step (linearised one step before the
+    returned state) and ``residuals`` those of :func:`view_residuals` at the returned
+    state (both None after Levenberg-Marquardt).
     """
-    f = cost(state, lay, data, loss, c)
+    red = reduced_system(state, lay, data, loss, c)
+    f = red.cost
     if not np.isfinite(f):
         raise DegenerateError("the initial estimate puts some used points behind the camera; "
                               "start from a better initial estimate (e.g. the linear one)")
-    system = None
+    system = residuals = None
     for it in range(steps):
-        red = reduced_system(state, lay, data, loss, c)
         dg = solve_spd(red.S, red.rhs) if np.all(red.det > 0) else None
         new = None if dg is None else apply_step(state, lay, dg, red.point_step(dg))
-        new_f = np.inf if new is None else cost(new, lay, data, loss, c)
+        last = it == steps - 1
+        if new is None:
+            new_f = np.inf
+        elif last:
+            residuals = view_residuals(new, lay, data)
+            new_f = cost(new, lay, data, loss, c, residuals)
+        else:  # the arrays of this step's system are free once the step is taken
+            new_red = reduced_system(new, lay, data, loss, c, out=red)
+            new_f = new_red.cost
         if not new_f < f:
             state, f, more, reason = levenberg_marquardt(state, lay, data, loss, c, steps - it, tol, progress)
-            return state, f, it + more, reason, None
-        state, f, system = new, new_f, red
+            return state, f, it + more, reason, None, None
+        state, f = new, new_f
+        if last:
+            system = red
+        else:
+            red = new_red
         if progress is not None:
             progress({"iteration": it + 1, "cost": f, "damping": 0.0})
-    return state, f, steps, f"{steps} Gauss-Newton step(s)", system
+    return state, f, steps, f"{steps} Gauss-Newton step(s)", system, residuals
 
 
 def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None):

@@ -40,15 +40,19 @@ def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=Non
     return reduced_system(state, lay, data, "linear", 1.0, obs_weight, ok)
 
 
-def check_identifiable(S: np.ndarray, names: tuple, hint="") -> tuple[np.ndarray, np.ndarray]:
+def check_identifiable(S: np.ndarray, names: tuple, hint="", scale=None) -> tuple[np.ndarray, np.ndarray]:
     """Raise :class:`DegenerateError` naming the undetermined parameters if ``S`` is singular.
 
     ``hint``: what would determine them, a string or a callable of the undetermined names.
+    ``scale (p,)``: the information of each parameter before the points were eliminated
+    (:attr:`Reduced.U_diag`; default the diagonal of ``S``): ``S`` scaled by it has
+    eigenvalues that are fractions of that information, and rounding noise stays
+    small in them.
 
-    Returns the eigen-decomposition ``(evals, evecs)`` of the Jacobi-scaled ``S`` and the
+    Returns the eigen-decomposition ``(evals, evecs)`` of the scaled ``S`` and the
     scaling ``d`` folded into the vectors (``S^-1 = (V / w) V^T`` scaled by ``d``).
     """
-    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S) if scale is None else scale, 1e-300))
     evals, evecs = np.linalg.eigh(S * d[:, None] * d[None, :])
     weak = evals <= IDENTIFIABILITY_RTOL * max(evals[-1], 1e-300)
     if weak.any():
@@ -84,7 +88,7 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "",
         if not undetermined.any():
             break
         ok &= ~undetermined
-    evals, evecs = check_identifiable(red.S, lay.names(), hint)
+    evals, evecs = check_identifiable(red.S, lay.names(), hint, red.U_diag)
     Sinv = (evecs / evals) @ evecs.T
     var_X = red.point_variances(Sinv)
     var_X[~ok] = np.nan
@@ -143,14 +147,16 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, f
     tw = np.zeros(n_views)
     tw[list(T_views)] = scene.noise_px / scene.robot_noise if T_views else 0.0
     data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
-    return bound_std(reduced_information(state, lay, data).S, lay, scene.noise_px)
+    red = reduced_information(state, lay, data)
+    return bound_std(red.S, lay, scene.noise_px, red.U_diag)
 
 
-def bound_std(S: np.ndarray, lay: Layout, noise_px: float) -> dict:
+def bound_std(S: np.ndarray, lay: Layout, noise_px: float, scale=None) -> dict:
     """Standard deviations ``noise_px sqrt(diag(S^-1))`` by parameter name (rotations in
     degrees; with square pixels ``f`` and also ``fx``, ``fy``) of a reduced information
-    ``S`` (unit pixel noise); raises naming the parameters if ``S`` is singular."""
-    evals, evecs = check_identifiable(S, lay.names())
+    ``S`` (unit pixel noise); raises naming the parameters if ``S`` is singular
+    (:func:`check_identifiable` with ``scale``)."""
+    evals, evecs = check_identifiable(S, lay.names(), scale=scale)
     sd = noise_px * np.sqrt(np.sum(evecs**2 / evals, axis=1))
     sd = np.where(lay.rotation_mask(), np.degrees(sd), sd)
     out = {nm: float(v) for nm, v in zip(lay.names(), sd)}

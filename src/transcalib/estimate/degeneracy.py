@@ -152,12 +152,12 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
             "known the rotation about the line of motion is undetermined. Move the robot also along "
             f"{format_direction(P[:, 1])} and {format_direction(P[:, 2])} (e.g. along x, y and z).")
     T_plane = T.mean(axis=0) + (T - T.mean(axis=0)) @ P[:, :2] @ P[:, :2].T  # out-of-plane jitter dropped
-    S, names = _generic_information(T_plane, P, s, fix, square_pixels, estimate_skew, distortion)
+    red, names = _generic_information(T_plane, P, s, fix, square_pixels, estimate_skew, distortion)
     normal = format_direction(P[:, 2])
     head = (f"the robot translations are coplanar (singular values {', '.join(f'{v:.3g}' for v in s)} {unit}): "
             f"the robot direction {normal} (the plane normal, robot axes) is missing. ")
     try:
-        check_identifiable(S, names, identifiability_hint(_without_rotation(names), T_plane))
+        check_identifiable(red.S, names, identifiability_hint(_without_rotation(names), T_plane), red.U_diag)
     except DegenerateError as exc:
         raise DegenerateError(head + "With the parameters posed, " + str(exc)) from None
     free = [nm for nm in names if nm in INTRINSIC_NAMES + ("f",)] + ["R"]
@@ -180,7 +180,7 @@ def _without_rotation(names) -> list:
 
 
 def _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion):
-    """Reduced Fisher information ``S`` and parameter names of a generic configuration
+    """Reduced Fisher information (a :class:`Reduced`) and parameter names of a generic configuration
     with the translations ``T``: camera tilted by ``_GENERIC_TILT`` from the plane normal,
     25 points spread over +-0.4 f pixels at 5 times the largest translation extent."""
     f0 = float(fix.get("fx", fix.get("fy", 1000.0)))
@@ -203,7 +203,7 @@ def _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion)
         raise InputError(f"unknown distortion model {distortion!r}") from None
     state = State(intr, np.zeros(5), R, np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X)
     data = build_data(uv, np.ones((n_views, n), bool), np.arange(n), T, np.zeros(n_views))
-    return reduced_information(state, lay, data).S, lay.names()
+    return reduced_information(state, lay, data), lay.names()
 
 
 def identifiability_hint(names, T=None, unit: str = "units") -> str:

@@ -142,10 +142,10 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
     X0, K0, R0 = _check_initial(initial, n_points)
     seen = np.all(np.isfinite(uv), axis=2)
     usable = np.all(np.isfinite(X0), axis=1) & (seen.sum(axis=0) >= 2)
-    d0 = X0[None] - T[:, None]  # (V, n, 3)
-    if flange is not None:
-        d0 = np.einsum("vab,vnb->vna", flange.F, d0) - flange.t0
-    z0 = d0 @ R0[2]
+    if flange is None:  # depth R (X_j - T_i) . e_z without a (V, n, 3) temporary
+        z0 = (X0 @ R0[2])[None, :] - (T @ R0[2])[:, None]
+    else:
+        z0 = (np.einsum("vab,vnb->vna", flange.F, X0[None] - T[:, None]) - flange.t0) @ R0[2]
     in_front = np.all(~seen | (z0 > 0) | ~usable[None], axis=0)
     used_idx = np.flatnonzero(usable & in_front)
     if len(used_idx) < 2:
@@ -290,7 +290,7 @@ class _Fitter:
 
     def __init__(self, pb: _Problem, progress, near_solution: bool = False):
         self.pb, self.progress, self.near_solution = pb, progress, near_solution
-        self.system = None
+        self.system = self.residuals = None
         self.iterations = 0
         self.set_scale(pb.opts.loss_scale_px or 1.0)
 
@@ -308,11 +308,12 @@ class _Fitter:
 
     def _lm(self, state, lay, data, loss):
         """Levenberg-Marquardt, or Gauss-Newton steps near the solution (then the last
-        step's reduced system is kept for the covariance: ``self.system``)."""
+        step's reduced system is kept for the covariance, ``self.system``, and the
+        residuals at the solution, ``self.residuals``)."""
         o = self.pb.opts
         if self.near_solution:
-            state, f, it, reason, self.system = gauss_newton(state, lay, data, loss, self.c, o.max_iterations, o.tol,
-                                                             self.progress)
+            state, f, it, reason, self.system, self.residuals = gauss_newton(
+                state, lay, data, loss, self.c, o.max_iterations, o.tol, self.progress)
         else:
             state, f, it, reason = levenberg_marquardt(state, lay, data, loss, self.c, o.max_iterations, o.tol,
                                                        self.progress)
@@ -350,7 +351,7 @@ class _Fitter:
             if done:
                 break
         data = build_data(pb.uv, mask, idx, pb.T, self._weights(sigma))
-        self.system = None  # linearised with other prior weights than the final data's
+        self.system = self.residuals = None  # linearised with other prior weights than the final data's
         return state, bundle.cost(state, lay, data, loss, self.c), reason, data, sigma
 
 
@@ -448,9 +449,8 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     X_std[fit.idx[ok]] = sigma * np.sqrt(var_X[ok])
     X = np.full((n_points, 3), np.nan)
     X[pb.used_idx] = fit.state.X
-    residuals = np.full((n_views, n_points, 2), np.nan)
-    residuals[:, pb.used_idx] = bundle.all_residuals(fit.state, lay, pb.uv, pb.seen, pb.used_idx, pb.T)
-    used_res = residuals[:, pb.used_idx][pb.seen[:, pb.used_idx]]
+    residuals = _residuals(pb, fit, fitter)
+    e2 = np.einsum("vnk,vnk->vn", residuals, residuals)
     info = _info(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)
     info.update(_view_rotation_info(lay, fit.state, cov, n_views))
     if fit.state.F is not None:
@@ -465,9 +465,22 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
                     image_size)
     linear = initial if isinstance(initial, LinearEstimate) else getattr(initial, "linear", None)
     return Calibration(
-        camera=camera, X=X, residuals_px=residuals, rms_px=float(np.sqrt(np.mean(np.sum(used_res**2, axis=1)))),
+        camera=camera, X=X, residuals_px=residuals, rms_px=float(np.sqrt(np.nanmean(e2))),
         T=fit.state.T.copy(), sigma_px=sigma, linear=linear, cov=cov, std=std, param_names=names, X_std=X_std,
         inliers=fit.inliers, options=CalibrateOptions(robust=False, refinement=pb.opts), info=info)
+
+
+def _residuals(pb: _Problem, fit: _Fit, fitter: _Fitter) -> np.ndarray:
+    """Residuals ``(n_views, n_points, 2)`` of the used points at the solution (NaN
+    elsewhere): the Gauss-Newton steps' own when they cover every observation."""
+    out = np.full(pb.uv.shape, np.nan)
+    if fitter.residuals is not None and fit.last is fit.state:
+        idx = pb.used_idx
+        for i, (pts, r) in enumerate(zip(fit.data.pts, fitter.residuals)):
+            out[i, idx[pts]] = r.T
+    else:
+        out[:, pb.used_idx] = bundle.all_residuals(fit.state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    return out
 
 
 def _sigma(pb: _Problem, fit: _Fit, cost: float, dof_fit: int) -> float:
