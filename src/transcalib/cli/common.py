@@ -10,17 +10,19 @@ puts the command-line option the user typed in their place.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import re
 import sys
+import threading
 from pathlib import Path
 
 from ..errors import DegenerateError, InputError, TranscalibError
 
 __all__ = ["EXIT_OK", "EXIT_INPUT", "EXIT_DEGENERATE", "EXIT_WARNINGS", "EXIT_INTERRUPTED", "OptionError",
            "positive_int", "positive_float", "nonnegative_float", "fraction", "image_size", "existing_file",
-           "cli_message", "exit_code", "Progress", "print_json", "Parser"]
+           "cli_message", "exit_code", "Progress", "print_json", "Parser", "import_in_background"]
 
 EXIT_OK = 0
 EXIT_INPUT = 2
@@ -188,6 +190,23 @@ class Progress:
         for bar in self._bars.values():
             bar.close()
         self._bars.clear()
+
+
+def import_in_background(*modules: str) -> threading.Thread:
+    """Import ``modules`` on a daemon thread while the main thread reads its inputs (the
+    CSV parser releases the GIL): scipy's modules take a few tenths of a second that
+    would otherwise come after the reading. A failed import is left for the main
+    thread's own import of the module to report."""
+    def work():
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - reported by the main thread's import
+                return
+
+    thread = threading.Thread(target=work, name="imports", daemon=True)
+    thread.start()
+    return thread
 
 
 def print_json(data: dict) -> None:
