@@ -27,6 +27,7 @@ O(n) time and memory (batched 3x3 inverses, BLAS products; no loop over points).
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -530,7 +531,7 @@ def schur(U, W, V, bg, bX):
 
 
 #: Points per block of :func:`reduced_system` (its temporaries stay in the CPU cache).
-BLOCK_POINTS = 32768
+BLOCK_POINTS = 8192
 #: Threads of :func:`reduced_system`: the cores of the machine, at most 4.
 THREADS = min(4, os.cpu_count() or 1)
 
@@ -564,16 +565,30 @@ class Reduced:
         return np.einsum("abn,bn->an", self.Vinv, self.bX) - np.tensordot(dg, self.Y, axes=1)
 
     def point_variances(self, Sinv: np.ndarray) -> np.ndarray:
-        """Diagonal of each point's covariance ``(n, 3)`` (unit noise) given ``S^-1``."""
+        """Diagonal of each point's covariance ``(n, 3)`` (unit noise) given ``S^-1``:
+        ``diag(V_j^-1) + |L^T Y_j|^2`` column-wise, with ``S^-1 = L L^T``."""
         p, n = self.Y.shape[0], self.Y.shape[2]
-        out = np.empty((n, 3))
-        for lo in range(0, n, BLOCK_POINTS):
-            b = slice(lo, min(lo + BLOCK_POINTS, n))
-            Y = self.Y[:, :, b]
-            SY = (Sinv @ Y.reshape(p, -1)).reshape(Y.shape)
-            out[b] = (np.stack([self.Vinv[0, 0, b], self.Vinv[1, 1, b], self.Vinv[2, 2, b]])
-                      + np.sum(Y * SY, axis=0)).T
-        return out
+        L = _psd_factor(Sinv)
+        out = np.empty((3, n))
+        for a in range(3):
+            LY = L.T @ self.Y[:, a]  # (p, n)
+            out[a] = self.Vinv[a, a] + np.einsum("pn,pn->n", LY, LY)
+        return out.T
+
+
+@functools.cache
+def _blas_threads():
+    """The BLAS libraries' thread pools (``threadpoolctl``; looked up once: 0.3 ms)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def _psd_factor(M: np.ndarray) -> np.ndarray:
+    """``L`` with ``L L^T = M`` for a symmetric positive semi-definite ``M`` (from its
+    eigen-decomposition: exact for singular ``M`` too)."""
+    w, V = np.linalg.eigh(M)
+    return V * np.sqrt(np.maximum(w, 0.0))
 
 
 def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None,
@@ -633,15 +648,14 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
         return S_b, rhs_b, cost_b, np.diag(U).copy()
 
     starts = range(0, n, BLOCK_POINTS)
-    if THREADS > 1 and len(starts) > 1:
-        from threadpoolctl import threadpool_limits
-
-        # the blocks' small products on one BLAS thread each: BLAS's own threads would
-        # compete with ours for the same cores
-        with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(THREADS) as pool:
-            parts = list(pool.map(block, starts))
-    else:
-        parts = [block(lo) for lo in starts]
+    # the blocks' small products on one BLAS thread each: BLAS's own threads would spin
+    # on the same cores as ours
+    with _blas_threads().limit(limits=1, user_api="blas"):
+        if THREADS > 1 and len(starts) > 1:
+            with ThreadPoolExecutor(THREADS) as pool:
+                parts = list(pool.map(block, starts))
+        else:
+            parts = [block(lo) for lo in starts]
     S, rhs, total, U_diag = np.zeros((p, p)), np.zeros(p), 0.0, np.zeros(p)
     for S_b, rhs_b, cost_b, U_b in parts:
         S += S_b

@@ -449,8 +449,7 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     X_std[fit.idx[ok]] = sigma * np.sqrt(var_X[ok])
     X = np.full((n_points, 3), np.nan)
     X[pb.used_idx] = fit.state.X
-    residuals = _residuals(pb, fit, fitter)
-    e2 = np.einsum("vnk,vnk->vn", residuals, residuals)
+    residuals, rms = _residuals(pb, fit, fitter)
     info = _info(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)
     info.update(_view_rotation_info(lay, fit.state, cov, n_views))
     if fit.state.F is not None:
@@ -465,22 +464,25 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
                     image_size)
     linear = initial if isinstance(initial, LinearEstimate) else getattr(initial, "linear", None)
     return Calibration(
-        camera=camera, X=X, residuals_px=residuals, rms_px=float(np.sqrt(np.nanmean(e2))),
+        camera=camera, X=X, residuals_px=residuals, rms_px=rms,
         T=fit.state.T.copy(), sigma_px=sigma, linear=linear, cov=cov, std=std, param_names=names, X_std=X_std,
         inliers=fit.inliers, options=CalibrateOptions(robust=False, refinement=pb.opts), info=info)
 
 
-def _residuals(pb: _Problem, fit: _Fit, fitter: _Fitter) -> np.ndarray:
+def _residuals(pb: _Problem, fit: _Fit, fitter: _Fitter) -> tuple[np.ndarray, float]:
     """Residuals ``(n_views, n_points, 2)`` of the used points at the solution (NaN
-    elsewhere): the Gauss-Newton steps' own when they cover every observation."""
+    elsewhere) and their RMS norm (px): the Gauss-Newton steps' own residuals when they
+    cover every observation."""
     out = np.full(pb.uv.shape, np.nan)
     if fitter.residuals is not None and fit.last is fit.state:
         idx = pb.used_idx
         for i, (pts, r) in enumerate(zip(fit.data.pts, fitter.residuals)):
             out[i, idx[pts]] = r.T
-    else:
-        out[:, pb.used_idx] = bundle.all_residuals(fit.state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
-    return out
+        sse = sum(float(np.einsum("kn,kn->", r, r)) for r in fitter.residuals)
+        return out, float(np.sqrt(sse / fit.data.n_obs))
+    used = bundle.all_residuals(fit.state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    out[:, pb.used_idx] = used
+    return out, float(np.sqrt(np.nanmean(np.einsum("vnk,vnk->vn", used, used))))
 
 
 def _sigma(pb: _Problem, fit: _Fit, cost: float, dof_fit: int) -> float:
