@@ -357,10 +357,10 @@ def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
         xc = camera_frame(cal.R, np.nan_to_num(X[b]), cal.T)
         pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc).pred
         seen = np.isfinite(uv[:, b, 0])
-        r = uv[:, b] - np.moveaxis(pred, 0, -1)
-        e2 = np.where(seen, np.sum(np.nan_to_num(r) ** 2, axis=2), 0.0)
+        du, dv = uv[:, b, 0] - pred[0], uv[:, b, 1] - pred[1]
+        sse = np.sum(du * du + dv * dv, axis=0, where=seen)
         behind = np.any(seen & (xc[2] <= 0), axis=0)
-        out[b] = np.where(np.isfinite(X[b, 0]) & ~behind, e2.sum(axis=0), np.inf)
+        out[b] = np.where(np.isfinite(X[b, 0]) & ~behind, sse, np.inf)
     return out
 
 

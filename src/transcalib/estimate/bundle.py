@@ -236,19 +236,17 @@ def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
     pts, obs, full_uv, full_seen = [], [], [], []
     n = len(used_idx)
     for i in range(uv.shape[0]):
-        sel = np.flatnonzero(seen[i, used_idx])
+        mask = seen[i, used_idx]
+        sel = np.flatnonzero(mask)
         pts.append(sel)
-        obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
-        if _DENSE_FRACTION * n <= len(sel) < n:
-            f = np.zeros((2, n))
-            f[:, sel] = obs[-1]
-            mask = np.zeros(n, bool)
-            mask[sel] = True
-            full_uv.append(f)
-            full_seen.append(mask)
+        dense = _DENSE_FRACTION * n <= len(sel) < n
+        if dense:
+            full = np.where(mask, uv[i, used_idx].T, 0.0)  # (2, n)
+            obs.append(full[:, sel])
         else:
-            full_uv.append(None)
-            full_seen.append(None)
+            obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
+        full_uv.append(full if dense else None)
+        full_seen.append(mask if dense else None)
     return Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=n, full_uv=full_uv,
                 full_seen=full_seen)
 
@@ -285,7 +283,7 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     Q = state.Q[i]
     xc = Q @ y2 if lay.rot_views else y2
     p = project_camera_frame(state.intr, state.dist5, xc, jacobian=jacobian, valid=valid,
-                             dist_jacobian=bool(lay.dist_free))
+                             dist_jacobian=lay.dist_free)
     if not jacobian:
         return p.pred, xc[2], None, None
     n = y.shape[1]
@@ -293,7 +291,7 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     Jg = np.empty((q, 2, n))
     Jg[: lay.n_intr] = p.intrinsic_jacobian(lay.intr_basis)
     if lay.dist_free:
-        Jg[lay.i_dist: lay.i_rot] = p.J_dist[list(lay.dist_free)]
+        Jg[lay.i_dist: lay.i_rot] = p.J_dist
     PQ = np.einsum("kcn,cd->kdn", p.P, Q) if lay.rot_views else p.P  # d pred / d y2
     # R <- exp([w]x) R: d y2 / dw = -[y2]x, and a^T (-[y2]x) = (y2 x a)^T
     _cross_rows(y2, PQ, Jg[lay.i_rot: lay.i_rot + 3])

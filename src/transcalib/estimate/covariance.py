@@ -135,7 +135,7 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, f
         raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {distortion!r}")
     fix = dict(fix or {})
     n_views = scene.uv.shape[0]
-    seen = np.all(np.isfinite(scene.uv), axis=2)
+    seen = np.isfinite(scene.uv[..., 0])
     used_idx = np.flatnonzero(seen.sum(axis=0) >= 2)
     T_views = tuple(range(1, n_views)) if scene.robot_noise > 0 else ()
     E, names = intrinsic_basis(fix, estimate_skew, square_pixels)

@@ -140,7 +140,7 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
     """Check the start, choose the used points and lay out the parameters."""
     n_views, n_points = uv.shape[:2]
     X0, K0, R0 = _check_initial(initial, n_points)
-    seen = np.all(np.isfinite(uv), axis=2)
+    seen = np.isfinite(uv[..., 0])  # validated: both coordinates NaN where unseen
     usable = np.all(np.isfinite(X0), axis=1) & (seen.sum(axis=0) >= 2)
     if flange is None:  # depth R (X_j - T_i) . e_z without a (V, n, 3) temporary
         z0 = (X0 @ R0[2])[None, :] - (T @ R0[2])[:, None]

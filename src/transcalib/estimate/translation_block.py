@@ -69,7 +69,7 @@ def translation_block(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss
     xc = y[:, None, :] - centres[:, :, None]  # (3, V, n)
     weight = seen.astype(float) if weight is None else weight
     proj = project_camera_frame(state.intr, state.dist5, xc, jacobian=True, valid=seen,
-                                dist_jacobian=bool(lay.dist_free))
+                                dist_jacobian=lay.dist_free)
     r = np.where(seen, uv - proj.pred, 0.0)  # (2, V, n)
     e2 = r[0] * r[0] + r[1] * r[1]
     if loss == "linear":
@@ -125,7 +125,7 @@ def _camera_columns(proj, lay) -> np.ndarray:
     """d pixel / d (free intrinsics, free distortion coefficients) ``(m, 2, V, n)``."""
     cols = proj.intrinsic_jacobian(lay.intr_basis)
     if lay.dist_free:
-        cols = np.concatenate([cols, proj.J_dist[list(lay.dist_free)]])
+        cols = np.concatenate([cols, proj.J_dist])
     return cols
 
 

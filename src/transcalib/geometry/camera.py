@@ -82,7 +82,7 @@ class Distortion(NamedTuple):
 
 
 def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool = False,
-            coefficients: bool = True) -> Distortion:
+            coefficients=True) -> Distortion:
     """OpenCV distortion of normalised coordinates ``(x, y)`` (arrays of any one shape).
 
     Parameters
@@ -94,8 +94,9 @@ def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool =
     jacobian : bool
         Also return the derivatives with respect to ``x, y`` (None for the pinhole,
         where they are the identity) ...
-    coefficients : bool
-        ... and, with ``jacobian``, with respect to the coefficients.
+    coefficients : bool or sequence of int
+        ... and, with ``jacobian``, with respect to the coefficients: all five (True),
+        none (False), or those listed (indices into OpenCV's five, in that order).
 
     Returns
     -------
@@ -104,32 +105,52 @@ def distort(x: np.ndarray, y: np.ndarray, dist5: np.ndarray, *, jacobian: bool =
     """
     k1, k2, p1, p2, k3 = dist5
     pinhole = not np.any(dist5)
-    r2 = None if pinhole and not (jacobian and coefficients) else x * x + y * y
-    if pinhole:  # no temporaries on the hot path
+    which = () if not jacobian else range(5) if coefficients is True else tuple(coefficients or ())
+    r2 = None if pinhole and not which else x * x + y * y
+    tangential = bool(p1 or p2)  # terms left out when zero: no temporaries on the hot path
+    xy = 2.0 * x * y if tangential or which else None
+    radial = None
+    if pinhole:
         xd, yd = x, y
-        radial = None
     else:
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        xd, yd = x * radial, y * radial
+        if tangential:
+            xd = xd + p1 * xy + p2 * (r2 + 2.0 * x * x)
+            yd = yd + p1 * (r2 + 2.0 * y * y) + p2 * xy
     if not jacobian:
         return Distortion(xd, yd)
     dx = dy = None
     if radial is not None:
         dR = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-        a12 = 2.0 * x * y * dR + 2.0 * p1 * x + 2.0 * p2 * y
-        dx = (radial + 2.0 * x * x * dR + 2.0 * p1 * y + 6.0 * p2 * x, a12)
-        dy = (a12, radial + 2.0 * y * y * dR + 6.0 * p1 * y + 2.0 * p2 * x)
-    dk = None
-    if coefficients:
-        r4 = r2 * r2
-        dk = ((x * r2, y * r2), (x * r4, y * r4), (2.0 * x * y, r2 + 2.0 * y * y),
-              (r2 + 2.0 * x * x, 2.0 * x * y), (x * r4 * r2, y * r4 * r2))
+        a12 = xy * dR
+        dx, dy = radial + 2.0 * x * x * dR, radial + 2.0 * y * y * dR
+        if tangential:
+            a12 = a12 + 2.0 * p1 * x + 2.0 * p2 * y
+            dx, dy = dx + 2.0 * p1 * y + 6.0 * p2 * x, dy + 6.0 * p1 * y + 2.0 * p2 * x
+        dx, dy = (dx, a12), (a12, dy)
+    dk = tuple(_coefficient_derivative(k, x, y, r2, xy) for k in which) if which else None
     return Distortion(xd, yd, dx, dy, dk)
 
 
+def _coefficient_derivative(k: int, x, y, r2, xy) -> tuple:
+    """``(d x' / d c_k, d y' / d c_k)`` for OpenCV's coefficient ``k`` (0..4); ``xy = 2 x y``."""
+    if k == 0:
+        return x * r2, y * r2
+    if k == 1:
+        r4 = r2 * r2
+        return x * r4, y * r4
+    if k == 2:
+        return xy, r2 + 2.0 * y * y
+    if k == 3:
+        return r2 + 2.0 * x * x, xy
+    r6 = r2 * r2 * r2
+    return x * r6, y * r6
+
+
 def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
-    """Invert :func:`distort` by fixed-point iteration (as ``cv2.undistortPoints``).
+    """Invert :func:`distort` by fixed-point iteration (as ``cv2.undistortPoints``), at
+    most ``iterations`` steps, fewer once a step moves no point by more than 1e-15.
 
     Parameters
     ----------
@@ -148,13 +169,18 @@ def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
     if not d.any():
         return xy_d.copy()
     k1, k2, p1, p2, k3 = d
-    x, y = xy_d[..., 0].copy(), xy_d[..., 1].copy()
-    for _ in range(iterations):
+    xd, yd = xy_d[..., 0], xy_d[..., 1]
+    x, y = xd.copy(), yd.copy()
+    for it in range(iterations):
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
         dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
         dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        x, y = (xy_d[..., 0] - dx) / radial, (xy_d[..., 1] - dy) / radial
+        x_new, y_new = (xd - dx) / radial, (yd - dy) / radial
+        converged = it % 4 == 3 and not np.any(np.abs(x_new - x) + np.abs(y_new - y) > 1e-15)  # NaN: not counted
+        x, y = x_new, y_new
+        if converged:
+            break
     return np.stack([x, y], axis=-1)
 
 
@@ -163,7 +189,8 @@ class Projection(NamedTuple):
 
     ``pred (2, ...)``; ``P (2, 3, ...)`` = d pixel / d x_c; ``xd``, ``yd`` the distorted
     normalised coordinates (d u / d fx = x', d u / d skew = y', d v / d fy = y');
-    ``J_dist (5, 2, ...)`` = d pixel / d (k1, k2, p1, p2, k3), or None when not asked for.
+    ``J_dist (k, 2, ...)`` = d pixel / d (the coefficients asked for: all five, k1, k2,
+    p1, p2, k3, by default), or None when not asked for.
     """
 
     pred: np.ndarray
@@ -183,7 +210,7 @@ class Projection(NamedTuple):
 
 
 def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *, jacobian: bool = False,
-                         valid: np.ndarray | None = None, dist_jacobian: bool = True) -> Projection:
+                         valid: np.ndarray | None = None, dist_jacobian=True) -> Projection:
     """Pixels of points in the camera frame (module docstring), components first.
 
     Parameters
@@ -199,8 +226,9 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
     valid : (...) bool, optional
         Points whose values matter; the others get depth 1 in the divisions (their
         results are finite and meaningless).
-    dist_jacobian : bool
-        With ``jacobian``: also the derivatives with respect to the coefficients.
+    dist_jacobian : bool or sequence of int
+        With ``jacobian``: also the derivatives with respect to the coefficients (all
+        five, or those listed: indices into OpenCV's five).
 
     Returns
     -------
@@ -230,8 +258,8 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
     P[0, 0], P[0, 1], P[0, 2] = m11 * iz, m12 * iz, -(m11 * x + m12 * y) * iz
     P[1, 0], P[1, 1], P[1, 2] = m21 * iz, m22 * iz, -(m21 * x + m22 * y) * iz
     J_dist = None
-    if dist_jacobian:
-        J_dist = np.stack([np.stack([fx * gx + s * gy, fy * gy]) for gx, gy in d.dk])
+    if d.dk:
+        J_dist = np.stack([np.stack([fx * gx + s * gy if s else fx * gx, fy * gy]) for gx, gy in d.dk])
     return Projection(pred, P, d.xd, d.yd, J_dist)
 
 
