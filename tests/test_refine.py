@@ -562,10 +562,10 @@ def test_robust_loss_with_a_point_left_out():
 ])
 def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, square, skew, loss, missing, weighted):
     """Oracle: the all-views assembly in camera axes (translation_block) gives the general
-    per-view assembly's reduced system, per-point blocks and cost to rounding, for every
-    camera layout it serves, weights, left-out points and missing observations."""
+    view-by-view normal equations, reduced system and cost to rounding, for every camera
+    layout it serves, weights, left-out points and missing observations."""
     from transcalib.estimate import bundle, translation_block
-    from transcalib.estimate.bundle import build_data, dist_indices, reduced_system
+    from transcalib.estimate.bundle import build_data, dist_indices, normal_equations, reduced_system
 
     scene = simulate.random_scene(1500, 6, noise_px=0.7, missing=missing, rng=1,
                                   dist=(-0.1, 0.02) if model != "none" else ())
@@ -584,18 +584,21 @@ def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, 
     weights = [rng.random(len(p)) + 0.5 for p in data.pts] if weighted else None
     monkeypatch.setattr(bundle, "BLOCK_POINTS", 700)  # several blocks, a short last one
     calls = []
-    block = translation_block.translation_block
-    monkeypatch.setattr(translation_block, "translation_block", lambda *a: calls.append(1) or block(*a))
-    stacked = reduced_system(state, lay, data, loss, 2.0, weights, ok)
-    assert len(calls) == 3  # the stacked path did the work
+    assemble = translation_block.normal_equations
+    monkeypatch.setattr(translation_block, "normal_equations", lambda *a: calls.append(1) or assemble(*a))
+    stacked = normal_equations(state, lay, data, loss, 2.0, weights), reduced_system(state, lay, data, loss, 2.0,
+                                                                                     weights, ok)
+    assert len(calls) == 4  # the stacked path did the work: once, then once per block
     monkeypatch.setattr(translation_block, "applies", lambda state, lay: False)
-    general = reduced_system(state, lay, data, loss, 2.0, weights, ok)
-    keep = slice(None) if ok is None else ok
+    general = normal_equations(state, lay, data, loss, 2.0, weights), reduced_system(state, lay, data, loss, 2.0,
+                                                                                     weights, ok)
 
     def close(a, b):
         return np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
 
-    assert close(stacked.S, general.S) and close(stacked.rhs, general.rhs)
-    for name in ("Vinv", "Y", "bX", "det"):
-        assert close(getattr(stacked, name)[..., keep], getattr(general, name)[..., keep]), name
-    assert stacked.cost == pytest.approx(general.cost, rel=1e-12)
+    for name in ("U", "W", "V", "bg", "bX"):
+        assert close(getattr(stacked[0], name), getattr(general[0], name)), name
+    assert stacked[0].cost == pytest.approx(general[0].cost, rel=1e-12)
+    for name in ("S", "rhs", "Vinv", "Y", "bX", "det", "U_diag"):
+        assert close(getattr(stacked[1], name), getattr(general[1], name)), name
+    assert stacked[1].cost == pytest.approx(general[1].cost, rel=1e-12)

@@ -231,6 +231,14 @@ class Data:
         return uv, seen
 
 
+    def dense_weights(self, weights: list) -> np.ndarray:
+        """Per-view weights over the observations ``(n_i,)`` as ``(n_views, n)`` (0 where unseen)."""
+        out = np.zeros((len(self.pts), self.n_points))
+        for i, (pts, w) in enumerate(zip(self.pts, weights)):
+            out[i, pts] = w
+        return out
+
+
 def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
     """Group the observations ``seen (V, n_all)`` of the points ``used_idx`` by view."""
     pts, obs, full_uv, full_seen = [], [], [], []
@@ -448,10 +456,27 @@ class NormalEquations(NamedTuple):
 def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, priors: bool = True) -> NormalEquations:
     """Assemble the Gauss-Newton normal equations (IRLS weights for a robust loss).
 
-    ``obs_weight``: optional list of (n_i,) weights replacing the loss's IRLS weights (the
-    covariance uses ones). ``priors``: include the translation priors (once per system:
-    not in each block of points).
+    One pure-translation session whose views see most points is assembled with every
+    view at once (:mod:`transcalib.estimate.translation_block`), anything else view by
+    view; both give the same equations. ``obs_weight``: optional list of (n_i,) weights
+    replacing the loss's IRLS weights (the covariance uses ones). ``priors``: include
+    the translation priors (once per system: not in each block of points).
     """
+    if translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points:
+        uv, seen = data.dense()
+        weight = None if obs_weight is None else data.dense_weights(obs_weight)
+        U, W, V, bg, bX, cost = translation_block.normal_equations(state, lay, uv, seen, weight, loss, c,
+                                                                   loss_weights)
+    else:
+        U, W, V, bg, bX, cost = _view_by_view(state, lay, data, loss, c, obs_weight)
+    if priors:
+        _add_priors(U, bg, state, lay, data)
+        cost += 0.5 * _prior_cost(state, data)
+    return NormalEquations(U, W, V, bg, bX, cost)
+
+
+def _view_by_view(state, lay, data, loss, c, obs_weight):
+    """:func:`normal_equations` without priors, one view at a time (any layout)."""
     p, n = lay.size, data.n_points
     U, W, V = np.zeros((p, p)), np.zeros((p, 3, n)), np.zeros((3, 3, n))
     bg, bX = np.zeros(p), np.zeros((3, n))
@@ -476,10 +501,7 @@ def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, pr
         W[:common, :, at] += dW[:common]
         for la, ga in enumerate(cols[common:], start=common):
             W[ga][:, at] += dW[la]
-    if priors:
-        _add_priors(U, bg, state, lay, data)
-        rho += _prior_cost(state, data)
-    return NormalEquations(U, W, V, bg, bX, 0.5 * rho)
+    return U, W, V, bg, bX, 0.5 * rho
 
 
 def _add_priors(U, bg, state, lay, data) -> None:
@@ -544,9 +566,9 @@ class Reduced:
     S^-1``, their covariance ``V_j^-1 + Y_j^T Sinv Y_j`` (module docstring). ``cost``:
     the cost at the linearisation point (:func:`cost`; inf if a point is behind the camera).
     ``U_diag (p,)``: the information of each global parameter with the points held fixed
-    (the diagonal of ``U`` in the coordinates the system was assembled in), the scale
-    for deciding whether ``S`` is singular: in an undetermined direction ``S`` is a
-    difference of large sums, rounding noise at the scale of ``U``, not of itself.
+    (the diagonal of ``U``), the scale for deciding whether ``S`` is singular: in an
+    undetermined direction ``S`` is a difference of large sums, rounding noise at the
+    scale of ``U``, not of itself.
     """
 
     S: np.ndarray
@@ -608,7 +630,6 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
         Vinv, Y, bX, det = out.Vinv, out.Y, out.bX, out.det
     else:
         Vinv, Y, bX, det = np.empty((3, 3, n)), np.empty((p, 3, n)), np.empty((3, n)), np.empty(n)
-    stacked = translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * n
 
     def block_weights(lo: int, hi: int, part: Data):
         """Per-view weights of the block's observations (None: ones), ``ok`` applied."""
@@ -621,24 +642,12 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
         return weights
 
     def block(lo: int):
-        """Fill the block's per-point arrays; return its share of ``S``, ``rhs`` and the cost."""
+        """Fill the block's per-point arrays; return its shares of ``S``, ``rhs``, the
+        cost and the diagonal of ``U``."""
         hi = min(lo + BLOCK_POINTS, n)
         part, at = data.points(lo, hi), slice(lo, hi)
-        weights = block_weights(lo, hi, part)
-        sub = replace(state, X=state.X[lo:hi])
-        if stacked:  # every view at once (translation_block)
-            uv, seen = part.dense()
-            weight = None
-            if weights is not None:
-                weight = np.zeros(seen.shape)
-                for i, (q, w) in enumerate(zip(part.pts, weights)):
-                    weight[i, q] = w
-            S_b, rhs_b, Vinv[:, :, at], det[at], Y[:, :, at], bX[:, at], cost_b, U_diag = \
-                translation_block.translation_block(sub, lay, uv, seen, weight, loss, c, loss_weights)
-            if ok is not None:
-                det[at][~ok[lo:hi]] = 1.0  # left out (weight 0): not undetermined
-            return S_b, rhs_b, cost_b, U_diag
-        U, W, V, bg, bX[:, at], cost_b = normal_equations(sub, lay, part, loss, c, weights, priors=False)
+        U, W, V, bg, bX[:, at], cost_b = normal_equations(replace(state, X=state.X[lo:hi]), lay, part, loss, c,
+                                                          block_weights(lo, hi, part), priors=False)
         if ok is not None:
             for a in range(3):
                 V[a, a, ~ok[lo:hi]] = 1.0  # left out: W is zero there

@@ -1,4 +1,4 @@
-"""The reduced normal equations of one pure-translation session, every view at once.
+"""The normal equations of one pure-translation session, every view at once.
 
 Inside one session the camera only translates. In camera-aligned point coordinates
 ``y_j = R X_j`` an observation is ``x_c = y_j - c_i`` with the view centre ``c_i = R
@@ -13,11 +13,16 @@ The point blocks and their coupling to the rotation are then sums over views of
     V'_j = sum_i Q_ij,     W'_w,j = sum_i [c_i]x^T Q_ij = -sum_k [e_k]x sum_i c_ik Q_ij,
 
 the rotation's own columns of the Jacobian are never formed per point, and all views are
-handled by the same few numpy calls. The Schur complement ``S`` and its right-hand side
-do not depend on how the points are parametrised; the per-point blocks are returned in
-robot coordinates (``V_j = R^T V'_j R``, ``W_j = W'_j R`` plus ``[y_j]x V'_j R`` in the
-rotation rows), so that the result equals the general assembly of
-:func:`transcalib.estimate.bundle.reduced_system` to rounding (tests/test_refine.py).
+handled by the same few numpy calls. The blocks are then expressed for the robot-axes
+points the bundle adjuster uses (``X_j = R^T y_j``: ``dX_j = R^T (dy_j + [y_j]x dw)``)::
+
+    V_j = R^T V'_j R,    W_A,j = W'_A,j R,    W_w,j = (W'_w,j + [y_j]x V'_j) R,
+    U_Aw = U'_Aw - sum_j W'_A,j [y_j]x,
+    U_ww = U'_ww - sum_j (M_j + M_j^T) + sum_j [y_j]x^T V'_j [y_j]x,   M_j = W'_w,j [y_j]x,
+    b_w = b'_w + sum_j y_j x b'_j,    b_X,j = R^T b'_j,
+
+so that the result is the general assembly's
+(:func:`transcalib.estimate.bundle.normal_equations`) to rounding (tests/test_refine.py).
 """
 
 from __future__ import annotations
@@ -26,24 +31,24 @@ import numpy as np
 
 from ..geometry.camera import project_camera_frame
 
-__all__ = ["applies", "translation_block"]
+__all__ = ["applies", "normal_equations"]
 
 
 def applies(state, lay) -> bool:
-    """Whether :func:`translation_block` can assemble ``lay``'s system at ``state``: one
+    """Whether :func:`normal_equations` can assemble ``lay``'s system at ``state``: one
     pure-translation session (no flange rotations, no offset, no per-view rotations or
     translations among the parameters)."""
     return (state.F is None and not lay.rot_views and not lay.i_T and not lay.t_free
             and not np.any(state.t))
 
 
-def translation_block(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss: str, c: float, loss_weights):
-    """Reduced normal equations of a block of points seen in every view (with weights).
+def normal_equations(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss: str, c: float, loss_weights):
+    """The Gauss-Newton normal equations of points seen in most views, all views at once.
 
     Parameters
     ----------
     state : bundle.State
-        ``X`` holds the block's points ``(n, 3)``.
+        ``X`` holds the points ``(n, 3)``.
     lay : bundle.Layout
         Intrinsics, distortion and the rotation (:func:`applies`).
     uv : (2, n_views, n) float
@@ -58,10 +63,10 @@ def translation_block(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss
 
     Returns
     -------
-    S (p, p), rhs (p,), Vinv (3, 3, n), det (n,), Y (p, 3, n), bX (3, n), cost, U_diag (p,)
-        As :func:`transcalib.estimate.bundle.schur` returns them for robot coordinates;
+    U (p, p), W (p, 3, n), V (3, 3, n), b_g (p,), b_X (3, n), cost
+        As :func:`transcalib.estimate.bundle.normal_equations` (without priors), with
         ``0.5 sum rho(|r|^2)`` over the seen observations (inf if one of them is behind
-        the camera); the diagonal of ``U`` in camera axes (:class:`bundle.Reduced`).
+        the camera).
     """
     R = state.R
     y = R @ state.X.T  # (3, n) points in camera axes
@@ -95,13 +100,13 @@ def translation_block(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss
     W_cam[m:] = -np.stack([M1[2] - M2[1], M2[0] - M0[2], M0[1] - M1[0]])  # -sum_k [e_k]x M_k
     b_cam = np.einsum("kdvn,kvn->dn", P, r)
     U, bg = _global_block(JA, P, r, Q, centres)
-    return (*_schur_robot_axes(U, bg, V_cam, W_cam, b_cam, y, R, m), cost, np.diag(U).copy())
+    return (*_robot_axes(U, bg, V_cam, W_cam, b_cam, y, R, m), cost)
 
 
 def _global_block(JA, P, r, Q, centres):
-    """``U`` and ``b_g`` of the global parameters (camera columns, then rotation) from
-    per-view sums: the rotation's Jacobian ``P_ij [c_i]x`` is never formed."""
-    m, n_views = JA.shape[0], centres.shape[1]
+    """``U'`` and ``b'_g`` of the global parameters (camera columns, then rotation) in
+    camera axes, from per-view sums: the rotation's Jacobian ``P_ij [c_i]x`` is never formed."""
+    m = JA.shape[0]
     F = np.einsum("mkvn,kdvn->vmd", JA, P)  # per view: sum_j JA^T P
     Qv = Q.sum(axis=-1)  # (V, 3, 3)
     bv = np.einsum("kdvn,kvn->vd", P, r)  # per view: sum_j P^T r
@@ -110,7 +115,6 @@ def _global_block(JA, P, r, Q, centres):
     flat = JA.reshape(m, r.size)  # (m, 2 V n); m is 0 when every intrinsic is known
     U[:m, :m] = flat @ flat.T
     U[:m, m:] = np.einsum("vmd,vde->me", F, C)
-    U[m:, :m] = U[:m, m:].T
     U[m:, m:] = np.einsum("vda,vde,veb->ab", C, Qv, C)  # sum_i [c_i]x^T Q_i [c_i]x
     bg = np.concatenate([flat @ r.reshape(-1), np.einsum("vda,vd->a", C, bv)])
     return U, bg
@@ -129,23 +133,18 @@ def _camera_columns(proj, lay) -> np.ndarray:
     return cols
 
 
-def _schur_robot_axes(U, bg, V_cam, W_cam, b_cam, y, R, m):
-    """The Schur complement of the camera-axes blocks, with the per-point arrays in robot
-    axes: ``V = R^T V' R``, ``b = R^T b'``, ``W = W' R`` (plus ``[y]x V' R`` in the
-    rotation rows, absorbed into ``Y``). Returns ``S, rhs, Vinv, det, Y, bX``."""
-    from .bundle import inv3_spd
-
+def _robot_axes(U, bg, V_cam, W_cam, b_cam, y, R, m):
+    """The normal equations for robot-axes points (module docstring) from the camera-axes
+    ones: ``(U, W, V, b_g, b_X)``."""
     n = y.shape[1]
+    Yx = np.array([[np.zeros(n), -y[2], y[1]], [y[2], np.zeros(n), -y[0]], [-y[1], y[0], np.zeros(n)]])  # [y]x
+    W_A, W_w = W_cam[:m], W_cam[m:]
+    M = np.einsum("adn,den->ae", W_w, Yx)  # sum_j W'_w,j [y_j]x
+    U[:m, m:] -= np.einsum("mdn,den->me", W_A, Yx)
+    U[m:, m:] += np.einsum("dan,den,ebn->ab", Yx, V_cam, Yx, optimize=True) - M - M.T
+    U[m:, :m] = U[:m, m:].T
+    bg[m:] += np.cross(y, b_cam, axis=0).sum(axis=1)
+    W_cam[m:] = W_w + np.einsum("adn,den->aen", Yx, V_cam)  # W'_w + [y]x V'
+    W = np.matmul(R.T, W_cam)  # W[p, b] = sum_d W_cam[p, d] R[d, b]
     V = np.matmul(R.T, (R.T @ V_cam.reshape(3, -1)).reshape(3, 3, n))  # V[a, b] = R^T V' R
-    Vinv, det = inv3_spd(V)
-    W = np.matmul(R.T, W_cam)  # W[p, b] = sum_d W'[p, d] R[d, b]
-    Y = np.einsum("pdn,den->pen", W, Vinv)  # = W' V'^-1 R: camera-axes Y, in robot axes
-    bX = R.T @ b_cam
-    p = U.shape[0]
-    S = U - Y.reshape(p, -1) @ W.reshape(p, -1).T
-    rhs = bg - Y.reshape(p, -1) @ bX.reshape(-1)
-    # robot-axes points move with the rotation at fixed camera-axes points: dX = R^T [y]x dw
-    for a in range(3):  # row a of [y]x R: y_{a+1} R[a+2] - y_{a+2} R[a+1]
-        a1, a2 = (a + 1) % 3, (a + 2) % 3
-        Y[m + a] += R[a2][:, None] * y[a1] - R[a1][:, None] * y[a2]
-    return 0.5 * (S + S.T), rhs, Vinv, det, Y, bX
+    return 0.5 * (U + U.T), W, V, bg, R.T @ b_cam
