@@ -462,13 +462,14 @@ def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, pr
     replacing the loss's IRLS weights (the covariance uses ones). ``priors``: include
     the translation priors (once per system: not in each block of points).
     """
-    if translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points:
-        uv, seen = data.dense()
-        weight = None if obs_weight is None else data.dense_weights(obs_weight)
-        U, W, V, bg, bX, cost = translation_block.normal_equations(state, lay, uv, seen, weight, loss, c,
-                                                                   loss_weights)
-    else:
-        U, W, V, bg, bX, cost = _view_by_view(state, lay, data, loss, c, obs_weight)
+    with one_blas_thread():  # small products: BLAS's threads would only spin
+        if translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points:
+            uv, seen = data.dense()
+            weight = None if obs_weight is None else data.dense_weights(obs_weight)
+            U, W, V, bg, bX, cost = translation_block.normal_equations(state, lay, uv, seen, weight, loss, c,
+                                                                       loss_weights)
+        else:
+            U, W, V, bg, bX, cost = _view_by_view(state, lay, data, loss, c, obs_weight)
     if priors:
         _add_priors(U, bg, state, lay, data)
         cost += 0.5 * _prior_cost(state, data)
@@ -596,9 +597,16 @@ class Reduced:
         return out.T
 
 
+def one_blas_thread():
+    """A context in which BLAS runs on one thread (``threadpoolctl``): the products of
+    the assembly are small, and BLAS's own threads would spin on the cores that numpy
+    and :func:`reduced_system`'s threads use."""
+    return _blas_threads().limit(limits=1, user_api="blas")
+
+
 @functools.cache
 def _blas_threads():
-    """The BLAS libraries' thread pools (``threadpoolctl``; looked up once: 0.3 ms)."""
+    """The BLAS libraries' thread pools (looked up once: 0.3 ms)."""
     from threadpoolctl import ThreadpoolController
 
     return ThreadpoolController()
@@ -657,7 +665,7 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
     starts = range(0, n, BLOCK_POINTS)
     # the blocks' small products on one BLAS thread each: BLAS's own threads would spin
     # on the same cores as ours
-    with _blas_threads().limit(limits=1, user_api="blas"):
+    with one_blas_thread():
         if THREADS > 1 and len(starts) > 1:
             with ThreadPoolExecutor(THREADS) as pool:
                 parts = list(pool.map(block, starts))
