@@ -247,14 +247,15 @@ def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
         mask = seen[i, used_idx]
         sel = np.flatnonzero(mask)
         pts.append(sel)
-        dense = _DENSE_FRACTION * n <= len(sel) < n
-        if dense:
+        dense = _DENSE_FRACTION * n <= len(sel)
+        if dense:  # one gather of the view; a second one only when some points are unseen
             full = np.where(mask, uv[i, used_idx].T, 0.0)  # (2, n)
-            obs.append(full[:, sel])
+            obs.append(full if len(sel) == n else full[:, sel])
         else:
             obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
-        full_uv.append(full if dense else None)
-        full_seen.append(mask if dense else None)
+        partial = dense and len(sel) < n
+        full_uv.append(full if partial else None)
+        full_seen.append(mask if partial else None)
     return Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=n, full_uv=full_uv,
                 full_seen=full_seen)
 

@@ -141,7 +141,8 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
     n_views, n_points = uv.shape[:2]
     X0, K0, R0 = _check_initial(initial, n_points)
     seen = np.isfinite(uv[..., 0])  # validated: both coordinates NaN where unseen
-    usable = np.all(np.isfinite(X0), axis=1) & (seen.sum(axis=0) >= 2)
+    views = seen.sum(axis=0)
+    usable = np.isfinite(X0[:, 0]) & np.isfinite(X0[:, 1]) & np.isfinite(X0[:, 2]) & (views >= 2)
     if flange is None:  # depth R (X_j - T_i) . e_z without a (V, n, 3) temporary
         z0 = (X0 @ R0[2])[None, :] - (T @ R0[2])[:, None]
     else:
@@ -166,9 +167,9 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
     dist5 = np.where(keep, dist5, 0.0)
     for k, name in enumerate(("k1", "k2", "p1", "p2", "k3")):
         dist5[k] = opts.fix.get(name, dist5[k])
-    start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx].copy(),
+    start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx],
                   None if flange is None else flange.F, np.zeros(3) if flange is None else flange.t0.copy())
-    n_obs = int(seen[:, used_idx].sum())
+    n_obs = int(views[used_idx].sum())
     dof = 2 * n_obs - lay.n_global_no_T - 3 * len(used_idx)
     if dof < 0 or (dof == 0 and opts.sigma_px is None):
         raise DegenerateError(f"too few observations: {2 * n_obs} residuals for {lay.n_global_no_T + 3 * len(used_idx)} "
