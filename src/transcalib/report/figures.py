@@ -199,27 +199,60 @@ def residuals_data(cal, uv=None, scale: float | None = None, *, size=None, norm=
     return {"size": (float(w), float(h)), "scale": float(scale), "views": views}
 
 
+def _arrow_lines(xy: np.ndarray, d: np.ndarray, head: float) -> np.ndarray:
+    """``(2, 6 k)`` x and y of one polyline that draws an arrow from each point ``xy (k,
+    2)`` along ``d (k, 2)`` (data units of equal-aspect axes): the shaft and two barbs of
+    length ``min(head, 0.4 |d|)`` at 25 degrees, each arrow ended by NaN. Drawn as one
+    ``Line2D``, all arrows are a single path for Agg (``quiver`` makes a polygon each)."""
+    tip = xy + d
+    length = np.hypot(d[:, 0], d[:, 1])[:, None]
+    back = -d * (np.minimum(0.4 * length, head) / np.maximum(length, 1e-300))  # tip -> barb end, before turning
+    c, s = np.cos(np.radians(25)), np.sin(np.radians(25))
+    barbs = [tip + back @ np.array([[c, s], [-s, c]]), tip + back @ np.array([[c, -s], [s, c]])]  # turned +-25 deg
+    pts = np.stack([xy, tip, barbs[0], tip, barbs[1], np.full_like(xy, np.nan)], axis=1)
+    return pts.reshape(-1, 2).T
+
+
+def _tile_ticks(starts, size: float) -> tuple[list, list]:
+    """Tick positions at the start, middle and end of tiles of ``size`` data units
+    beginning at ``starts``, and their labels (position within the tile)."""
+    local = (0.0, size / 2, size)
+    return [s + x for s in starts for x in local], [f"{x:g}" for _ in starts for x in local]
+
+
 def draw_residuals(d: dict):
-    """Figure of :func:`residuals_data`: one panel per view, 3 per row, arrows magnified."""
+    """Figure of :func:`residuals_data`: each view's image frame, 3 per row, with an
+    arrow from each observed point along its residual (observed - predicted), magnified
+    ``scale`` times, blue for inliers, red for outliers (drawn last, on top).
+
+    The frames are tiles of one axes (an axes per view costs several times more to make
+    and draw); pixel ticks run along the bottom row and the left column.
+    """
+    from matplotlib.patches import Rectangle
+
     w, h = d["size"]
     n = len(d["views"])
     cols = min(n, 3)
     rows = -(-n // cols)
-    fig = _figure(4.2 * cols, 3.4 * rows, margins=(0.5, 0.15, 0.35, 0.75))
-    fig.subplots_adjust(wspace=0.25, hspace=0.35)
+    pitch = (1.08 * w, 1.2 * h)  # tile spacing: room for the titles between the rows
+    extent = ((cols - 1) * pitch[0] + w, (rows - 1) * pitch[1] + h)
+    width = 12.6
+    fig = _figure(width, (width - 0.65) * extent[1] / extent[0] + 1.15, margins=(0.5, 0.15, 0.35, 0.8))
+    ax = fig.add_subplot()
     for i, v in enumerate(d["views"]):
-        ax = fig.add_subplot(rows, cols, i + 1)
-        for mask, color, label in ((v["inlier"], "tab:blue", "inlier"), (~v["inlier"], "tab:red", "outlier")):
-            if mask.any():
-                ax.quiver(v["xy"][mask, 0], v["xy"][mask, 1], v["d"][mask, 0] * d["scale"],
-                          -v["d"][mask, 1] * d["scale"], color=color, angles="xy", scale_units="xy", scale=1,
-                          width=0.004, label=label)
-        ax.set_xlim(0, w)
-        ax.set_ylim(h, 0)
-        ax.set_aspect("equal")
-        _title(ax, f"view {i}: {v['n']} points, RMS {v['rms']:.3g} px", 9)
-        _ticks(ax)
-    fig.suptitle(f"Reprojection residuals (arrows x{d['scale']:.3g}; blue inliers, red outliers)", fontsize=11)
+        row, col = divmod(i, cols)
+        corner = np.array([col * pitch[0], row * pitch[1]])
+        frame = ax.add_patch(Rectangle(corner, w, h, fill=False, lw=0.8))
+        for keep, color in ((v["inlier"], "tab:blue"), (~v["inlier"], "tab:red")):
+            x, y = _arrow_lines(corner + v["xy"][keep], v["d"][keep] * d["scale"], 0.012 * max(w, h))
+            ax.plot(x, y, color=color, lw=0.8)[0].set_clip_path(frame)  # after plot, which clips to the axes
+        ax.text(corner[0] + w / 2, corner[1] - 0.03 * h, f"view {i}: {v['n']} points, RMS {v['rms']:.3g} px",
+                fontsize=9, ha="center", va="bottom")
+    ax.set(xlim=(0, extent[0]), ylim=(extent[1], 0), aspect="equal")  # image convention: y down
+    ax.set_frame_on(False)
+    bottom_cols = range(n - (rows - 1) * cols)  # the columns with a frame in the bottom row
+    _ticks(ax, x=_tile_ticks([c * pitch[0] for c in bottom_cols], w), y=_tile_ticks([r * pitch[1] for r in range(rows)], h))
+    fig.suptitle(f"Reprojection residuals [px] (arrows x{d['scale']:.3g}; blue inliers, red outliers)", fontsize=11)
     return fig
 
 
