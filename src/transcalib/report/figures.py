@@ -333,27 +333,48 @@ def _view_rotation(azim_deg: float, elev_deg: float) -> np.ndarray:
     return Rx @ Ry
 
 
-def _draw_projection(ax, d: dict, V: np.ndarray, legend: bool) -> None:
-    """One orthographic view ``V (3, 3)`` of the points (colour: depth along the optical
-    axis), the camera centres with their optical axes, and the robot frame's axes."""
+def _depth_groups(z: np.ndarray, n_colors: int = 8) -> list[tuple[np.ndarray, tuple]]:
+    """The points of depths ``z (k,)`` in ``n_colors`` equal depth bins: ``[(indices,
+    viridis colour), ...]``, farthest first (drawn in this order, nearer points cover
+    farther ones). One ``Line2D`` of markers per bin: Agg stamps a marker drawn once,
+    where ``scatter`` draws a path per point."""
+    from matplotlib import colormaps
+
+    if not z.size:
+        return []
+    bins = np.minimum(((z - z.min()) * (n_colors / max(np.ptp(z), 1e-300))).astype(np.int64), n_colors - 1)
+    viridis = colormaps["viridis"]
+    return [(np.flatnonzero(bins == b), viridis((b + 0.5) / n_colors)) for b in range(n_colors - 1, -1, -1)]
+
+
+def _polyline(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """``(2, 3 k)`` x and y of segments ``starts (k, 2)`` -> ``ends (k, 2)`` as one
+    NaN-separated polyline (one ``Line2D`` for all)."""
+    return np.stack([starts, ends, np.full_like(starts, np.nan)], axis=1).reshape(-1, 2).T
+
+
+def _draw_projection(ax, d: dict, groups: list, V: np.ndarray) -> None:
+    """One orthographic view ``V (3, 3)`` of the points (``groups`` of
+    :func:`_depth_groups`: colour = depth along the optical axis), the camera centres
+    with their optical axes, and the robot frame's axes."""
     X, T = d["X"] @ V.T, d["T"] @ V.T
     both = np.vstack([d["X"], d["T"]])
     span = float(np.ptp(both, axis=0).max()) if both.size else 1.0
-    ax.scatter(X[:, 0], X[:, 1], s=2 if len(X) > 2000 else 8, c=d["X"][:, 2], cmap="viridis", linewidths=0)
+    size = 1.4 if len(X) > 2000 else 2.8  # marker diameter, points
+    for idx, color in groups:
+        ax.plot(X[idx, 0], X[idx, 1], ls="none", marker="o", ms=size, mew=0, color=color)
     stub = (V @ [0.0, 0.0, 0.15 * span])[:2]  # the optical axis (camera z), drawn from each centre
-    ax.plot(np.stack([T[:, 0], T[:, 0] + stub[0]]), np.stack([T[:, 1], T[:, 1] + stub[1]]), color="tab:red", lw=1)
-    ax.plot(T[:, 0], T[:, 1], "^", color="tab:red", ms=6, label="camera centres")
+    ax.plot(*_polyline(T[:, :2], T[:, :2] + stub), color="tab:red", lw=1)
+    ax.plot(T[:, 0], T[:, 1], "^", color="tab:red", ms=6)
     corner = np.array([X[:, 0].min(), X[:, 1].max()]) if X.size else np.zeros(2)  # bottom left (y down)
     origin = corner + 0.1 * span * np.array([1.0, -1.0])
-    for name, axis in zip("xyz", d["axes"] @ V.T):  # the robot frame, as a small triad in a corner
-        tip = origin + 0.12 * span * axis[:2]
-        ax.plot([origin[0], tip[0]], [origin[1], tip[1]], color="0.3", lw=1)
-        ax.text(*(origin + 0.17 * span * axis[:2]), name, fontsize=_SMALL, color="0.3", ha="center", va="center")
+    axes = (d["axes"] @ V.T)[:, :2]  # the robot frame, as a small triad in a corner
+    ax.plot(*_polyline(np.broadcast_to(origin, axes.shape), origin + 0.12 * span * axes), color="0.3", lw=1)
+    for name, axis in zip("xyz", axes):
+        ax.text(*(origin + 0.17 * span * axis), name, fontsize=_SMALL, color="0.3", ha="center", va="center")
     ax.set_aspect("equal", adjustable="datalim")
     ax.invert_yaxis()  # image convention: y down
     _ticks(ax)
-    if legend:
-        ax.legend(fontsize=_SMALL, loc="upper left")
 
 
 def draw_reconstruction(d: dict):
@@ -362,14 +383,15 @@ def draw_reconstruction(d: dict):
     fig = _figure(11, 4.8, margins=(0.6, 0.15, 0.5, 0.6))
     fig.subplots_adjust(wspace=0.2)
     unit = d["unit"]
+    groups = _depth_groups(d["X"][:, 2])
     for k, (title, azim, elev) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 2, k + 1)
-        _draw_projection(ax, d, _view_rotation(azim, elev), legend=k == 0)
+        _draw_projection(ax, d, groups, _view_rotation(azim, elev))
         _title(ax, title, 10)
         ax.set_xlabel(f"camera x [{unit}]" if k == 0 else f"[{unit}]", fontsize=8)
         ax.set_ylabel(f"camera y [{unit}]" if k == 0 else "", fontsize=8)
-    fig.suptitle(f"Reconstruction: {d['n']} points, {len(d['T'])} camera positions; camera frame at T = 0, "
-                 "colour = depth, x y z = robot axes", fontsize=10)
+    fig.suptitle(f"Reconstruction: {d['n']} points coloured by depth (dark near), the {len(d['T'])} camera centres "
+                 "(red), the robot axes x y z; camera frame at T = 0", fontsize=10)
     return fig
 
 
