@@ -23,7 +23,7 @@ __all__ = ["residuals_data", "histogram_data", "reconstruction_data", "uncertain
 
 #: Largest number of residual arrows drawn per view (plus the 50 largest), and of
 #: points in the reconstruction.
-MAX_ARROWS = 600
+MAX_ARROWS = 400
 MAX_POINTS = 8000
 #: Resolution of the PNG files (pixels per inch of the figure sizes below).
 DPI = 90
