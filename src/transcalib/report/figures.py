@@ -214,10 +214,10 @@ def _arrow_lines(xy: np.ndarray, d: np.ndarray, head: float) -> np.ndarray:
 
 
 def _tile_ticks(starts, size: float) -> tuple[list, list]:
-    """Tick positions at the start, middle and end of tiles of ``size`` data units
-    beginning at ``starts``, and their labels (position within the tile)."""
-    local = (0.0, size / 2, size)
-    return [s + x for s in starts for x in local], [f"{x:g}" for _ in starts for x in local]
+    """Ticks at round values in each tile of ``size`` data units beginning at
+    ``starts``: their positions and labels (the position within the tile)."""
+    local, labels = _round_ticks((0.0, size), 3)
+    return [s + x for s in starts for x in local], [label for _ in starts for label in labels]
 
 
 def draw_residuals(d: dict):
@@ -242,7 +242,7 @@ def draw_residuals(d: dict):
     for i, v in enumerate(d["views"]):
         row, col = divmod(i, cols)
         corner = np.array([col * pitch[0], row * pitch[1]])
-        frame = ax.add_patch(Rectangle(corner, w, h, fill=False, lw=0.8))
+        frame = ax.add_patch(Rectangle(corner, w, h, fill=False, lw=0.8, clip_on=False))  # on the axes edge
         for keep, color in ((v["inlier"], "tab:blue"), (~v["inlier"], "tab:red")):
             x, y = _arrow_lines(corner + v["xy"][keep], v["d"][keep] * d["scale"], 0.012 * max(w, h))
             ax.plot(x, y, color=color, lw=0.8)[0].set_clip_path(frame)  # after plot, which clips to the axes
