@@ -104,38 +104,60 @@ def _round_ticks(limits, n: int = 4) -> tuple[np.ndarray, list[str]]:
 
 
 def _ticks(ax, x=None, y=None) -> None:
-    """Tick marks and labels along the bottom and the left of ``ax``, and the axis
-    labels beside them. ``x``, ``y``: ``(positions, labels)``, by default
-    :func:`_round_ticks` of the limits, settled here (aspect ratio included): call this
-    once the data are drawn.
+    """:func:`_side_ticks` along the bottom (``x``) and the left (``y``) of ``ax``:
+    ``(positions, labels)``, by default :func:`_round_ticks` of the limits, settled
+    here (aspect ratio included): call this once the data are drawn."""
+    ax.apply_aspect()
+    _side_ticks(ax, "bottom", *(_round_ticks(ax.get_xlim()) if x is None else x))
+    _side_ticks(ax, "left", *(_round_ticks(ax.get_ylim()) if y is None else y))
 
-    Each axis is one line of markers and a text per label. matplotlib's own ticks are
-    five artists each, made when the figure is drawn, and it places the axis labels by
+
+def _side_ticks(ax, side: str, at, labels) -> None:
+    """Tick marks at ``at`` (data units) on one ``side`` of ``ax`` ("bottom", "left" or
+    "right"), their ``labels``, and the axis label beyond them.
+
+    The marks are one line of markers, each label a text. matplotlib's own ticks are
+    five artists each, made when the figure is drawn, and it places the axis label by
     measuring every tick label: that was a third of the report's drawing time.
     """
-    from matplotlib.lines import TICKDOWN, TICKLEFT, Line2D
+    from matplotlib.lines import TICKDOWN, TICKLEFT, TICKRIGHT, Line2D
     from matplotlib.ticker import NullLocator
     from matplotlib.transforms import offset_copy
 
-    ax.apply_aspect()
-    x = _round_ticks(ax.get_xlim()) if x is None else x
-    y = _round_ticks(ax.get_ylim()) if y is None else y
-    fig = ax.figure
+    marker, (dx, dy), align = {"bottom": (TICKDOWN, (0, -1), {"ha": "center", "va": "top"}),
+                               "left": (TICKLEFT, (-1, 0), {"ha": "right", "va": "center"}),
+                               "right": (TICKRIGHT, (1, 0), {"ha": "left", "va": "center"})}[side]
+    axis, transform = (ax.xaxis, ax.get_xaxis_transform()) if side == "bottom" else (ax.yaxis, ax.get_yaxis_transform())
+    axis.set_major_locator(NullLocator())
+    at = np.asarray(at, float)
+    edge = np.full_like(at, float(side == "right"))  # axes fraction across the axis
+    xy = (at, edge) if side == "bottom" else (edge, at)
+    ax.add_artist(Line2D(*xy, ls="none", marker=marker, ms=3.5, mew=0.8, color="k", transform=transform, clip_on=False))
     gap = 7.0  # points from the axes to a tick label: mark 3.5 + pad 3.5, as matplotlib
-    for axis, (at, labels), transform, marker, shift, align in (
-            (ax.xaxis, x, ax.get_xaxis_transform(), TICKDOWN, (0, -gap), {"ha": "center", "va": "top"}),
-            (ax.yaxis, y, ax.get_yaxis_transform(), TICKLEFT, (-gap, 0), {"ha": "right", "va": "center"})):
-        axis.set_major_locator(NullLocator())
-        at = np.asarray(at, float)
-        xy = (at, np.zeros_like(at)) if axis is ax.xaxis else (np.zeros_like(at), at)
-        ax.add_artist(Line2D(*xy, ls="none", marker=marker, ms=3.5, mew=0.8, color="k", transform=transform,
-                             clip_on=False))
-        shifted = offset_copy(transform, fig=fig, x=shift[0], y=shift[1], units="points")
-        for u, v, label in zip(*xy, labels):
-            ax.text(u, v, label, transform=shifted, fontsize=_SMALL, **align)
-    widest = 0.65 * _SMALL * max(map(len, y[1]), default=0)  # points: a digit is about 0.65 em wide
-    ax.xaxis.set_label_coords(0.5, 0, offset_copy(ax.transAxes, fig=fig, y=-(gap + 1.3 * _SMALL + 3), units="points"))
-    ax.yaxis.set_label_coords(0, 0.5, offset_copy(ax.transAxes, fig=fig, x=-(gap + widest + 4), units="points"))
+    shifted = offset_copy(transform, fig=ax.figure, x=dx * gap, y=dy * gap, units="points")
+    for u, v, label in zip(*xy, labels):
+        ax.text(u, v, label, transform=shifted, fontsize=_SMALL, **align)
+    # the axis label clears the tick labels: their height, or the widest (a digit is about 0.65 em)
+    depth = 1.3 * _SMALL if side == "bottom" else 0.65 * _SMALL * max(map(len, labels), default=0)
+    axis.set_label_position(side)
+    axis.set_label_coords(0.5 if side == "bottom" else float(side == "right"), 0 if side == "bottom" else 0.5,
+                          offset_copy(ax.transAxes, fig=ax.figure, x=dx * (gap + depth + 4), y=dy * (gap + depth + 3),
+                                      units="points"))
+
+
+def _colour_scale(fig, im, rect, label: str) -> None:
+    """A colour bar of the image ``im`` in ``rect`` (figure fraction): its colour map as
+    an image, round values on the right (matplotlib's ``colorbar`` cost a third of the
+    uncertainty figure)."""
+    from matplotlib.ticker import NullLocator
+
+    lo, hi = im.get_clim()
+    cax = fig.add_axes(rect)
+    cax.imshow(np.linspace(lo, hi, 256)[:, None], cmap=im.get_cmap(), norm=im.norm, origin="lower", aspect="auto",
+               extent=(0, 1, lo, hi))
+    cax.xaxis.set_major_locator(NullLocator())
+    _side_ticks(cax, "right", *_round_ticks((lo, hi)))
+    cax.set_ylabel(label, fontsize=9)
 
 
 def _title(ax, text: str, fontsize: float) -> None:
@@ -465,10 +487,7 @@ def draw_uncertainty(d: dict | None):
     ax.set_ylim(v[-1], v[0])
     ax.set_aspect("equal")
     _ticks(ax)
-    cax = fig.add_axes((1 - 0.8 / 6.4, 0.4 / 4.6, 0.15 / 6.4, 1 - 0.75 / 4.6))
-    bar = fig.colorbar(im, cax=cax, label="projection std [px]")
-    bar.set_ticks(_round_ticks(im.get_clim())[0])  # the colour bar's ticks stay matplotlib's: few of them
-    cax.tick_params(labelsize=_SMALL)
+    _colour_scale(fig, im, (1 - 0.8 / 6.4, 0.4 / 4.6, 0.15 / 6.4, 1 - 0.75 / 4.6), "projection std [px]")
     _title(ax, "Projection uncertainty from the intrinsics' covariance", 10)
     return fig
 
