@@ -152,6 +152,8 @@ def _colour_scale(fig, im, rect, label: str) -> None:
     from matplotlib.ticker import NullLocator
 
     lo, hi = im.get_clim()
+    pad = 0.0 if hi > lo else 1e-3 * max(abs(lo), 1e-12)  # a constant map still gets a scale
+    lo, hi = lo - pad, hi + pad
     cax = fig.add_axes(rect)
     cax.imshow(np.linspace(lo, hi, 256)[:, None], cmap=im.get_cmap(), norm=im.norm, origin="lower", aspect="auto",
                extent=(0, 1, lo, hi))
