@@ -9,6 +9,13 @@ matplotlib :class:`~matplotlib.figure.Figure` with the Agg canvas: no ``pyplot``
 ``tight_layout`` (margins fixed in inches), no 3-D axes (the reconstruction is our own
 orthographic projection on 2-D axes). matplotlib is imported by the ``draw_*`` functions
 only: ``import transcalib`` and the ``*_data`` functions stay light.
+
+Drawing is on the critical path of ``transcalib calibrate`` (the worker's
+``report_worker_s``), and its cost is per artist rather than per mark: a figure is kept
+to few artists. The marks of one colour are one ``Line2D`` (markers Agg stamps from one
+drawing, or one NaN-separated polyline); ticks, the colour scale and the key are ours,
+a line of markers and a text per label, not matplotlib's ticks, colorbar and legend;
+several views share one axes as tiles. :func:`png` writes line art as a palette image.
 """
 
 from __future__ import annotations
@@ -124,25 +131,31 @@ def _side_ticks(ax, side: str, at, labels) -> None:
     from matplotlib.ticker import NullLocator
     from matplotlib.transforms import offset_copy
 
-    marker, (dx, dy), align = {"bottom": (TICKDOWN, (0, -1), {"ha": "center", "va": "top"}),
-                               "left": (TICKLEFT, (-1, 0), {"ha": "right", "va": "center"}),
-                               "right": (TICKRIGHT, (1, 0), {"ha": "left", "va": "center"})}[side]
-    axis, transform = (ax.xaxis, ax.get_xaxis_transform()) if side == "bottom" else (ax.yaxis, ax.get_yaxis_transform())
-    axis.set_major_locator(NullLocator())
+    marker, out, align, label_at = {  # the direction out of the axes; where the axis label is anchored
+        "bottom": (TICKDOWN, (0, -1), {"ha": "center", "va": "top"}, (0.5, 0.0)),
+        "left": (TICKLEFT, (-1, 0), {"ha": "right", "va": "center"}, (0.0, 0.5)),
+        "right": (TICKRIGHT, (1, 0), {"ha": "left", "va": "center"}, (1.0, 0.5))}[side]
     at = np.asarray(at, float)
     edge = np.full_like(at, float(side == "right"))  # axes fraction across the axis
-    xy = (at, edge) if side == "bottom" else (edge, at)
+    if side == "bottom":
+        axis, transform, xy = ax.xaxis, ax.get_xaxis_transform(), (at, edge)
+        depth = 1.3 * _SMALL  # points: the tick labels' height
+    else:
+        axis, transform, xy = ax.yaxis, ax.get_yaxis_transform(), (edge, at)
+        depth = 0.65 * _SMALL * max(map(len, labels), default=0)  # points: the widest label (a digit ~0.65 em)
+
+    def away(transform, points: float):
+        """``transform`` moved ``points`` out of the axes."""
+        return offset_copy(transform, fig=ax.figure, x=out[0] * points, y=out[1] * points, units="points")
+
+    axis.set_major_locator(NullLocator())
     ax.add_artist(Line2D(*xy, ls="none", marker=marker, ms=3.5, mew=0.8, color="k", transform=transform, clip_on=False))
     gap = 7.0  # points from the axes to a tick label: mark 3.5 + pad 3.5, as matplotlib
-    shifted = offset_copy(transform, fig=ax.figure, x=dx * gap, y=dy * gap, units="points")
+    label_transform = away(transform, gap)
     for u, v, label in zip(*xy, labels):
-        ax.text(u, v, label, transform=shifted, fontsize=_SMALL, **align)
-    # the axis label clears the tick labels: their height, or the widest (a digit is about 0.65 em)
-    depth = 1.3 * _SMALL if side == "bottom" else 0.65 * _SMALL * max(map(len, labels), default=0)
+        ax.text(u, v, label, transform=label_transform, fontsize=_SMALL, **align)
     axis.set_label_position(side)
-    axis.set_label_coords(0.5 if side == "bottom" else float(side == "right"), 0 if side == "bottom" else 0.5,
-                          offset_copy(ax.transAxes, fig=ax.figure, x=dx * (gap + depth + 4), y=dy * (gap + depth + 3),
-                                      units="points"))
+    axis.set_label_coords(*label_at, away(ax.transAxes, gap + depth + 4))
 
 
 def _colour_scale(fig, im, rect, label: str) -> None:
