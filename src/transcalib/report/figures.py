@@ -288,7 +288,8 @@ def draw_residuals(d: dict):
     ax.set(xlim=(0, extent[0]), ylim=(extent[1], 0), aspect="equal")  # image convention: y down
     ax.set_frame_on(False)
     bottom_cols = range(n - (rows - 1) * cols)  # the columns with a frame in the bottom row
-    _ticks(ax, x=_tile_ticks([c * pitch[0] for c in bottom_cols], w), y=_tile_ticks([r * pitch[1] for r in range(rows)], h))
+    _ticks(ax, x=_tile_ticks([c * pitch[0] for c in bottom_cols], w),
+           y=_tile_ticks([r * pitch[1] for r in range(rows)], h))
     fig.suptitle(f"Reprojection residuals [px] (arrows x{d['scale']:.3g}; blue inliers, red outliers)", fontsize=11)
     return fig
 
