@@ -96,6 +96,22 @@ def test_residual_arrows_point_along_the_residual():
     assert rgb.shape[0] - start[1] - 3 <= rows.min() and rows.max() <= rgb.shape[0] - tip[1] + 3
 
 
+def test_reconstruction_draws_near_points_over_far_ones():
+    """Where a near and a far point coincide in the front view, the near point's colour
+    (dark: the nearest depth bin) shows, whatever their order in the data."""
+    from matplotlib import colormaps
+
+    from transcalib.report.figures import draw_reconstruction
+
+    X = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 9.0], [4.0, 3.0, 5.0]])  # the first two coincide seen from the front
+    fig = draw_reconstruction({"X": X, "T": np.array([[4.0, -3.0, 0.0]]), "axes": np.eye(3), "n": 3, "unit": "mm"})
+    fig.canvas.draw()
+    x, y = fig.axes[0].transData.transform((0.0, 0.0))  # display: y up from the bottom
+    rgb = np.asarray(fig.canvas.buffer_rgba())[int(fig.canvas.get_width_height()[1] - y), int(x), :3]
+    near = 255 * np.array(colormaps["viridis"](1 / 16)[:3])  # the middle of the nearest of 8 bins
+    assert np.abs(rgb - near).max() < 30, rgb
+
+
 def test_report_data_is_small_whatever_n():
     """The figures' data (what the worker receives) hold at most a few thousand marks."""
     import pickle
