@@ -10,10 +10,18 @@ shows what a real one shows, and the cost depends on the number of points only. 
   ``import`` (matplotlib), ``draw`` (:func:`~transcalib.report.render_report`);
 - ``worker``: what ``transcalib calibrate`` waits for when nothing overlaps the drawing
   (reduce, hand over, draw in a warm :class:`~transcalib.report.worker.ReportWorker`);
-  in the command the other formats are written meanwhile.
+  in the command the other formats are written meanwhile;
+- ``in worker``: the worker's drawing and writing alone (``report_worker_s`` of
+  ``calibrate --json``);
+- per figure: drawing and PNG encoding of each figure in a warm process, milliseconds,
+  the least of 5.
 
-    python benchmarks/bench_report.py            # 10^3, 10^4, 10^5, 10^6 points
-    python benchmarks/bench_report.py --quick    # 10^3, 10^4
+``--repeat N`` runs every size N times and keeps the least of each time (the machine's
+noise only ever adds).
+
+    python benchmarks/bench_report.py              # 10^3, 10^4, 10^5, 10^6 points
+    python benchmarks/bench_report.py --quick      # 10^3, 10^4
+    python benchmarks/bench_report.py --repeat 3   # the least of 3 runs of each size
     python benchmarks/run.py report
 """
 
@@ -38,14 +46,21 @@ if mode == "in-process":
     t["import"] = time.perf_counter() - t1
     t2 = time.perf_counter(); render_report(data, out); t["draw"] = time.perf_counter() - t2
     t["in-process"] = time.perf_counter() - t0
+    from transcalib.report.figures import DRAW, png
+    for name, (_, fig_data) in data.figures.items():  # warm now, as in the worker: the least of 5
+        t[name] = float("inf")
+        for _ in range(5):
+            t3 = time.perf_counter(); png(DRAW[name](fig_data)); t[name] = min(t[name], time.perf_counter() - t3)
 else:
     from transcalib.report import report_data
     from transcalib.report.worker import ReportWorker
     with ReportWorker() as worker:
         worker.wait_ready()
         t0 = time.perf_counter()
-        worker.submit(report_data(cal, uv=uv), out).result()
+        pending = worker.submit(report_data(cal, uv=uv), out)
+        pending.result()
         t["worker"] = time.perf_counter() - t0
+        t["in worker"] = pending.worker_s
 print(json.dumps(t))
 """
 
@@ -76,13 +91,29 @@ def run(n: int, mode: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def least(n: int, repeat: int) -> dict:
+    """Each time of ``repeat`` runs of both modes at ``n`` points: the least."""
+    runs = [run(n, "in-process") | run(n, "worker") for _ in range(repeat)]
+    return {k: min(r[k] for r in runs) for k in runs[0]}
+
+
+FIGURES = ("residuals.png", "residual_histogram.png", "reconstruction.png", "uncertainty.png")
+
+
 def main(argv: list[str]) -> int:
     sizes = [10**3, 10**4] if "--quick" in argv else [10**3, 10**4, 10**5, 10**6]
-    print(f"{'points':>9}  {'in-process':>10}  {'reduce':>6}  {'import':>6}  {'draw':>6}  {'worker':>6}   (seconds)")
+    repeat = int(argv[argv.index("--repeat") + 1]) if "--repeat" in argv else 1
+    print(f"{'points':>9}  {'in-process':>10}  {'reduce':>6}  {'import':>6}  {'draw':>6}  {'worker':>6}  "
+          f"{'in worker':>9}   (seconds)")
+    times = {}
     for n in sizes:
-        t = run(n, "in-process") | run(n, "worker")
+        t = times[n] = least(n, repeat)
         print(f"{n:>9,}  {t['in-process']:>10.2f}  {t['reduce']:>6.2f}  {t['import']:>6.2f}  {t['draw']:>6.2f}  "
-              f"{t['worker']:>6.2f}", flush=True)
+              f"{t['worker']:>6.2f}  {t['in worker']:>9.2f}", flush=True)
+    names = [f.removesuffix(".png") for f in FIGURES]
+    print("\nper figure, warm: drawing and PNG (milliseconds)\n" + f"{'points':>9}  " + "  ".join(names))
+    for n, t in times.items():
+        print(f"{n:>9,}  " + "  ".join(f"{1e3 * t[f]:>{len(name)}.0f}" for f, name in zip(FIGURES, names)))
     return 0
 
 

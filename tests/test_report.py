@@ -80,6 +80,38 @@ def test_uncertainty_grows_away_from_the_centre():
     assert abs(std[iv, -1] - 2.0 * abs(x)) < 0.2 * 2.0 * abs(x)
 
 
+def test_residual_arrows_point_along_the_residual():
+    """An arrow starts at the observed point and points along its residual in image axes
+    (y down): a residual straight down in the image is drawn downwards."""
+    from transcalib.report.figures import draw_residuals
+
+    view = {"xy": np.array([[400.0, 200.0]]), "d": np.array([[0.0, 2.0]]), "inlier": np.array([True]), "n": 1,
+            "rms": 2.0}
+    fig = draw_residuals({"size": (800.0, 600.0), "scale": 50.0, "views": [view]})
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int)
+    rows, cols = np.nonzero(np.abs(rgb - [31, 119, 180]).sum(axis=-1) < 60)  # tab:blue pixels
+    start, tip = fig.axes[0].transData.transform([(400, 200), (400, 300)])  # display: y up from the bottom
+    assert rows.size and abs(cols.mean() - start[0]) < 3
+    assert rgb.shape[0] - start[1] - 3 <= rows.min() and rows.max() <= rgb.shape[0] - tip[1] + 3
+
+
+def test_reconstruction_draws_near_points_over_far_ones():
+    """Where a near and a far point coincide in the front view, the near point's colour
+    (dark: the nearest depth bin) shows, whatever their order in the data."""
+    from matplotlib import colormaps
+
+    from transcalib.report.figures import draw_reconstruction
+
+    X = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 9.0], [4.0, 3.0, 5.0]])  # the first two coincide seen from the front
+    fig = draw_reconstruction({"X": X, "T": np.array([[4.0, -3.0, 0.0]]), "axes": np.eye(3), "n": 3, "unit": "mm"})
+    fig.canvas.draw()
+    x, y = fig.axes[0].transData.transform((0.0, 0.0))  # display: y up from the bottom
+    rgb = np.asarray(fig.canvas.buffer_rgba())[int(fig.canvas.get_width_height()[1] - y), int(x), :3]
+    near = 255 * np.array(colormaps["viridis"](1 / 16)[:3])  # the middle of the nearest of 8 bins
+    assert np.abs(rgb - near).max() < 30, rgb
+
+
 def test_report_data_is_small_whatever_n():
     """The figures' data (what the worker receives) hold at most a few thousand marks."""
     import pickle

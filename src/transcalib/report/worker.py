@@ -42,6 +42,7 @@ def warm_up() -> float:
 
 def _serve(conn) -> None:
     """The worker process: warm up, say ``ready``, draw the one job, say ``done``."""
+    import gc
     import signal
     import sys
     import traceback
@@ -52,6 +53,7 @@ def _serve(conn) -> None:
 
     try:
         warm_up()
+        gc.disable()  # no collection pauses in the one job: its garbage (megabytes) ends with the process
         conn.send(("ready", None))
         data, folder = conn.recv()
         t0 = time.perf_counter()
