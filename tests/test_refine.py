@@ -602,3 +602,19 @@ def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, 
     for name in ("S", "rhs", "Vinv", "Y", "bX", "det", "U_diag"):
         assert close(getattr(stacked[1], name), getattr(general[1], name)), name
     assert stacked[1].cost == pytest.approx(general[1].cost, rel=1e-12)
+
+
+@pytest.mark.parametrize("dist", [(-0.12, 0.03), (-0.35, 0.12, 0.0, 0.0, 0.02), (0.2, -0.1, 1e-3, -2e-3, 0.01), (-0.05,)])
+def test_undistort_inverts_distort_to_rounding(dist):
+    """Radial models by Newton's method on the radius, tangential ones by the fixed point:
+    both invert distort() to rounding; the centre and unseen (NaN) points pass through."""
+    from transcalib.geometry.camera import distort, pad_dist, undistort
+
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-0.6, 0.6, (3, 500)), rng.uniform(-0.45, 0.45, (3, 500))
+    x[0, :2], y[0, :2] = np.nan, np.nan
+    x[0, 2], y[0, 2] = 0.0, 0.0
+    d = distort(x, y, pad_dist(dist))
+    got = undistort(np.stack([d.xd, d.yd], axis=-1), dist)
+    assert np.nanmax(np.abs(got[..., 0] - x)) < 1e-14 and np.nanmax(np.abs(got[..., 1] - y)) < 1e-14
+    assert np.isnan(got[0, :2]).all() and np.array_equal(got[0, 2], [0.0, 0.0])

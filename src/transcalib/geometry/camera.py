@@ -149,8 +149,10 @@ def _coefficient_derivative(k: int, x, y, r2, xy) -> tuple:
 
 
 def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
-    """Invert :func:`distort` by fixed-point iteration (as ``cv2.undistortPoints``), at
-    most ``iterations`` steps, fewer once a step moves no point by more than 1e-15.
+    """Invert :func:`distort`: for a radial model by Newton's method on the radius, else
+    (and where that does not converge) by the fixed-point iteration of
+    ``cv2.undistortPoints``; at most ``iterations`` steps, fewer once a step moves no
+    point by more than 1e-15.
 
     Parameters
     ----------
@@ -170,6 +172,10 @@ def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
         return xy_d.copy()
     k1, k2, p1, p2, k3 = d
     xd, yd = xy_d[..., 0], xy_d[..., 1]
+    if not (p1 or p2):  # radial only: one equation in the radius, solved by Newton's method
+        scale = _radial_undistortion(np.hypot(xd, yd), k1, k2, k3, iterations)
+        if scale is not None:
+            return np.stack([xd * scale, yd * scale], axis=-1)
     x, y = xd.copy(), yd.copy()
     for it in range(iterations):
         r2 = x * x + y * y
@@ -182,6 +188,28 @@ def undistort(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
         if converged:
             break
     return np.stack([x, y], axis=-1)
+
+
+def _radial_undistortion(rd: np.ndarray, k1: float, k2: float, k3: float, iterations: int):
+    """``r / r_d`` for the radius ``r`` with ``r (1 + k1 r^2 + k2 r^4 + k3 r^6) = r_d``
+    (Newton's method from ``r = r_d``; 1 where ``r_d = 0``), or None when some radius does
+    not converge (beyond where the model folds back: the fixed-point iteration decides)."""
+    r = rd.copy()
+    for _ in range(iterations):
+        s = r * r
+        g = 1.0 + s * (k1 + s * (k2 + s * k3))
+        slope = g + 2.0 * s * (k1 + s * (2.0 * k2 + 3.0 * k3 * s))  # d (r g) / dr
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = (r * g - rd) / slope
+        r -= step
+        if not np.any(np.abs(step) > 1e-15 * (1.0 + rd)):  # NaN inputs stay NaN and do not count
+            break
+    else:
+        return None
+    if np.any(~np.isfinite(r) & np.isfinite(rd)):
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rd > 0, r / rd, 1.0)
 
 
 class Projection(NamedTuple):
