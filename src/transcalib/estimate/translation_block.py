@@ -141,9 +141,11 @@ def _robot_axes(U, bg, V_cam, W_cam, b_cam, y, R, m):
     W_A, W_w = W_cam[:m], W_cam[m:]
     M = np.einsum("adn,den->ae", W_w, Yx)  # sum_j W'_w,j [y_j]x
     U[:m, m:] -= np.einsum("mdn,den->me", W_A, Yx)
-    U[m:, m:] += np.einsum("dan,den,ebn->ab", Yx, V_cam, Yx, optimize=True) - M - M.T
+    VY = np.einsum("den,ebn->dbn", V_cam, Yx)  # V' [y]x
+    U[m:, m:] += np.einsum("dan,dbn->ab", Yx, VY) - M - M.T  # + sum_j [y]x^T V' [y]x
     U[m:, :m] = U[:m, m:].T
-    bg[m:] += np.cross(y, b_cam, axis=0).sum(axis=1)
+    bg[m:] += [y[1] @ b_cam[2] - y[2] @ b_cam[1], y[2] @ b_cam[0] - y[0] @ b_cam[2],
+               y[0] @ b_cam[1] - y[1] @ b_cam[0]]  # sum_j y_j x b'_j
     W_cam[m:] = W_w + np.einsum("adn,den->aen", Yx, V_cam)  # W'_w + [y]x V'
     W = np.matmul(R.T, W_cam)  # W[p, b] = sum_d W_cam[p, d] R[d, b]
     V = np.matmul(R.T, (R.T @ V_cam.reshape(3, -1)).reshape(3, 3, n))  # V[a, b] = R^T V' R
