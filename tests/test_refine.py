@@ -562,10 +562,10 @@ def test_robust_loss_with_a_point_left_out():
 ])
 def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, square, skew, loss, missing, weighted):
     """Oracle: the all-views assembly in camera axes (translation_block) gives the general
-    view-by-view normal equations, reduced system and cost to rounding, for every camera
-    layout it serves, weights, left-out points and missing observations."""
+    view-by-view normal equations, reduced system, cost and residuals to rounding, for
+    every camera layout it serves, weights, left-out points and missing observations."""
     from transcalib.estimate import bundle, translation_block
-    from transcalib.estimate.bundle import build_data, dist_indices, normal_equations, reduced_system
+    from transcalib.estimate.bundle import build_data, dist_indices, normal_equations, reduced_system, view_residuals
 
     scene = simulate.random_scene(1500, 6, noise_px=0.7, missing=missing, rng=1,
                                   dist=(-0.1, 0.02) if model != "none" else ())
@@ -586,12 +586,12 @@ def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, 
     calls = []
     assemble = translation_block.normal_equations
     monkeypatch.setattr(translation_block, "normal_equations", lambda *a: calls.append(1) or assemble(*a))
-    stacked = normal_equations(state, lay, data, loss, 2.0, weights), reduced_system(state, lay, data, loss, 2.0,
-                                                                                     weights, ok)
+    stacked = (normal_equations(state, lay, data, loss, 2.0, weights),
+               reduced_system(state, lay, data, loss, 2.0, weights, ok), view_residuals(state, lay, data))
     assert len(calls) == 4  # the stacked path did the work: once, then once per block
     monkeypatch.setattr(translation_block, "applies", lambda state, lay: False)
-    general = normal_equations(state, lay, data, loss, 2.0, weights), reduced_system(state, lay, data, loss, 2.0,
-                                                                                     weights, ok)
+    general = (normal_equations(state, lay, data, loss, 2.0, weights),
+               reduced_system(state, lay, data, loss, 2.0, weights, ok), view_residuals(state, lay, data))
 
     def close(a, b):
         return np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
@@ -602,6 +602,8 @@ def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, 
     for name in ("S", "rhs", "Vinv", "Y", "bX", "det", "U_diag"):
         assert close(getattr(stacked[1], name), getattr(general[1], name)), name
     assert stacked[1].cost == pytest.approx(general[1].cost, rel=1e-12)
+    for a, b in zip(stacked[2], general[2]):
+        assert a.shape == b.shape and close(a, b)
 
 
 @pytest.mark.parametrize("dist", [(-0.12, 0.03), (-0.35, 0.12, 0.0, 0.0, 0.02), (0.2, -0.1, 1e-3, -2e-3, 0.01), (-0.05,)])

@@ -360,12 +360,37 @@ def _view_residuals(state, lay, data, i):
 def view_residuals(state: State, lay: Layout, data: Data) -> list | None:
     """Residuals ``(2, n_i)`` of every view's observations, or None if a point is behind
     the camera (a depth <= 0) in some view."""
+    if _all_views_at_once(state, lay, data):
+        return _residuals_all_views(state, data)
     out = []
     for i in range(len(data.pts)):
         r, z = _view_residuals(state, lay, data, i)
         if not np.all(z > 0):
             return None
         out.append(r)
+    return out
+
+
+def _all_views_at_once(state: State, lay: Layout, data: Data) -> bool:
+    """One pure-translation session whose views see most points: every view is handled
+    in the same numpy calls (:mod:`transcalib.estimate.translation_block`)."""
+    return translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points
+
+
+def _residuals_all_views(state: State, data: Data) -> list | None:
+    """:func:`view_residuals` with every view projected at once, :data:`BLOCK_POINTS`
+    points at a time."""
+    out = [np.empty((2, len(p))) for p in data.pts]
+    for lo in range(0, data.n_points, BLOCK_POINTS):
+        hi = min(lo + BLOCK_POINTS, data.n_points)
+        part = data.points(lo, hi)
+        uv, seen = part.dense()
+        r = translation_block.residuals(replace(state, X=state.X[lo:hi]), uv, seen)
+        if r is None:
+            return None
+        for i, (pts, local) in enumerate(zip(data.pts, part.pts)):
+            a = np.searchsorted(pts, lo)
+            out[i][:, a: a + len(local)] = r[:, i, local]
     return out
 
 
@@ -458,13 +483,13 @@ def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, pr
     """Assemble the Gauss-Newton normal equations (IRLS weights for a robust loss).
 
     One pure-translation session whose views see most points is assembled with every
-    view at once (:mod:`transcalib.estimate.translation_block`), anything else view by
-    view; both give the same equations. ``obs_weight``: optional list of (n_i,) weights
+    view at once (:func:`_all_views_at_once`), anything else view by view; both give
+    the same equations. ``obs_weight``: optional list of (n_i,) weights
     replacing the loss's IRLS weights (the covariance uses ones). ``priors``: include
     the translation priors (once per system: not in each block of points).
     """
     with one_blas_thread():  # small products: BLAS's threads would only spin
-        if translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points:
+        if _all_views_at_once(state, lay, data):
             uv, seen = data.dense()
             weight = None if obs_weight is None else data.dense_weights(obs_weight)
             U, W, V, bg, bX, cost = translation_block.normal_equations(state, lay, uv, seen, weight, loss, c,

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..geometry.camera import project_camera_frame
 
-__all__ = ["applies", "normal_equations"]
+__all__ = ["applies", "normal_equations", "residuals"]
 
 
 def applies(state, lay) -> bool:
@@ -101,6 +101,16 @@ def normal_equations(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss:
     b_cam = np.einsum("kdvn,kvn->dn", P, r)
     U, bg = _global_block(JA, P, r, Q, centres)
     return (*_robot_axes(U, bg, V_cam, W_cam, b_cam, y, R, m), cost)
+
+
+def residuals(state, uv: np.ndarray, seen: np.ndarray) -> np.ndarray | None:
+    """Residuals ``(2, n_views, n)`` of points seen in most views (0 where unseen), every
+    view projected at once; None if a seen point is behind the camera."""
+    y = state.R @ state.X.T
+    xc = y[:, None, :] - (state.R @ state.T.T)[:, :, None]  # (3, V, n)
+    if np.any(seen & (xc[2] <= 0)):
+        return None
+    return np.where(seen, uv - project_camera_frame(state.intr, state.dist5, xc, valid=seen).pred, 0.0)
 
 
 def _global_block(JA, P, r, Q, centres):
