@@ -42,9 +42,9 @@ from ..geometry.rotation import rotvec_to_matrix
 from ..types import INTRINSIC_NAMES
 from . import translation_block
 
-__all__ = ["Layout", "State", "Data", "build_data", "predict_view", "normal_equations", "schur", "solve_spd",
-           "Reduced", "reduced_system", "BLOCK_POINTS",
-           "levenberg_marquardt", "gauss_newton", "cost", "view_residuals", "sum_sq", "all_residuals", "NormalEquations", "loss_weights", "intrinsic_basis"]
+__all__ = ["Layout", "State", "Data", "build_data", "predict_view", "NormalEquations", "normal_equations", "schur",
+           "solve_spd", "Reduced", "reduced_system", "BLOCK_POINTS", "one_blas_thread", "levenberg_marquardt",
+           "gauss_newton", "cost", "view_residuals", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
 
 _MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
 _DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see Data
@@ -218,7 +218,6 @@ class Data:
                     n_points=hi - lo, full_uv=[None if f is None else f[:, lo:hi] for f in self.full_uv],
                     full_seen=[None if f is None else f[lo:hi] for f in self.full_seen])
 
-
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
         """Every view's observations over all points: ``uv (2, n_views, n)`` (0 where
         unseen) and ``seen (n_views, n)`` bool."""
@@ -229,7 +228,6 @@ class Data:
             else:
                 uv[:, i, pts], seen[i, pts] = obs, True
         return uv, seen
-
 
     def dense_weights(self, weights: list) -> np.ndarray:
         """Per-view weights over the observations ``(n_i,)`` as ``(n_views, n)`` (0 where unseen)."""
