@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import InputError
 from .files import atomic_write
+from .ids import point_id_array
 
 __all__ = ["FORMATS", "DEFAULT_FORMATS", "ExportContext", "export_calibration", "write_opencv_yaml",
            "write_ros_camera_info", "write_colmap", "write_ply", "image_size_or_extent"]
@@ -42,7 +43,7 @@ class ExportContext:
 
     Attributes
     ----------
-    point_ids : sequence of str (n_points), optional   default ``0..n-1``
+    point_ids : (n_points,) int64 or str array, optional   default ``0..n-1``
     view_names : sequence of str (n_views), optional   image file names (COLMAP)
     colors : (n_points, 3) uint8, optional             RGB of each point (PLY, COLMAP)
     uv : (n_views, n_points, 2) float, optional        observations (COLMAP tracks, report)
@@ -324,7 +325,7 @@ def export_calibration(cal, folder, formats=DEFAULT_FORMATS, context: ExportCont
         raise InputError(f"unknown export format(s) {', '.join(unknown)}; expected some of {', '.join(FORMATS)}")
     ctx = context or ExportContext()
     folder = Path(folder)
-    ids = ctx.point_ids if ctx.point_ids is not None else [str(k) for k in range(cal.n_points)]
+    ids = point_id_array(ctx.point_ids if ctx.point_ids is not None else np.arange(cal.n_points))
     written = []
     needs_size = {"opencv", "ros", "colmap"} & set(formats)
     size = image_size_or_extent(cal, ctx.uv) if needs_size else None
