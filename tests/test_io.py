@@ -375,3 +375,51 @@ def test_careful_reader_gives_the_same_id_types(tmp_path, poses):
         assert tables._tracks_fast(path, tables._header(path, ["view", "point", "u", "v"], "tracks")) is None
         got = tio.read_track_table(path).point_ids
         assert got.dtype.kind == kind and [str(p) for p in got.tolist()] == ids
+
+
+# --------------------------------------------------------------------------------------
+# text output: Arrow formatting, chunks on threads
+# --------------------------------------------------------------------------------------
+
+
+def test_decimal_text():
+    from transcalib.io.text import decimal_text
+
+    x = np.array([-0.4, 0.5, -1e-9, 123.4567894, 1e6, np.nan, -1234.5, 0.1, 1 / 3, 2.5e-300])
+    assert decimal_text(x, 6).to_pylist() == ["-0.400000", "0.500000", "0.000000", "123.456789", "1000000.000000",
+                                              None, "-1234.500000", "0.100000", "0.333333", "0.000000"]
+    full = decimal_text(x).to_pylist()
+    assert full[5] is None and [float(s) for s in full if s is not None] == x[np.isfinite(x)].tolist()  # exact
+    assert decimal_text(np.array([1e300, 1.5]), 6).to_pylist() == ["1e+300", "1.5"]  # beyond int64: exact form
+
+
+def test_write_in_order_keeps_the_order(tmp_path):
+    """Pieces finish in any order on the threads; the file has them in the given order."""
+    import time
+    from functools import partial
+
+    from transcalib.io.text import write_in_order
+
+    def slow(k):
+        time.sleep(0.002 * (10 - k))  # the first pieces finish last
+        return f"{k}\n".encode()
+
+    with open(tmp_path / "f.txt", "wb") as fh:
+        write_in_order(fh, (partial(slow, k) if k % 3 else f"{k}\n".encode() for k in range(10)), threads=3)
+    assert (tmp_path / "f.txt").read_text() == "".join(f"{k}\n" for k in range(10))
+
+
+def test_points_csv_in_chunks_is_the_same(tmp_path, monkeypatch):
+    from transcalib.io import text
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(50, 3)) * 1e3
+    X[7] = np.nan
+    tio.write_points_csv(tmp_path / "one.csv", np.arange(50) * 3, X, np.abs(X), np.arange(50) % 2 == 0)
+    monkeypatch.setattr(text, "CHUNK", 7)
+    tio.write_points_csv(tmp_path / "many.csv", np.arange(50) * 3, X, np.abs(X), np.arange(50) % 2 == 0)
+    assert (tmp_path / "one.csv").read_text() == (tmp_path / "many.csv").read_text()
+    lines = (tmp_path / "many.csv").read_text().splitlines()
+    assert len(lines) == 51 and lines[8].startswith("21,,,,")
+    back = np.genfromtxt(tmp_path / "many.csv", delimiter=",", skip_header=1)
+    np.testing.assert_array_equal(back[:, 1:4], X)  # full precision

@@ -21,11 +21,13 @@ from __future__ import annotations
 import csv
 import math
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from . import text
 from .files import atomic_write
 from .ids import integer_ids, point_id_array
 
@@ -408,7 +410,8 @@ def _id_column(ids):
 
 
 def _write_arrow_csv(path, header: list[str], columns: list) -> None:
-    """Write Arrow columns as CSV with an unquoted ``header`` line, atomically."""
+    """Write Arrow columns as CSV with an unquoted ``header`` line, atomically; chunks of
+    rows are formatted on threads (:func:`~transcalib.io.text.write_in_order`)."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
@@ -417,9 +420,15 @@ def _write_arrow_csv(path, header: list[str], columns: list) -> None:
                        pa.compute.any(pa.compute.match_substring_regex(c, '[,"\n\r]')).as_py()
                        for c in table.columns)
     opts = pcsv.WriteOptions(include_header=False, quoting_style="needed" if needs_quotes else "none")
+
+    def csv_text(rows: slice):
+        sink = pa.BufferOutputStream()
+        pcsv.write_csv(table.slice(rows.start, rows.stop - rows.start), sink, write_options=opts)
+        return sink.getvalue()
+
     with atomic_write(path, "wb") as fh:
         fh.write((",".join(header) + "\n").encode())
-        pcsv.write_csv(table, fh, write_options=opts)
+        text.write_in_order(fh, (partial(csv_text, rows) for rows in text.chunks(table.num_rows)))
 
 
 def _float_column(x: np.ndarray):
