@@ -302,11 +302,13 @@ def test_calibration_save_method_round_trip(tmp_path):
 
 @pytest.mark.parametrize("ids, kind", [
     (["0", "1", "2"], "i"),
-    (["-5", "3", "9223372036854775807"], "i"),                          # negative, largest int64
+    (["5", "3", "9223372036854775807"], "i"),                           # the largest int64
+    (["-5", "3"], "U"),                                                  # a sign: text
     (["007", "1"], "U"),                                                 # leading zeros stay text
     (["1", "2", "x"], "U"),
     (["99999999999999999999"], "U"),                                     # beyond int64
-    (["+5"], "U"), ([" 5"], "U"), (["1_000"], "U"), (["0x10"], "U"), (["-0"], "U"), (["1e3"], "U"),
+    (["+5"], "U"), ([" 5"], "U"), (["1_000"], "U"), (["0x10"], "U"), (["-0"], "U"), (["1e3"], "U"), (["٣"], "U"),
+    (["9223372036854775808"], "U"), ([""], "U"),
 ])
 def test_point_id_array(ids, kind):
     from transcalib.io.ids import point_id_array

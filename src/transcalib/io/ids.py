@@ -3,9 +3,9 @@
 A tracks file names its points with any text. Almost always the ids are integers
 (``0, 1, 2, ...``), and handling 10⁶ of them as Python strings costs seconds. So the
 readers return the ids as an array: ``int64`` when every id is an integer written as
-Python's ``str(int)`` writes it (no sign ``+``, no leading zeros or spaces, within
-int64), else ``str``. An id such as ``007`` or ``1e3`` stays text, and so does every id
-of a file that has one such id. Writers, the calibration file, the report and the
+a plain non-negative decimal (ASCII digits, no leading zero, within int64), else
+``str``. An id such as ``007``, ``-3`` or ``1e3`` stays text, and so does every id of a
+file that has one such id. Writers, the calibration file, the report and the
 summary take either kind and never loop over ids in Python.
 """
 
@@ -17,7 +17,7 @@ __all__ = ["point_id_array", "integer_ids", "truth_index"]
 
 
 def integer_ids(text):
-    """The ids ``text`` as ``int64`` when each is an integer in canonical form, else None.
+    """The ids ``text`` as ``int64`` when each is a plain integer, else None.
 
     Parameters
     ----------
@@ -26,23 +26,27 @@ def integer_ids(text):
     Returns
     -------
     (n,) int64 ndarray, or None
-        None when an id is not an integer, has leading zeros, spaces or a ``+`` sign,
-        or does not fit int64: ``str(id)`` of the result gives ``text`` back.
+        None when an id is not only ASCII digits (a sign, space, point, letter), has a
+        leading zero (``007``) or does not fit int64: ``str(id)`` of the result gives
+        ``text`` back.
     """
     import pyarrow as pa
     import pyarrow.compute as pc
 
+    if not pc.all(pc.ascii_is_decimal(text), min_count=0).as_py():
+        return None
+    if pc.any(pc.not_equal(pc.filter(text, pc.starts_with(text, "0")), "0"), min_count=0).as_py():
+        return None
     try:
         ints = pc.cast(text, pa.int64())
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-        return None
-    if not pc.all(pc.equal(pc.cast(ints, pa.string()), text)).as_py():  # canonical: "7", not "007"
+    except pa.ArrowInvalid:  # beyond int64
         return None
     return ints.to_numpy() if isinstance(ints, pa.Array) else ints.combine_chunks().to_numpy()
 
 
 def point_id_array(ids) -> np.ndarray:
-    """Point ids as an array: ``int64`` when every id is a canonical integer, else ``str``.
+    """Point ids as an array: ``int64`` when every id is a plain integer (text ids: see
+    :func:`integer_ids`; an integer array stays integer), else ``str``.
 
     Parameters
     ----------
@@ -69,11 +73,8 @@ def point_id_array(ids) -> np.ndarray:
 
 
 def _canonical_integer(s: str) -> bool:
-    """One id: is ``s`` an integer as ``str(int)`` writes it?"""
-    try:
-        return str(int(s)) == s
-    except ValueError:
-        return False
+    """One id: is ``s`` a plain integer (:func:`integer_ids`)?"""
+    return s.isascii() and s.isdigit() and (s == "0" or not s.startswith("0"))
 
 
 def truth_index(point_ids, n_true: int) -> np.ndarray | None:

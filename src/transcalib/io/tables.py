@@ -326,9 +326,10 @@ def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
         )
     n_views, n_points = len(poses.views), len(t.point_ids)
     flat = np.array([view_pos[v] for v in t.view_ids], dtype=np.intp)[t.view_index] * n_points + t.point_index
-    counts = np.bincount(flat, minlength=n_views * n_points)
-    if np.any(counts > 1):
-        dup = np.flatnonzero(counts > 1)[:5]
+    filled = np.zeros(n_views * n_points, dtype=bool)
+    filled[flat] = True
+    if np.count_nonzero(filled) < flat.size:  # some (view, point) more than once
+        dup = np.flatnonzero(np.bincount(flat) > 1)[:5]
         pairs = [(poses.views[d // n_points], t.point_ids[d % n_points].item()) for d in dup]
         raise InputError(
             f"tracks file {str(path_tracks)!r} has more than one row for (view, point) {pairs}; "
