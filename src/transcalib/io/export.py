@@ -172,19 +172,24 @@ def _write_images(path, cal, uv, seen, pid, names) -> None:
         text.write_in_order(fh, pieces())
 
 
-def _points3d(cal, rows: slice, pid: np.ndarray, rgb, seen: np.ndarray, idx2d: np.ndarray):
+def _points3d(cal, rows: slice, pid: np.ndarray, rgb, seen: np.ndarray, before: np.ndarray):
     """Lines ``POINT3D_ID X Y Z R G B ERROR TRACK[]`` of the reconstructed points among
     ``rows``, each ended by a newline; the track is ``IMAGE_ID POINT2D_IDX`` per image
     that sees the point, the error the RMS reprojection error (pixels).
-    ``rgb``: ``(n_points, 3)`` or one text for all."""
-    j = rows.start + np.flatnonzero(np.isfinite(cal.X[rows, 0]))
+
+    ``rgb``: ``(n_points, 3)`` or one text for all; ``before (n_views,)``: observations
+    of each image before ``rows`` (the POINT2D_IDX of the first one in ``rows``).
+    """
+    ok = np.flatnonzero(np.isfinite(cal.X[rows, 0]))
+    j = rows.start + ok
+    idx2d = (before[:, None] + np.cumsum(seen[:, rows], axis=1) - 1)[:, ok]
     s, r = seen[:, j], cal.residuals_px[:, j]
     r2 = np.einsum("vpk,vpk->vp", r, r)
     err = np.sqrt(np.sum(r2, axis=0, where=s & ~np.isnan(r2)) / np.maximum(s.sum(axis=0), 1))
     xyz = [text.decimal_text(x) for x in cal.X[j].T]
     colour = rgb if isinstance(rgb, str) else text.join([text.integer_text(c) for c in rgb[j].T])
     track = [text.prefixed(text.integer_text(idx, mask=~si), f"{i + 1} ")  # null where unseen
-             for i, (idx, si) in enumerate(zip(idx2d[:, j], s))]
+             for i, (idx, si) in enumerate(zip(idx2d, s))]
     line = [text.integer_text(pid[j]), *xyz, colour, text.decimal_text(err, COLMAP_DECIMALS), *track]
     return text.concatenated(text.join(line), "\n", end="\n")
 
@@ -193,12 +198,17 @@ def _write_points3d(path, cal, seen, pid, colors) -> None:
     """``points3D.txt``: the reconstructed points, formatted in chunks, on threads."""
     from functools import partial
 
-    idx2d = np.cumsum(seen, axis=1) - 1  # index of each observation in its image's POINTS2D
     rgb = "128 128 128" if colors is None else np.asarray(colors, dtype=np.int64)
-    pieces = (partial(_points3d, cal, rows, pid, rgb, seen, idx2d) for rows in text.chunks(cal.n_points, CHUNK))
+
+    def pieces():
+        before = np.zeros(len(seen), dtype=np.int64)  # observations of each image so far
+        for rows in text.chunks(cal.n_points, CHUNK):
+            yield partial(_points3d, cal, rows, pid, rgb, seen, before.copy())
+            before += seen[:, rows].sum(axis=1)
+
     with atomic_write(path, "wb") as fh:
         fh.write(f"# 3D point list; {pid[-1] if pid.size else 0} points\n".encode())
-        text.write_in_order(fh, pieces)
+        text.write_in_order(fh, pieces())
 
 
 def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> list[Path]:

@@ -325,7 +325,9 @@ def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
             f"(which has {poses.views[:10]}{'...' if len(poses.views) > 10 else ''}); give every view a pose"
         )
     n_views, n_points = len(poses.views), len(t.point_ids)
-    flat = np.array([view_pos[v] for v in t.view_ids], dtype=np.intp)[t.view_index] * n_points + t.point_index
+    flat = np.array([view_pos[v] for v in t.view_ids], dtype=np.intp)[t.view_index]
+    flat *= n_points
+    flat += t.point_index  # index of each observation in uv (n_views * n_points, 2)
     filled = np.zeros(n_views * n_points, dtype=bool)
     filled[flat] = True
     if np.count_nonzero(filled) < flat.size:  # some (view, point) more than once

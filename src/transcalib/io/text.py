@@ -19,8 +19,9 @@ __all__ = ["THREADS", "CHUNK", "chunks", "integer_text", "decimal_text", "prefix
 
 #: Threads formatting text (the machines we aim at have two cores).
 THREADS = 2
-#: Rows formatted at a time: bounds the memory of a writer at any number of points.
-CHUNK = 200_000
+#: Rows formatted at a time: bounds the memory of a writer at any number of points;
+#: small enough for a chunk's arrays to stay in the caches (200 000 was 30 % slower).
+CHUNK = 50_000
 
 
 def chunks(n: int, size: int | None = None):
@@ -58,9 +59,10 @@ def decimal_text(x: np.ndarray, decimals: int | None = None):
     q = np.round(x * 10.0**decimals)
     if mask is not None:
         q[mask] = 0.0
-    if np.abs(q).max(initial=0.0) >= 2.0**62:  # not an int64: the general form
+    size = np.abs(q)
+    if size.max(initial=0.0) >= 2.0**62:  # not an int64: the general form
         return decimal_text(x)
-    digits = pc.ascii_lpad(integer_text(np.abs(q).astype(np.int64), mask), decimals + 1, "0")  # "5" -> "0000005"
+    digits = pc.ascii_lpad(integer_text(size.astype(np.int64), mask), decimals + 1, "0")  # "5" -> "0000005"
     text = prefixed(digits, ".", at=-decimals)
     negative = q < 0
     return pc.if_else(pa.array(negative), prefixed(text, "-"), text) if negative.any() else text
