@@ -378,7 +378,6 @@ def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
 def read_parquet_tracks(path) -> TrackTable:
     """``.parquet`` tracks: the columns of ``tracks.csv`` (``view``, ``point``, ``u``, ``v``)."""
     import pyarrow as pa
-    import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
     path = Path(path)
