@@ -158,6 +158,8 @@ def test_colmap_precision(cal, uv, tmp_path):
         seen = np.isfinite(uv[i, :, 0]) & ok
         err = np.abs(xy - 0.5 - uv[i, seen])
         assert err.max() <= 5e-7 + 1e-12 and err.max() > 0  # rounded, to the nearest 1e-6 px
-    rows = [line.split(" ") for line in (tmp_path / "points3D.txt").read_text().splitlines()[1:]]
+    lines = (tmp_path / "points3D.txt").read_text().splitlines()[1:]
+    assert not any("  " in line or line != line.strip() for line in lines)
+    rows = [line.split(" ") for line in lines]
     np.testing.assert_array_equal(np.array([r[1:4] for r in rows], dtype=float), cal.X[ok])  # exact
     assert all(len(r[7].split(".")[1]) == 6 for r in rows)
