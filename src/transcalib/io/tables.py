@@ -208,7 +208,7 @@ def _tracks_fast(path, header: list[str]) -> TrackTable | None:
     table = _arrow_csv(path, header)
     if table is None or table.num_rows == 0:
         return None
-    uv = np.column_stack([table["u"].to_numpy(), table["v"].to_numpy()])
+    uv = _uv_array(table)
     if not np.isfinite(uv).all():
         return None
     view_ids, view_index = _view_codes(table["view"])
@@ -230,6 +230,18 @@ def _arrow_csv(path, header: list[str]):
             convert_options=pcsv.ConvertOptions(column_types=types, include_columns=list(types)))
     except (pa.ArrowInvalid, pa.ArrowTypeError):
         return None
+
+
+def _uv_array(table) -> np.ndarray:
+    """``(n_obs, 2)`` float from the Arrow columns ``u``, ``v`` (NaN where empty), filled
+    chunk by chunk: no concatenated copies (fresh memory is slow to fault in)."""
+    uv = np.empty((table.num_rows, 2))
+    for k, name in enumerate(("u", "v")):
+        start = 0
+        for chunk in table[name].chunks:
+            uv[start:start + len(chunk), k] = chunk.to_numpy(zero_copy_only=False)
+            start += len(chunk)
+    return uv
 
 
 def _view_codes(column) -> tuple[list[str], np.ndarray]:
