@@ -37,11 +37,14 @@ def integer_ids(text):
         return None
     if pc.any(pc.not_equal(pc.filter(text, pc.starts_with(text, "0")), "0"), min_count=0).as_py():
         return None
-    try:
-        ints = pc.cast(text, pa.int64())
-    except pa.ArrowInvalid:  # beyond int64
-        return None
-    return ints.to_numpy() if isinstance(ints, pa.Array) else ints.combine_chunks().to_numpy()
+    out, start = np.empty(len(text), dtype=np.int64), 0
+    for chunk in text.chunks if isinstance(text, pa.ChunkedArray) else [text]:  # no concatenated copy
+        try:
+            out[start:start + len(chunk)] = pc.cast(chunk, pa.int64()).to_numpy()
+        except pa.ArrowInvalid:  # beyond int64
+            return None
+        start += len(chunk)
+    return out
 
 
 def point_id_array(ids) -> np.ndarray:

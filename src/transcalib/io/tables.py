@@ -280,7 +280,9 @@ def _integer_codes(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         starts = np.empty(values.size, dtype=bool)
         starts[:1] = True
         np.not_equal(values[1:], values[:-1], out=starts[1:])
-        return values[starts], np.cumsum(starts) - 1
+        codes = np.cumsum(starts)
+        codes -= 1
+        return values[starts], codes
     enc = pc.dictionary_encode(pa.array(values))
     return enc.dictionary.to_numpy(), enc.indices.to_numpy().astype(np.intp)
 
