@@ -38,15 +38,16 @@ def integer_text(values: np.ndarray, mask: np.ndarray | None = None):
 
 
 def decimal_text(x: np.ndarray, decimals: int | None = None):
-    """Arrow strings of floats ``x (n,)``, null where ``x`` is not finite.
+    """Arrow strings of floats ``x (n,)``, null where ``x`` is not finite: by default
+    the shortest text that reads back as exactly ``x``.
 
     Parameters
     ----------
     x : (n,) float
     decimals : int >= 1, optional
-        Round to this many digits after the point, all written (``12.500000``): the
-        integer ``round(x * 10**decimals)`` with a point put in, about twice as fast as
-        the default, the shortest text that reads back as exactly ``x``.
+        Round to this many digits after the point instead, all written (``12.500000``):
+        the integer ``round(x * 10**decimals)`` with a point put in, about twice as
+        fast (an ``x`` beyond 2**62 / 10**decimals falls back to the exact form).
     """
     import pyarrow as pa
     import pyarrow.compute as pc
