@@ -78,7 +78,8 @@ def test_calibrate_outputs(simulated, calibrated):
     assert cal.n_views == 5 and cal.options.unit == "mm" and cal.image_size == tuple(truth["image_size"])
     assert saved.inputs["image_size_from"] == "--truth"
     table = tio.read_track_table(simulated / "tracks.csv")
-    assert saved.point_ids == table.point_ids  # points in input order
+    np.testing.assert_array_equal(saved.point_ids, table.point_ids)  # points in input order
+    assert saved.point_ids.dtype == np.int64  # simulated ids are integers
     X_true = np.array(truth["points"])[[int(p) for p in saved.point_ids]]
     ok = np.isfinite(cal.X[:, 0])
     assert ok.sum() >= 0.9 * len(cal.X)
@@ -89,6 +90,25 @@ def test_calibrate_outputs(simulated, calibrated):
         assert b"\r\n" not in (out / p).read_bytes(), p
     doc = json.loads((out / "calibration.json").read_text())
     assert doc["schema_version"] == 1 and "arrays.npz" == doc["arrays"]["file"]
+
+
+def test_point_errors_against_the_truth(calibrated):
+    """Simulated ids (integers, read as int64) index the true points: the summary has
+    the point errors; text or out-of-range ids give none."""
+    from transcalib.cli.summary import point_errors
+
+    from transcalib.io.calibration_file import load_saved
+
+    out, r = calibrated
+    assert "Point error vs truth: median" in r.stdout
+    saved = load_saved(out)
+    truth = {"points": saved.calibration.X[::-1]}  # point k is true point n - 1 - k
+    n = saved.calibration.n_points
+    err = point_errors(saved.calibration, truth, np.arange(n)[::-1])
+    assert np.nanmax(err) == 0 and np.isfinite(err).sum() > 0.9 * n
+    assert point_errors(saved.calibration, truth, np.arange(n)[::-1].astype(str)).shape == (n,)
+    assert point_errors(saved.calibration, truth, np.arange(n) + 1) is None   # id n is not a true point
+    assert point_errors(saved.calibration, truth, [f"p{k}" for k in range(n)]) is None
 
 
 def test_no_single_view_point_counted_as_outlier(tmp_path):

@@ -143,3 +143,23 @@ def test_export_with_a_report_worker(cal, uv, tmp_path):
                                      timings=timings, report_worker=worker)
     assert [p.relative_to(tmp_path / "worker") for p in written] == [p.relative_to(tmp_path / "alone") for p in alone]
     assert timings["report_worker_s"] > 0 and timings["report_s"] >= 0 and "csv_s" in timings
+
+
+def test_colmap_precision(cal, uv, tmp_path):
+    """2-D points and errors with 6 digits after the point (1e-6 px), 3-D points exact."""
+    export.write_colmap(cal, tmp_path, (640, 480), uv)
+    lines = (tmp_path / "images.txt").read_text().splitlines()
+    assert not any("  " in line or line != line.strip() for line in lines)  # COLMAP splits on single spaces
+    ok = np.isfinite(cal.X[:, 0])
+    for i, line in enumerate(lines[2::2]):
+        cells = line.split(" ")
+        assert all(len(c.split(".")[1]) == 6 for c in cells[0::3] + cells[1::3])
+        xy = np.array(cells, dtype=float).reshape(-1, 3)[:, :2]
+        seen = np.isfinite(uv[i, :, 0]) & ok
+        err = np.abs(xy - 0.5 - uv[i, seen])
+        assert err.max() <= 5e-7 + 1e-12 and err.max() > 0  # rounded, to the nearest 1e-6 px
+    lines = (tmp_path / "points3D.txt").read_text().splitlines()[1:]
+    assert not any("  " in line or line != line.strip() for line in lines)
+    rows = [line.split(" ") for line in lines]
+    np.testing.assert_array_equal(np.array([r[1:4] for r in rows], dtype=float), cal.X[ok])  # exact
+    assert all(len(r[7].split(".")[1]) == 6 for r in rows)

@@ -27,14 +27,14 @@ def test_round_trip(tmp_path, poses):
     tio.write_tracks_csv(tmp_path / "tracks.csv", uv, ["a", "b", "c"])
     p = tio.read_poses(poses)
     got, ids = tio.tracks_to_uv(tmp_path / "tracks.csv", p)
-    assert ids == ["a", "c"]  # point b has no observation
+    assert ids.tolist() == ["a", "c"]  # point b has no observation
     np.testing.assert_array_equal(got, uv[:, [0, 2]])
 
 
 def test_point_order_is_first_appearance_and_ids_any_text(tmp_path, poses):
     tracks = write(tmp_path / "t.csv", "view,point,u,v\n0,zeta,1,2\n0,alpha,3,4\n1,zeta,5,6\n")
     uv, ids = tio.tracks_to_uv(tracks, tio.read_poses(poses))
-    assert ids == ["zeta", "alpha"]
+    assert ids.tolist() == ["zeta", "alpha"]
     assert uv[1, 0, 0] == 5 and np.isnan(uv[1, 1, 0])
 
 
@@ -161,7 +161,8 @@ def test_tracks_round_trip_every_format(tmp_path, suffix, ids):
     got, got_ids = tio.tracks_to_uv(path, poses)
     seen = np.isfinite(uv[..., 0]).any(axis=0)
     np.testing.assert_array_equal(got, uv[[4, 0, 1, 2, 3]][:, seen])
-    assert got_ids == [p for p, s in zip(point_ids, seen) if s]
+    expected = [int(p) if ids == "int" else p for p, s in zip(point_ids, seen) if s]  # integer ids read as int64
+    assert got_ids.dtype.kind == ("i" if ids == "int" else "U") and got_ids.tolist() == expected
 
 
 def test_fast_and_careful_csv_readers_agree(tmp_path):
@@ -172,7 +173,7 @@ def test_fast_and_careful_csv_readers_agree(tmp_path):
     path = write(tmp_path / "t.csv", text)
     fast = tables._tracks_fast(path, tables._header(path, ["view", "point", "u", "v"], "tracks"))
     assert fast is not None
-    assert fast.view_ids == ["3", "1"] and fast.point_ids == ["a", "b"]
+    assert fast.view_ids == ["3", "1"] and fast.point_ids.tolist() == ["a", "b"]
     np.testing.assert_array_equal(fast.view_index, [0, 0, 1])
     np.testing.assert_array_equal(fast.uv, [[1.5, 2], [3, 4], [5, 6e-3]])
     bad = write(tmp_path / "bad.csv", "view,point,u,v\n0,a,1,2\n0,b,inf,2\n")
@@ -252,7 +253,7 @@ def test_calibration_round_trip_every_field(tmp_path):
     assert [d.code for d in back.diagnostics] == ["few_points", "x"]
     assert isinstance(back.info["T_std"], np.ndarray) and back.info["pair"] == (1, 2)
     saved = load_saved(json_path)
-    assert saved.point_ids == ids and saved.inputs["tracks"] == "t.csv" and saved.inputs["n_points"] == 40
+    assert saved.point_ids.tolist() == ids and saved.inputs["tracks"] == "t.csv" and saved.inputs["n_points"] == 40
     doc = json.loads(json_path.read_text())  # plain JSON: no NaN tokens
     assert doc["schema_version"] == 1 and doc["image_size"] == [640, 480] and doc["software"]["name"] == "transcalib"
     assert doc["timings_s"] == {"refine_s": 0.25}
@@ -292,3 +293,135 @@ def test_calibration_save_method_round_trip(tmp_path):
     cal.save(tmp_path / "c.json")
     assert (tmp_path / "c.arrays.npz").is_file()
     assert load_calibration(tmp_path / "c.json") == cal
+
+
+# --------------------------------------------------------------------------------------
+# point ids: int64 when every id is a canonical integer, else text
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("ids, kind", [
+    (["0", "1", "2"], "i"),
+    (["5", "3", "9223372036854775807"], "i"),                           # the largest int64
+    (["-5", "3"], "U"),                                                  # a sign: text
+    (["007", "1"], "U"),                                                 # leading zeros stay text
+    (["1", "2", "x"], "U"),
+    (["99999999999999999999"], "U"),                                     # beyond int64
+    (["+5"], "U"), ([" 5"], "U"), (["1_000"], "U"), (["0x10"], "U"), (["-0"], "U"), (["1e3"], "U"), (["٣"], "U"),
+    (["9223372036854775808"], "U"), ([""], "U"),
+])
+def test_point_id_array(ids, kind):
+    from transcalib.io.ids import point_id_array
+
+    got = point_id_array(ids)
+    assert got.dtype.kind == kind
+    assert [str(v) for v in got.tolist()] == ids  # the text of each id is kept
+    assert point_id_array(got) is got or kind == "U"  # already an id array: no new work
+
+
+def test_point_id_array_from_numpy_and_arrow():
+    import pyarrow as pa
+
+    from transcalib.io.ids import point_id_array
+
+    assert point_id_array(np.arange(3, dtype=np.uint8)).dtype == np.int64
+    assert point_id_array(pa.array(["3", "4"])).tolist() == [3, 4]
+    assert point_id_array(pa.array(["03", "4"])).tolist() == ["03", "4"]
+
+
+@pytest.mark.parametrize("rows, ids", [
+    ("0,5,1,2\n1,5,3,4\n0,2,5,6\n", [5, 2]),                      # unsorted: first appearance
+    ("0,2,1,2\n1,2,3,4\n0,5,5,6\n1,9,7,8\n", [2, 5, 9]),          # grouped by point, increasing
+    ("0,7,1,2\n0,007,3,4\n1,7,5,6\n", ["7", "007"]),              # "007" is not "7": all text
+    ("0,99999999999999999999,1,2\n0,3,3,4\n", ["99999999999999999999", "3"]),
+    ("0, 4 ,1,2\n1,4,3,4\n", [4]),                                # spaces stripped, then an integer
+])
+def test_integer_and_text_point_ids_read(tmp_path, poses, rows, ids):
+    uv, got = tio.tracks_to_uv(write(tmp_path / "t.csv", "view,point,u,v\n" + rows), tio.read_poses(poses))
+    assert got.dtype.kind == ("i" if isinstance(ids[0], int) else "U") and got.tolist() == ids
+    assert uv.shape == (4, len(ids), 2) and np.isfinite(uv[..., 0]).sum() == rows.count("\n")
+
+
+def test_duplicate_integer_ids_named(tmp_path, poses):
+    with pytest.raises(InputError, match=r"\('1', 5\)"):
+        tio.tracks_to_uv(write(tmp_path / "t.csv", "view,point,u,v\n1,5,1,2\n1,5,3,4\n"), tio.read_poses(poses))
+
+
+@pytest.mark.parametrize("ids", [[5, 3, 11, 0, 4, 8, 9], ["007", "a", "3", "b", "c", "d", "e"]])
+def test_point_ids_round_trip_through_calibration_file(tmp_path, ids):
+    from transcalib.io.calibration_file import load_saved, save_calibration
+
+    cal = full_calibration(n_points=7)
+    save_calibration(cal, tmp_path, point_ids=[str(p) for p in ids])
+    saved = load_saved(tmp_path)
+    assert saved.point_ids.tolist() == ids  # int64 for integers, text otherwise
+    assert saved.point_ids.dtype.kind == ("i" if isinstance(ids[0], int) else "U")
+
+
+def test_truth_index():
+    from transcalib.io.ids import truth_index
+
+    assert truth_index(["2", "0"], 3).tolist() == [2, 0]
+    assert truth_index(np.array([2, 0]), 3).tolist() == [2, 0]
+    for ids in (["3"], ["-1"], ["a"], ["01"], [], None):
+        assert truth_index(ids, 3) is None, ids
+
+
+def test_careful_reader_gives_the_same_id_types(tmp_path, poses):
+    """A line of spaces sends the file to the line-by-line reader: same ids, same types."""
+    from transcalib.io import tables
+
+    for ids, kind in ((["7", "3"], "i"), (["007", "3"], "U")):
+        text = f"view,point,u,v\n0,{ids[0]},1,2\n   \n1,{ids[0]},3,4\n0,{ids[1]},5,6\n"
+        path = write(tmp_path / "t.csv", text)
+        assert tables._tracks_fast(path, tables._header(path, ["view", "point", "u", "v"], "tracks")) is None
+        got = tio.read_track_table(path).point_ids
+        assert got.dtype.kind == kind and [str(p) for p in got.tolist()] == ids
+
+
+# --------------------------------------------------------------------------------------
+# text output: Arrow formatting, chunks on threads
+# --------------------------------------------------------------------------------------
+
+
+def test_decimal_text():
+    from transcalib.io.text import decimal_text
+
+    x = np.array([-0.4, 0.5, -1e-9, 123.4567894, 1e6, np.nan, -1234.5, 0.1, 1 / 3, 2.5e-300])
+    assert decimal_text(x, 6).to_pylist() == ["-0.400000", "0.500000", "0.000000", "123.456789", "1000000.000000",
+                                              None, "-1234.500000", "0.100000", "0.333333", "0.000000"]
+    full = decimal_text(x).to_pylist()
+    assert full[5] is None and [float(s) for s in full if s is not None] == x[np.isfinite(x)].tolist()  # exact
+    assert decimal_text(np.array([1e300, 1.5]), 6).to_pylist() == ["1e+300", "1.5"]  # beyond int64: exact form
+
+
+def test_write_in_order_keeps_the_order(tmp_path):
+    """Pieces finish in any order on the threads; the file has them in the given order."""
+    import time
+    from functools import partial
+
+    from transcalib.io.text import write_in_order
+
+    def slow(k):
+        time.sleep(0.002 * (10 - k))  # the first pieces finish last
+        return f"{k}\n".encode()
+
+    with open(tmp_path / "f.txt", "wb") as fh:
+        write_in_order(fh, (partial(slow, k) if k % 3 else f"{k}\n".encode() for k in range(10)), threads=3)
+    assert (tmp_path / "f.txt").read_text() == "".join(f"{k}\n" for k in range(10))
+
+
+def test_points_csv_in_chunks_is_the_same(tmp_path, monkeypatch):
+    from transcalib.io import text
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(50, 3)) * 1e3
+    X[7] = np.nan
+    tio.write_points_csv(tmp_path / "one.csv", np.arange(50) * 3, X, np.abs(X), np.arange(50) % 2 == 0)
+    monkeypatch.setattr(text, "CHUNK", 7)
+    tio.write_points_csv(tmp_path / "many.csv", np.arange(50) * 3, X, np.abs(X), np.arange(50) % 2 == 0)
+    assert (tmp_path / "one.csv").read_text() == (tmp_path / "many.csv").read_text()
+    lines = (tmp_path / "many.csv").read_text().splitlines()
+    assert len(lines) == 51 and lines[8].startswith("21,,,,")
+    back = np.genfromtxt(tmp_path / "many.csv", delimiter=",", skip_header=1)
+    np.testing.assert_array_equal(back[:, 1:4], X)  # full precision

@@ -265,12 +265,13 @@ def track_images(images, target, progress: Progress, T=None, sessions=None):
 def _observations(args, plan, progress: Progress):
     """``(uv, point_ids, colors, view_names)`` from the images or the tracks file."""
     from .. import io as tio
+    from ..io.ids import point_id_array
 
     poses = plan["poses"]
     if args.images:
         progress.log(f"tracking {len(plan['images'])} images ...")
         tracks = track_images(plan["images"], args.target, progress, T=poses.T, sessions=plan["sessions"])
-        ids = [str(i) for i in tracks.ids]
+        ids = point_id_array(tracks.ids)
         tio.write_tracks_csv(plan["out"] / "tracks.csv", tracks.uv, ids, poses.views)
         return tracks.uv, ids, tracks.colors, [p.name for p in plan["images"]]
     uv, ids = tio.tracks_to_uv(plan["tracks"], poses)
@@ -341,7 +342,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     memory["after_write"] = _peak_rss_gib()
     timings = {"start_s": t_read - t_start, "read_s": t_imports - t_read, "imports_s": t_cal - t_imports,
                "calibrate_s": t_write - t_cal, "write_s": t_end - t_write, "total_s": t_end - t_start}
-    simulated_ids = point_ids if args.tracks else []
+    simulated_ids = point_ids if args.tracks else None
     status = EXIT_WARNINGS if args.strict and cal.diagnostics else EXIT_OK
     if args.json:
         summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..io.ids import truth_index
+
 __all__ = ["summary_text", "summary_json", "point_errors"]
 
 
@@ -15,13 +17,11 @@ def _fmt_param(cal, name: str, value: float) -> str:
 
 def point_errors(cal, truth: dict | None, point_ids) -> np.ndarray | None:
     """``|X - X_true|`` per point when the ids of simulated tracks index the true points."""
-    if truth is None or "points" not in truth or not point_ids or not all(str(p).isdigit() for p in point_ids):
+    if truth is None or "points" not in truth:
         return None
     Xt = np.asarray(truth["points"], float)
-    idx = np.array([int(p) for p in point_ids])
-    if not idx.size or idx.max() >= len(Xt):
-        return None
-    return np.linalg.norm(cal.X - Xt[idx], axis=1)
+    idx = truth_index(point_ids, len(Xt))
+    return None if idx is None else np.linalg.norm(cal.X - Xt[idx], axis=1)
 
 
 def _counts(cal, uv=None) -> tuple[int, int]:

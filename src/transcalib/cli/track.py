@@ -32,7 +32,7 @@ def run(args) -> int:
     images = [existing_file("IMAGE", p) for p in args.images]
     progress = args._progress = Progress(args.quiet)
     tracks = track_images(images, args.target, progress)
-    tio.write_tracks(output, tracks.uv, [str(i) for i in tracks.ids])
+    tio.write_tracks(output, tracks.uv, tracks.ids)
     n_obs = int(np.isfinite(tracks.uv[..., 0]).sum())
     if args.json:
         print_json({"status": "ok", "exit_code": 0, "n_tracks": tracks.uv.shape[1], "n_observations": n_obs,

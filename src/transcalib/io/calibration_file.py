@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import Diagnostic, InputError
 from .files import atomic_write, jsonable
+from .ids import point_id_array
 
 __all__ = ["SCHEMA_VERSION", "Saved", "save_calibration", "load_calibration", "load_saved", "calibration_paths"]
 
@@ -37,13 +38,13 @@ class Saved:
     Attributes
     ----------
     calibration : Calibration
-    point_ids : list of str or None    (n_points) ids of the points, when saved
+    point_ids : (n_points,) int64 or str array, or None   ids of the points, when saved
     inputs : dict                      the ``inputs`` section (view ids, file names, counts)
     document : dict                    the whole JSON document
     """
 
     calibration: object
-    point_ids: list | None
+    point_ids: np.ndarray | None
     inputs: dict
     document: dict
 
@@ -178,7 +179,7 @@ def _arrays(cal, point_ids) -> dict:
         if cal.linear.static is not None:
             arrays["linear_static"] = np.asarray(cal.linear.static)
     if point_ids is not None:
-        ids = np.asarray([str(p) for p in point_ids])
+        ids = point_id_array(point_ids)
         if ids.shape != (cal.n_points,):
             raise InputError(f"point_ids: {ids.size} ids for {cal.n_points} points")
         arrays["point_ids"] = ids
@@ -232,8 +233,10 @@ def save_calibration(cal, path, *, point_ids=None, inputs: dict | None = None) -
     cal : Calibration
     path : path-like
         A folder (created if missing) or a ``.json`` file name (:func:`calibration_paths`).
-    point_ids : sequence of str (n_points), optional
-        Ids of the points (saved in the sidecar, returned by :func:`load_saved`).
+    point_ids : (n_points,) sequence, optional
+        Ids of the points, saved in the sidecar as int64 when every id is an integer,
+        else as text (:func:`~transcalib.io.ids.point_id_array`), returned by
+        :func:`load_saved`.
     inputs : dict, optional
         JSON-able summary of the inputs (file names, view ids, ...) for the ``inputs``
         section.
@@ -323,8 +326,7 @@ def load_saved(path) -> Saved:
         X_std=arrays.get("X_std"), inliers=arrays.get("inliers"), options=_options_from_json(doc["options"]),
         info=_untagged(doc["info"]),
     )
-    ids = arrays.get("point_ids")
-    return Saved(cal, None if ids is None else ids.tolist(), doc.get("inputs", {}), doc)
+    return Saved(cal, arrays.get("point_ids"), doc.get("inputs", {}), doc)
 
 
 def load_calibration(path):

@@ -26,7 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from . import text
 from .files import atomic_write
+from .ids import point_id_array
 
 __all__ = ["FORMATS", "DEFAULT_FORMATS", "ExportContext", "export_calibration", "write_opencv_yaml",
            "write_ros_camera_info", "write_colmap", "write_ply", "image_size_or_extent"]
@@ -42,7 +44,7 @@ class ExportContext:
 
     Attributes
     ----------
-    point_ids : sequence of str (n_points), optional   default ``0..n-1``
+    point_ids : (n_points,) int64 or str array, optional   default ``0..n-1``
     view_names : sequence of str (n_views), optional   image file names (COLMAP)
     colors : (n_points, 3) uint8, optional             RGB of each point (PLY, COLMAP)
     uv : (n_views, n_points, 2) float, optional        observations (COLMAP tracks, report)
@@ -130,61 +132,83 @@ def _colmap_camera(cal, image_size) -> str:
     return f"1 {model} {int(w)} {int(h)} " + " ".join(repr(float(p)) for p in params) + "\n"
 
 
-def _text(values):
-    """Arrow strings of a numpy column (shortest round-trip form of floats), or the
-    Arrow string column itself."""
-    import pyarrow as pa
-
-    if isinstance(values, pa.Array):
-        return values
-    return pa.array(np.asarray(values)).cast(pa.string())
+#: Digits after the point of the 2-D points and of the errors in the COLMAP model (pixels).
+COLMAP_DECIMALS = 6
+#: Points (or observations of an image) formatted at a time by the COLMAP writer
+#: (:data:`transcalib.io.text.CHUNK`): bounds its memory at any n.
+CHUNK = text.CHUNK
 
 
-def _join(columns, sep: str = " "):
-    """Element-wise join of columns into lines (nulls skipped): no Python loop per row."""
-    import pyarrow.compute as pc
-
-    return pc.binary_join_element_wise(*[_text(c) for c in columns], sep, null_handling="skip")
-
-
-def _one_line(array) -> str:
-    """The strings of an Arrow ``array`` joined by spaces, in Arrow."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
-    if not len(array):
-        return ""
-    lists = pa.ListArray.from_arrays(pa.array([0, len(array)], pa.int32()), array)
-    return pc.binary_join(lists, " ")[0].as_py()
+def _points2d(uv_view: np.ndarray, cols: np.ndarray, pid: np.ndarray):
+    """``X Y POINT3D_ID`` of the observations ``cols`` of one image, space separated:
+    ``uv_view (n_points, 2)`` shifted to COLMAP's pixel centres, ``pid (n_points,)``."""
+    x, y = (uv_view[cols] + 0.5).T
+    xy_text = [text.decimal_text(c, COLMAP_DECIMALS) for c in (x, y)]
+    return text.concatenated(text.join([*xy_text, text.integer_text(pid[cols])]), " ")
 
 
-#: Points formatted at a time by the COLMAP writer (bounds its memory at any n).
-CHUNK = 200_000
+def _write_images(path, cal, uv, seen, pid, names) -> None:
+    """``images.txt``: a pose line and a POINTS2D line per view (COLMAP's world to camera
+    ``t = -R T_i``); the line of a view is formatted in chunks of points, on threads."""
+    from functools import partial
 
-
-def _chunks(n: int):
-    return (slice(a, min(a + CHUNK, n)) for a in range(0, max(n, 1), CHUNK))
-
-
-def _write_images(path, cal, uv, seen, pid, names) -> np.ndarray:
-    """``images.txt``: pose line and POINTS2D line per view; returns the index of each
-    observation in its image's POINTS2D list ``(n_views, n_points)``."""
     from scipy.spatial.transform import Rotation
 
-    n_views, n_points = seen.shape
     qx, qy, qz, qw = (float(q) for q in Rotation.from_matrix(cal.R).as_quat())
-    idx2d = np.zeros((n_views, n_points), dtype=np.int64)
-    with atomic_write(path, encoding="utf-8", newline="\n") as fh:
-        fh.write(f"# Image list with two lines of data per image; {n_views} images\n")
-        for i in range(n_views):  # a loop over views, then chunks of points
-            cols = np.flatnonzero(seen[i])
-            idx2d[i, cols] = np.arange(cols.size)
+
+    def pieces():
+        yield f"# Image list with two lines of data per image; {len(names)} images\n".encode()
+        for i, name in enumerate(names):  # a loop over views, then chunks of points
             t = (-cal.R @ cal.T[i]).tolist()
-            fh.write(f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {names[i]}\n")
-            pieces = (_one_line(_join([uv[i, c, 0] + 0.5, uv[i, c, 1] + 0.5, pid[c]]))
-                      for c in (cols[s] for s in _chunks(cols.size)))
-            fh.write(" ".join(p for p in pieces if p) + "\n")
-    return idx2d
+            yield f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {name}\n".encode()
+            cols = np.flatnonzero(seen[i])
+            for k, s in enumerate(text.chunks(cols.size, CHUNK)):
+                if k:
+                    yield b" "
+                yield partial(_points2d, uv[i], cols[s], pid)
+            yield b"\n"
+
+    with atomic_write(path, "wb") as fh:
+        text.write_in_order(fh, pieces())
+
+
+def _points3d(cal, rows: slice, pid: np.ndarray, rgb, seen: np.ndarray, before: np.ndarray):
+    """Lines ``POINT3D_ID X Y Z R G B ERROR TRACK[]`` of the reconstructed points among
+    ``rows``, each ended by a newline; the track is ``IMAGE_ID POINT2D_IDX`` per image
+    that sees the point, the error the RMS reprojection error (pixels).
+
+    ``rgb``: ``(n_points, 3)`` or one text for all; ``before (n_views,)``: observations
+    of each image before ``rows`` (the POINT2D_IDX of the first one in ``rows``).
+    """
+    ok = np.flatnonzero(np.isfinite(cal.X[rows, 0]))
+    j = rows.start + ok
+    idx2d = (before[:, None] + np.cumsum(seen[:, rows], axis=1) - 1)[:, ok]
+    s, r = seen[:, j], cal.residuals_px[:, j]
+    r2 = np.einsum("vpk,vpk->vp", r, r)
+    err = np.sqrt(np.sum(r2, axis=0, where=s & ~np.isnan(r2)) / np.maximum(s.sum(axis=0), 1))
+    xyz = [text.decimal_text(x) for x in cal.X[j].T]
+    colour = rgb if isinstance(rgb, str) else text.join([text.integer_text(c) for c in rgb[j].T])
+    track = [text.prefixed(text.integer_text(idx, mask=~si), f"{i + 1} ")  # null where unseen
+             for i, (idx, si) in enumerate(zip(idx2d, s))]
+    line = [text.integer_text(pid[j]), *xyz, colour, text.decimal_text(err, COLMAP_DECIMALS), *track]
+    return text.concatenated(text.join(line), "\n", end="\n")
+
+
+def _write_points3d(path, cal, seen, pid, colors) -> None:
+    """``points3D.txt``: the reconstructed points, formatted in chunks, on threads."""
+    from functools import partial
+
+    rgb = "128 128 128" if colors is None else np.asarray(colors, dtype=np.int64)
+
+    def pieces():
+        before = np.zeros(len(seen), dtype=np.int64)  # observations of each image so far
+        for rows in text.chunks(cal.n_points, CHUNK):
+            yield partial(_points3d, cal, rows, pid, rgb, seen, before.copy())
+            before += seen[:, rows].sum(axis=1)
+
+    with atomic_write(path, "wb") as fh:
+        fh.write(f"# 3D point list; {pid[-1] if pid.size else 0} points\n".encode())
+        text.write_in_order(fh, pieces())
 
 
 def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> list[Path]:
@@ -193,16 +217,14 @@ def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> l
     Each view is an image with pose ``x_c = R x_w + t``, ``t = -R T_i`` (COLMAP's world to
     camera); the reconstructed points are the 3-D points, with their observations in
     ``uv (n_views, n_points, 2)`` as tracks and the RMS reprojection error as ``ERROR``.
-    Lines are formatted by Arrow, :data:`CHUNK` points at a time.
+    3-D points and the camera are written in full (shortest exact form), 2-D points and
+    errors with :data:`COLMAP_DECIMALS` digits after the point. Lines are formatted by
+    Arrow, in chunks of points, on threads (:mod:`transcalib.io.text`).
     """
-    import pyarrow as pa
-    import pyarrow.compute as pc
-    import pyarrow.csv as pcsv
-
     if uv is None:
         raise InputError("the COLMAP export needs the observations uv")
     folder = Path(folder)
-    n_views, n_points = uv.shape[:2]
+    n_views = uv.shape[0]
     names = list(view_names) if view_names is not None else [f"view{i:03d}.png" for i in range(n_views)]
     ok = np.isfinite(cal.X[:, 0])
     seen = np.isfinite(uv[..., 0]) & ok[None, :]          # observations that join a 3-D point
@@ -210,24 +232,8 @@ def write_colmap(cal, folder, image_size, uv, view_names=None, colors=None) -> l
     out = [folder / "cameras.txt", folder / "images.txt", folder / "points3D.txt"]
     with atomic_write(out[0], encoding="utf-8", newline="\n") as fh:
         fh.write("# Camera list with one line of data per camera\n" + _colmap_camera(cal, image_size))
-    idx2d = _write_images(out[1], cal, uv, seen, pid, names)
-    r2 = np.where(seen, np.sum(np.nan_to_num(cal.residuals_px) ** 2, axis=2), 0.0)
-    err = np.sqrt(r2.sum(axis=0) / np.maximum(seen.sum(axis=0), 1))
-    rgb = np.full((n_points, 3), 128, dtype=np.int64) if colors is None else np.asarray(colors, dtype=np.int64)
-    j_all = np.flatnonzero(ok)
-    opts = pcsv.WriteOptions(include_header=False, quoting_style="none")
-    with atomic_write(out[2], "wb") as fh:
-        fh.write(f"# 3D point list; {j_all.size} points\n".encode())
-        for sl in _chunks(j_all.size):
-            j = j_all[sl]
-            if not j.size:
-                continue
-            # the track: "IMAGE_ID POINT2D_IDX" per view that sees the point (null: skipped)
-            track = [pc.if_else(pa.array(seen[i, j]), _join([np.full(j.size, i + 1), idx2d[i, j]]), None)
-                     for i in range(n_views)]
-            lines = _join([pid[j], cal.X[j, 0], cal.X[j, 1], cal.X[j, 2], rgb[j, 0], rgb[j, 1], rgb[j, 2], err[j],
-                           *track])
-            pcsv.write_csv(pa.table({"line": lines}), fh, write_options=opts)
+    _write_images(out[1], cal, uv, seen, pid, names)
+    _write_points3d(out[2], cal, seen, pid, colors)
     return out
 
 
@@ -324,7 +330,7 @@ def export_calibration(cal, folder, formats=DEFAULT_FORMATS, context: ExportCont
         raise InputError(f"unknown export format(s) {', '.join(unknown)}; expected some of {', '.join(FORMATS)}")
     ctx = context or ExportContext()
     folder = Path(folder)
-    ids = ctx.point_ids if ctx.point_ids is not None else [str(k) for k in range(cal.n_points)]
+    ids = point_id_array(ctx.point_ids if ctx.point_ids is not None else np.arange(cal.n_points))
     written = []
     needs_size = {"opencv", "ros", "colmap"} & set(formats)
     size = image_size_or_extent(cal, ctx.uv) if needs_size else None

@@ -21,12 +21,15 @@ from __future__ import annotations
 import csv
 import math
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from . import text
 from .files import atomic_write
+from .ids import integer_ids, point_id_array
 
 __all__ = [
     "Poses",
@@ -155,14 +158,15 @@ class TrackTable:
     ----------
     view_ids : list of str (n_distinct_views)   canonical view ids, first-appearance order
     view_index : (n_obs,) int                   index into ``view_ids`` of each row
-    point_ids : list of str (n_points)          point ids, first-appearance order
+    point_ids : (n_points,) int64 or str array  point ids, first-appearance order
+                                                (:func:`~transcalib.io.ids.point_id_array`)
     point_index : (n_obs,) int                  index into ``point_ids`` of each row
     uv : (n_obs, 2) float                       pixels
     """
 
     view_ids: list
     view_index: np.ndarray
-    point_ids: list
+    point_ids: np.ndarray
     point_index: np.ndarray
     uv: np.ndarray
 
@@ -200,33 +204,26 @@ def _codes(values: list[str]) -> tuple[list[str], np.ndarray]:
 
 def _tracks_fast(path, header: list[str]) -> TrackTable | None:
     """Vectorised reader (pyarrow's CSV parser); None when the file needs the careful
-    reader to locate an error (bad cell, ragged row, non-finite value). Integer ids (the
-    common case) are parsed as integers, which is several times faster than text."""
-    import pyarrow as pa
-
-    table = _arrow_csv(path, header, pa.int64()) or _arrow_csv(path, header, pa.string())
+    reader to locate an error (bad cell, ragged row, non-finite value)."""
+    table = _arrow_csv(path, header)
     if table is None or table.num_rows == 0:
         return None
-    col = {h: f"c{k}" for k, h in enumerate(header)}
-    uv = np.column_stack([table[col["u"]].to_numpy(zero_copy_only=False),
-                          table[col["v"]].to_numpy(zero_copy_only=False)]).astype(float)
+    uv = _uv_array(table)
     if not np.isfinite(uv).all():
         return None
-    views, view_codes = _encode(table[col["view"]])
-    points, point_codes = _encode(table[col["point"]])
-    # canonical view ids ("03" is view 3) may merge dictionary entries: recode
-    view_ids, remap = _codes([_canonical_id(str(v)) for v in views])
-    return TrackTable(view_ids, remap[view_codes], points, point_codes, uv)
+    view_ids, view_index = _view_codes(table["view"])
+    point_ids, point_index = _point_codes(table["point"])
+    return TrackTable(view_ids, view_index, point_ids, point_index, uv)
 
 
-def _arrow_csv(path, header: list[str], id_type):
-    """The four columns of a tracks CSV with ids of ``id_type``, or None if they do not parse."""
+def _arrow_csv(path, header: list[str]):
+    """The columns ``view``, ``point`` (text), ``u``, ``v`` (float) of a tracks CSV, or None
+    if they do not parse."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
-    names = [f"c{k}" for k in range(len(header))]
-    col = {h: names[k] for k, h in enumerate(header)}
-    types = {col["view"]: id_type, col["point"]: id_type, col["u"]: pa.float64(), col["v"]: pa.float64()}
+    types = {"view": pa.string(), "point": pa.string(), "u": pa.float64(), "v": pa.float64()}
+    names = [h if h in types and header.index(h) == k else f"_{k}" for k, h in enumerate(header)]
     try:
         return pcsv.read_csv(
             path, read_options=pcsv.ReadOptions(skip_rows=1, column_names=names),
@@ -235,16 +232,59 @@ def _arrow_csv(path, header: list[str], id_type):
         return None
 
 
-def _encode(column) -> tuple[list, np.ndarray]:
-    """Distinct values of an Arrow column as text, in first-appearance order (stripped of
-    surrounding spaces), and the index of each row."""
+def _uv_array(table) -> np.ndarray:
+    """``(n_obs, 2)`` float from the Arrow columns ``u``, ``v`` (NaN where empty), filled
+    chunk by chunk: no concatenated copies (fresh memory is slow to fault in)."""
+    uv = np.empty((table.num_rows, 2))
+    for k, name in enumerate(("u", "v")):
+        start = 0
+        for chunk in table[name].chunks:
+            uv[start:start + len(chunk), k] = chunk.to_numpy(zero_copy_only=False)
+            start += len(chunk)
+    return uv
+
+
+def _view_codes(column) -> tuple[list[str], np.ndarray]:
+    """Canonical view ids in first-appearance order (``03`` is view ``3``) and the index
+    of each row, from an Arrow string column."""
+    import pyarrow.compute as pc
+
+    enc = pc.dictionary_encode(column).combine_chunks()
+    view_ids, remap = _codes([_canonical_id(v) for v in enc.dictionary.to_pylist()])  # a few views
+    return view_ids, remap[enc.indices.to_numpy()]
+
+
+def _point_codes(column) -> tuple[np.ndarray, np.ndarray]:
+    """Point ids in first-appearance order (:func:`point_id_array`, stripped of surrounding
+    spaces) and the index of each row, from an Arrow string column."""
+    import pyarrow.compute as pc
+
+    ints = integer_ids(column)
+    if ints is not None:
+        return _integer_codes(ints)
+    enc = pc.dictionary_encode(pc.utf8_trim_whitespace(column)).combine_chunks()
+    return point_id_array(enc.dictionary), enc.indices.to_numpy().astype(np.intp)
+
+
+def _integer_codes(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct values of ``(n,) int64`` in first-appearance order and the index of each.
+
+    Rows grouped by point in increasing id order (as ``write_tracks`` writes them) take
+    one pass; other orders a hash table (Arrow's dictionary encoding, in first-appearance
+    order).
+    """
     import pyarrow as pa
     import pyarrow.compute as pc
 
-    if pa.types.is_string(column.type):
-        column = pc.utf8_trim_whitespace(column)
-    enc = pc.dictionary_encode(column).combine_chunks()
-    return enc.dictionary.cast(pa.string()).to_pylist(), enc.indices.to_numpy().astype(np.intp)
+    if np.all(values[1:] >= values[:-1]):
+        starts = np.empty(values.size, dtype=bool)
+        starts[:1] = True
+        np.not_equal(values[1:], values[:-1], out=starts[1:])
+        codes = np.cumsum(starts)
+        codes -= 1
+        return values[starts], codes
+    enc = pc.dictionary_encode(pa.array(values))
+    return enc.dictionary.to_numpy(), enc.indices.to_numpy().astype(np.intp)
 
 
 def read_track_table(path) -> TrackTable:
@@ -261,16 +301,16 @@ def read_track_table(path) -> TrackTable:
     uv = _numbers(path, rows, header, ["u", "v"], "tracks")
     view_ids, view_index = _codes([_canonical_id(row[iv]) for row in rows])
     point_ids, point_index = _codes([row[ip].strip() for row in rows])
-    return TrackTable(view_ids, view_index, point_ids, point_index, uv)
+    return TrackTable(view_ids, view_index, point_id_array(point_ids), point_index, uv)
 
 
-def read_tracks(path) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
+def read_tracks(path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
     """Read ``tracks.csv``: ``view,point,u,v``, one row per observation.
 
     Returns
     -------
     view_ids : list of str (n_obs)
-    point_ids : list of str (n_points), in order of first appearance
+    point_ids : (n_points,) int64 or str array, in order of first appearance
     point_index : (n_obs,) int, index into ``point_ids`` of each row
     uv : (n_obs, 2) float
     """
@@ -278,9 +318,11 @@ def read_tracks(path) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
     return np.asarray(t.view_ids, dtype=object)[t.view_index].tolist(), t.point_ids, t.point_index, t.uv
 
 
-def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, list[str]]:
+def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
     """Observations of a tracks file as ``uv (n_views, n_points, 2)`` in the view order of
-    ``poses``; the format follows the extension: ``.csv``, ``.npz`` or ``.parquet``.
+    ``poses``, and the point ids ``(n_points,)`` (int64 when every id is an integer, else
+    str: :func:`~transcalib.io.ids.point_id_array`); the format follows the extension:
+    ``.csv``, ``.npz`` or ``.parquet``.
 
     Raises :class:`InputError` for views in the tracks that have no pose and for
     duplicate (view, point) rows.
@@ -296,20 +338,22 @@ def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, list[str]]:
             f"tracks file {str(path_tracks)!r} has view(s) {unknown[:10]} that are not in the poses file "
             f"(which has {poses.views[:10]}{'...' if len(poses.views) > 10 else ''}); give every view a pose"
         )
-    vidx = np.array([view_pos[v] for v in t.view_ids], dtype=np.intp)[t.view_index]
-    n_points = len(t.point_ids)
-    flat = vidx * n_points + t.point_index
-    counts = np.bincount(flat, minlength=len(poses.views) * n_points)
-    if np.any(counts > 1):
-        dup = np.flatnonzero(counts > 1)[:5]
-        pairs = [(poses.views[d // n_points], t.point_ids[d % n_points]) for d in dup]
+    n_views, n_points = len(poses.views), len(t.point_ids)
+    flat = np.array([view_pos[v] for v in t.view_ids], dtype=np.intp)[t.view_index]
+    flat *= n_points
+    flat += t.point_index  # index of each observation in uv (n_views * n_points, 2)
+    filled = np.zeros(n_views * n_points, dtype=bool)
+    filled[flat] = True
+    if np.count_nonzero(filled) < flat.size:  # some (view, point) more than once
+        dup = np.flatnonzero(np.bincount(flat) > 1)[:5]
+        pairs = [(poses.views[d // n_points], t.point_ids[d % n_points].item()) for d in dup]
         raise InputError(
             f"tracks file {str(path_tracks)!r} has more than one row for (view, point) {pairs}; "
             "give each point at most one position per view"
         )
-    uv = np.full((len(poses.views), n_points, 2), np.nan)
-    uv[vidx, t.point_index] = t.uv
-    return uv, t.point_ids
+    uv = np.full((n_views * n_points, 2), np.nan)
+    uv[flat] = t.uv
+    return uv.reshape(n_views, n_points, 2), t.point_ids
 
 
 # --------------------------------------------------------------------------------------
@@ -317,9 +361,9 @@ def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, list[str]]:
 # --------------------------------------------------------------------------------------
 
 
-def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, list[str]]:
+def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
     """``.npz`` tracks: ``uv (n_views, n_points, 2)``, ``view_ids (n_views,)``,
-    ``point_ids (n_points,)`` (strings)."""
+    ``point_ids (n_points,)`` (integers or text)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"tracks file {str(path)!r} does not exist")
@@ -342,13 +386,12 @@ def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, list[str]]:
         raise InputError(f"tracks file {str(path)!r}: uv has infinite values; use NaN for unseen points")
     out = np.full((len(poses.views), len(point_ids), 2), np.nan)
     out[[view_pos[v] for v in views]] = uv
-    return out, [str(p) for p in point_ids]
+    return out, point_id_array(point_ids)
 
 
 def read_parquet_tracks(path) -> TrackTable:
     """``.parquet`` tracks: the columns of ``tracks.csv`` (``view``, ``point``, ``u``, ``v``)."""
     import pyarrow as pa
-    import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
     path = Path(path)
@@ -365,11 +408,9 @@ def read_parquet_tracks(path) -> TrackTable:
     uv = np.column_stack([table[names[c]].to_numpy(zero_copy_only=False) for c in ("u", "v")]).astype(float)
     if not np.isfinite(uv).all():
         raise InputError(f"tracks file {str(path)!r}: columns u, v must be finite numbers")
-    views = pc.dictionary_encode(table[names["view"]].cast(pa.string())).combine_chunks()
-    points = pc.dictionary_encode(table[names["point"]].cast(pa.string())).combine_chunks()
-    view_ids, remap = _codes([_canonical_id(v) for v in views.dictionary.to_pylist()])
-    return TrackTable(view_ids, remap[views.indices.to_numpy()], points.dictionary.to_pylist(),
-                      points.indices.to_numpy().astype(np.intp), uv)
+    view_ids, view_index = _view_codes(table[names["view"]].cast(pa.string()))
+    point_ids, point_index = _point_codes(table[names["point"]].cast(pa.string()))
+    return TrackTable(view_ids, view_index, point_ids, point_index, uv)
 
 
 # --------------------------------------------------------------------------------------
@@ -381,17 +422,12 @@ def _id_column(ids):
     """An Arrow column of ids: integers when every id is one (no quotes in the CSV)."""
     import pyarrow as pa
 
-    arr = np.asarray(list(ids))
-    if arr.dtype.kind in "iu":
-        return pa.array(arr.astype(np.int64))
-    s = arr.astype(str)
-    if s.size and np.char.isdigit(s).all() and not np.any(np.char.startswith(s, "0") & (np.char.str_len(s) > 1)):
-        return pa.array(s.astype(np.int64))
-    return pa.array(s)
+    return pa.array(point_id_array(ids))
 
 
 def _write_arrow_csv(path, header: list[str], columns: list) -> None:
-    """Write Arrow columns as CSV with an unquoted ``header`` line, atomically."""
+    """Write Arrow columns as CSV with an unquoted ``header`` line, atomically; chunks of
+    rows are formatted on threads (:func:`~transcalib.io.text.write_in_order`)."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
@@ -400,9 +436,15 @@ def _write_arrow_csv(path, header: list[str], columns: list) -> None:
                        pa.compute.any(pa.compute.match_substring_regex(c, '[,"\n\r]')).as_py()
                        for c in table.columns)
     opts = pcsv.WriteOptions(include_header=False, quoting_style="needed" if needs_quotes else "none")
+
+    def csv_text(rows: slice):
+        sink = pa.BufferOutputStream()
+        pcsv.write_csv(table.slice(rows.start, rows.stop - rows.start), sink, write_options=opts)
+        return sink.getvalue()
+
     with atomic_write(path, "wb") as fh:
         fh.write((",".join(header) + "\n").encode())
-        pcsv.write_csv(table, fh, write_options=opts)
+        text.write_in_order(fh, (partial(csv_text, rows) for rows in text.chunks(table.num_rows)))
 
 
 def _float_column(x: np.ndarray):
@@ -443,17 +485,16 @@ def write_tracks(path, uv: np.ndarray, point_ids=None, view_ids=None) -> None:
     uv : (n_views, n_points, 2) float
         NaN where a point is not seen.
     point_ids, view_ids : sequences, optional
-        Default ``0..n-1``.
+        Default ``0..n-1``; integers or text (:func:`~transcalib.io.ids.point_id_array`).
     """
     suffix = Path(path).suffix.lower()
     n_views, n_points = uv.shape[:2]
-    point_ids = np.arange(n_points) if point_ids is None else np.asarray(list(point_ids))
-    view_ids = np.arange(n_views) if view_ids is None else np.asarray(list(view_ids))
+    point_ids = point_id_array(np.arange(n_points) if point_ids is None else point_ids)
+    view_ids = point_id_array(np.arange(n_views) if view_ids is None else view_ids)
     if suffix == ".npz":  # like the CSV, points never seen are left out
         keep = np.isfinite(uv[..., 0]).any(axis=0)
         with atomic_write(path, "wb") as fh:
-            np.savez(fh, uv=np.asarray(uv, float)[:, keep], view_ids=view_ids.astype(str),
-                     point_ids=point_ids[keep].astype(str))
+            np.savez(fh, uv=np.asarray(uv, float)[:, keep], view_ids=view_ids.astype(str), point_ids=point_ids[keep])
         return
     j, i = np.nonzero(np.isfinite(uv[..., 0]).T)  # grouped by point: points read back in order
     cols = [_id_column(view_ids)] + [_id_column(point_ids)]

@@ -173,8 +173,8 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
         The observations (default: prediction + residual).
     truth : dict, optional
         ``truth.json`` of a simulated scene: adds the errors against the truth.
-    point_ids : sequence of str (n_points), optional
-        Ids of the points; simulated ids index ``truth["points"]``.
+    point_ids : (n_points,) sequence, optional
+        Ids of the points (integers or text); simulated ids index ``truth["points"]``.
     title : str
 
     Returns

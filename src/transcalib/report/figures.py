@@ -531,14 +531,13 @@ def draw_uncertainty(d: dict | None):
 def _point_errors(cal, truth: dict, point_ids) -> np.ndarray | None:
     """``|X - X_true|`` of the reconstructed points (finite ones), or None when the point
     ids do not index ``truth["points"]``."""
-    if "points" not in truth or point_ids is None:
+    from ..io.ids import truth_index
+
+    if "points" not in truth:
         return None
-    ids = np.asarray(point_ids, dtype=str)
-    if ids.size == 0 or not np.char.isdigit(ids).all():
-        return None
-    idx = ids.astype(np.int64)
     Xt = np.asarray(truth["points"], float)
-    if idx.max() >= len(Xt):
+    idx = truth_index(point_ids, len(Xt))
+    if idx is None:
         return None
     err = np.linalg.norm(cal.X - Xt[idx], axis=1)
     return err[np.isfinite(err)]
