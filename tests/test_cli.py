@@ -453,3 +453,14 @@ def test_subset_points_reaches_the_fit(tmp_path):
         assert r.returncode == 0, r.stderr
         assert load_calibration(out).options.subset_points == subset
         assert json.loads(r.stdout)["stages"][-1] in (stage, "reclassify+refine")
+
+
+def test_the_command_keeps_freed_memory_on_glibc():
+    """The allocator settings are accepted by glibc (each mallopt call returns 1)."""
+    import platform
+
+    from transcalib.cli.main import keep_freed_memory
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("not glibc")
+    assert keep_freed_memory() is True
