@@ -370,9 +370,12 @@ def view_residuals(state: State, lay: Layout, data: Data) -> list | None:
 
 
 def _all_views_at_once(state: State, lay: Layout, data: Data) -> bool:
-    """One pure-translation session whose views see most points: every view is handled
-    in the same numpy calls (:mod:`transcalib.estimate.translation_block`)."""
-    return translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points
+    """One pure-translation session whose views see most of many points: every view is
+    handled in the same numpy calls (:mod:`transcalib.estimate.translation_block`), which
+    pays off in blocks on several threads; a few thousand points (Levenberg-Marquardt on
+    a subset) go as fast view by view."""
+    return (translation_block.applies(state, lay) and data.n_points >= 2 * BLOCK_POINTS
+            and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points)
 
 
 def _residuals_all_views(state: State, data: Data) -> list | None:
@@ -478,26 +481,27 @@ class NormalEquations(NamedTuple):
 
 
 def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, priors: bool = True) -> NormalEquations:
-    """Assemble the Gauss-Newton normal equations (IRLS weights for a robust loss).
+    """Assemble the Gauss-Newton normal equations (IRLS weights for a robust loss), view
+    by view (:func:`reduced_system` assembles large problems with every view at once).
 
-    One pure-translation session whose views see most points is assembled with every
-    view at once (:func:`_all_views_at_once`), anything else view by view; both give
-    the same equations. ``obs_weight``: optional list of (n_i,) weights
-    replacing the loss's IRLS weights (the covariance uses ones). ``priors``: include
-    the translation priors (once per system: not in each block of points).
+    ``obs_weight``: optional list of (n_i,) weights replacing the loss's IRLS weights
+    (the covariance uses ones). ``priors``: include the translation priors (once per
+    system: not in each block of points).
     """
     with one_blas_thread():  # small products: BLAS's threads would only spin
-        if _all_views_at_once(state, lay, data):
-            uv, seen = data.dense()
-            weight = None if obs_weight is None else data.dense_weights(obs_weight)
-            U, W, V, bg, bX, cost = translation_block.normal_equations(state, lay, uv, seen, weight, loss, c,
-                                                                       loss_weights)
-        else:
-            U, W, V, bg, bX, cost = _view_by_view(state, lay, data, loss, c, obs_weight)
+        U, W, V, bg, bX, cost = _view_by_view(state, lay, data, loss, c, obs_weight)
     if priors:
         _add_priors(U, bg, state, lay, data)
         cost += 0.5 * _prior_cost(state, data)
     return NormalEquations(U, W, V, bg, bX, cost)
+
+
+def _all_views(state, lay, data, loss, c, obs_weight):
+    """:func:`normal_equations` without priors, every view at once
+    (:func:`transcalib.estimate.translation_block.normal_equations`; the same equations)."""
+    uv, seen = data.dense()
+    weight = None if obs_weight is None else data.dense_weights(obs_weight)
+    return translation_block.normal_equations(state, lay, uv, seen, weight, loss, c, loss_weights)
 
 
 def _view_by_view(state, lay, data, loss, c, obs_weight):
@@ -673,13 +677,15 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
             weights = [keep[q] * (1.0 if weights is None else weights[i]) for i, q in enumerate(part.pts)]
         return weights
 
+    assemble = _all_views if _all_views_at_once(state, lay, data) else _view_by_view
+
     def block(lo: int):
         """Fill the block's per-point arrays; return its shares of ``S``, ``rhs``, the
         cost and the diagonal of ``U``."""
         hi = min(lo + BLOCK_POINTS, n)
         part, at = data.points(lo, hi), slice(lo, hi)
-        U, W, V, bg, bX[:, at], cost_b = normal_equations(replace(state, X=state.X[lo:hi]), lay, part, loss, c,
-                                                          block_weights(lo, hi, part), priors=False)
+        U, W, V, bg, bX[:, at], cost_b = assemble(replace(state, X=state.X[lo:hi]), lay, part, loss, c,
+                                                  block_weights(lo, hi, part))
         if ok is not None:
             for a in range(3):
                 V[a, a, ~ok[lo:hi]] = 1.0  # left out: W is zero there
