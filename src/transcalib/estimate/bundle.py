@@ -520,16 +520,18 @@ def _view_by_view(state, lay, data, loss, c, obs_weight):
         Jw, JXw = (Jg, JX) if w is None else (Jg * w, JX * w)
         U[np.ix_(cols, cols)] += Jw.reshape(q, -1) @ Jg.reshape(q, -1).T
         bg[cols] += Jw.reshape(q, -1) @ r.reshape(-1)
-        # sums over the two rows of each observation (einsum: C loops, no temporaries)
-        dV, dbX, dW = (np.einsum("akn,bkn->abn", JXw, JX), np.einsum("akn,kn->an", JXw, r),
-                       np.einsum("qkn,dkn->qdn", Jw, JX))
+        # sums over the two rows of each observation, one row of a block at a time
         at = slice(None) if len(pts) == n else pts  # every used point seen: no scatter
-        V[:, :, at] += dV
-        bX[:, at] += dbX
-        common = lay.n_common  # the leading columns are the common ones: a view of W, not a copy
-        W[:common, :, at] += dW[:common]
-        for la, ga in enumerate(cols[common:], start=common):
-            W[ga][:, at] += dW[la]
+        for a in range(3):
+            for b in range(a, 3):
+                V[a, b, at] += JXw[a, 0] * JX[b, 0] + JXw[a, 1] * JX[b, 1]
+            bX[a, at] += JXw[a, 0] * r[0] + JXw[a, 1] * r[1]
+        for la, ga in enumerate(cols):
+            for d in range(3):
+                W[ga, d, at] += Jw[la, 0] * JX[d, 0] + Jw[la, 1] * JX[d, 1]
+    for a in range(3):
+        for b in range(a):
+            V[a, b] = V[b, a]
     return U, W, V, bg, bX, 0.5 * rho
 
 
