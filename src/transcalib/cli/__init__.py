@@ -1,5 +1,5 @@
 """The ``transcalib`` command line: parse, call, print; no numerics here."""
 
-from .main import main
+from .main import entry, main
 
-__all__ = ["main"]
+__all__ = ["main", "entry"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib
+import os
 import sys
 
 from .. import __version__
@@ -56,5 +57,16 @@ def main(argv: list[str] | None = None) -> int:
     return run_guarded(args.func, args)
 
 
+def entry() -> None:
+    """The console script (and ``python -m transcalib.cli``): :func:`main`, then an
+    immediate exit with its status. Every file is written and closed and the report
+    worker stopped by then; the interpreter's teardown would free every array and module
+    one by one (a tenth of a second after a large run) for a process that ends anyway."""
+    code = main()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()
