@@ -458,7 +458,7 @@ def _view_system(state, lay, data, i, loss, c, obs_weight):
         return r, w, Jg, JX, data.pts[i], rho
     pred, z, Jg, JX = predict_view(state, lay, i, slice(None), True, valid=seen)
     r = (data.full_uv[i] - pred) * seen
-    rho = _rho_sum(r[:, seen], loss, c) if np.all((z > 0) | ~seen) else np.inf
+    rho = _rho_sum(r, loss, c) if np.all((z > 0) | ~seen) else np.inf  # rho(0) = 0 where unseen: no gather
     if obs_weight is None:
         w = loss_weights(r[0] ** 2 + r[1] ** 2, loss, c)[1] * seen
     else:
