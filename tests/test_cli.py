@@ -464,3 +464,30 @@ def test_the_command_keeps_freed_memory_on_glibc():
     if platform.libc_ver()[0] != "glibc":
         pytest.skip("not glibc")
     assert keep_freed_memory() is True
+
+
+_TUNED = """
+import json, os
+from transcalib.cli.main import tune_process
+tune_process()
+import pyarrow as pa
+from threadpoolctl import threadpool_info
+print(json.dumps({"pool": pa.default_memory_pool().backend_name, "env": os.environ.get("OPENBLAS_NUM_THREADS"),
+                  "blas": [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]}))
+"""
+
+
+@pytest.mark.parametrize("user_env", [{}, {"OPENBLAS_NUM_THREADS": "2", "ARROW_DEFAULT_MEMORY_POOL": "mimalloc"}])
+def test_the_command_process_runs_blas_on_one_thread_and_arrow_on_glibc(user_env):
+    """tune_process (the console script's, in a process of its own): numpy's BLAS on one
+    thread, the same for processes it starts, Arrow's default pool the system one; a
+    user's own settings are kept."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "ARROW_DEFAULT_MEMORY_POOL")}
+    r = subprocess.run([sys.executable, "-c", _TUNED], env={**env, **user_env}, capture_output=True, text=True,
+                       check=True)
+    got = json.loads(r.stdout)
+    if user_env:
+        assert got["env"] == "2" and got["pool"] == "mimalloc" and set(got["blas"]) == {2}
+    else:
+        assert got["env"] == "1" and got["pool"] == "system" and set(got["blas"]) == {1}

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.geometry.rotation import rotation_angle_deg
+from transcalib.geometry.rotation import matrix_to_quaternion, rotation_angle_deg, rq_decompose
 from transcalib.estimate.linear import estimate_linear, solve_tls
 from transcalib.types import DegenerateError, InputError, MirroredError
 
@@ -236,6 +236,38 @@ def test_solve_tls_scale_and_sign():
     assert np.nanmin(depth) > 0
     np.testing.assert_allclose(A, scene.K @ scene.R / np.linalg.norm((scene.K @ scene.R)[2]), atol=1e-9 * np.abs(A).max())
     assert sv.shape == (3,) and sv[0] < 1e-6 * sv[1]
+
+
+def test_rq_decompose_recovers_K_and_R():
+    """A = s K R for random cameras and scales: K (K[2,2] = 1, positive diagonal, skew
+    kept) and R (det +1) come back to rounding; a mirrored A is refused."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    for R_true in Rotation.random(50, random_state=5).as_matrix():
+        K_true = np.array([[rng.uniform(100, 3000), rng.uniform(-5, 5), rng.uniform(0, 2000)],
+                           [0.0, rng.uniform(100, 3000), rng.uniform(0, 2000)], [0.0, 0.0, 1.0]])
+        K, R = rq_decompose(rng.uniform(1e-4, 1e4) * K_true @ R_true)
+        np.testing.assert_allclose(K, K_true, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(R, R_true, atol=1e-12)
+    with pytest.raises(MirroredError):
+        rq_decompose(np.diag([1.0, 1.0, -1.0]))
+
+
+def test_matrix_to_quaternion_agrees_with_scipy():
+    """Shepperd's method against scipy's Rotation (an independent implementation), on
+    random rotations and on the hard cases: identity, half turns, near-half turns."""
+    from scipy.spatial.transform import Rotation
+
+    rotations = [*Rotation.random(200, random_state=6).as_matrix(), np.eye(3), np.diag([1.0, -1.0, -1.0]),
+                 np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]),
+                 Rotation.from_rotvec([0.0, np.pi - 1e-9, 0.0]).as_matrix(),
+                 Rotation.from_rotvec(np.pi * np.array([0.6, 0.0, 0.8])).as_matrix()]
+    for R in rotations:
+        q, ref = matrix_to_quaternion(R), Rotation.from_matrix(R).as_quat()
+        assert q[3] >= 0 and np.linalg.norm(q) == pytest.approx(1.0, abs=1e-15)
+        assert min(np.abs(q - ref).max(), np.abs(q + ref).max()) < 1e-12  # q and -q: the same rotation
+        np.testing.assert_allclose(Rotation.from_quat(q).as_matrix(), R, atol=1e-12)
 
 
 def test_rotation_convention():

@@ -283,7 +283,7 @@ def run(args) -> int:
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)  # (1): before importing the numerics
-    import_in_background("scipy.special", "scipy.linalg")  # the numerics' heavy imports, while we read
+    import_in_background("scipy.special")  # the numerics' heavy imports, while we read
     worker = _start_report_worker(plan["formats"])
     try:
         return _work(args, plan, progress, t_start, worker)

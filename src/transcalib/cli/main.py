@@ -48,20 +48,54 @@ def keep_freed_memory() -> bool:
     return all(mallopt(option, value) == 1 for option, value in settings)
 
 
+#: Environment variables that set the thread count of a BLAS library.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def quiet_blas_threads() -> bool:
+    """Run BLAS on one thread in this process and in those it starts (the report
+    worker), unless the user chose a thread count (:data:`BLAS_THREAD_VARIABLES`).
+
+    The command's products are skinny (``(3, 3) @ (3, n)``, ``(p, 3n) @ (3n, p)``) and
+    its parallel parts run on threads of their own; after each product OpenBLAS's
+    threads spin for a while on the cores those threads need (a tenth of the CPU time
+    of a 10^5-point run on two cores). Returns whether the limit was set."""
+    if any(name in os.environ for name in BLAS_THREAD_VARIABLES):
+        return False
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # BLAS libraries loaded from now on, child processes
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")  # those already loaded (numpy's)
+    return True
+
+
+def tune_process() -> None:
+    """Settings for the command's own process, never for the library's callers: glibc
+    keeps freed memory (:func:`keep_freed_memory`), Arrow allocates from glibc too (its
+    default mimalloc pool hands freed pages back and faults them in again, as huge
+    pages that are zeroed whole: a sixth of a 10^5-point run's time), and BLAS runs on
+    one thread (:func:`quiet_blas_threads`). A user's own ``ARROW_DEFAULT_MEMORY_POOL``
+    or BLAS thread count is kept."""
+    keep_freed_memory()
+    os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")  # read when pyarrow is first used
+    quiet_blas_threads()
+
+
 def main(argv: list[str] | None = None) -> int:
     for stream in (sys.stdout, sys.stderr):  # "±" and "→" on a terminal that is not UTF-8
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
-    keep_freed_memory()
     args = build_parser().parse_args(argv)
     return run_guarded(args.func, args)
 
 
 def entry() -> None:
-    """The console script (and ``python -m transcalib.cli``): :func:`main`, then an
-    immediate exit with its status. Every file is written and closed and the report
-    worker stopped by then; the interpreter's teardown would free every array and module
-    one by one (a tenth of a second after a large run) for a process that ends anyway."""
+    """The console script (and ``python -m transcalib``, ``python -m transcalib.cli``):
+    :func:`main` in a process tuned for it (:func:`tune_process`), then an immediate
+    exit with its status. Every file is written and closed and the report worker
+    stopped by then; the interpreter's teardown would free every array and module one
+    by one (a tenth of a second after a large run) for a process that ends anyway."""
+    tune_process()
     code = main()
     for stream in (sys.stdout, sys.stderr):
         stream.flush()

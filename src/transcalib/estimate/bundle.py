@@ -34,7 +34,6 @@ from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
 
 from ..errors import DegenerateError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, project_camera_frame
@@ -718,10 +717,10 @@ def solve_spd(S: np.ndarray, rhs: np.ndarray):
     """Solve ``S x = rhs`` (Jacobi-scaled Cholesky); None if not positive definite."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
     try:
-        cf = scipy.linalg.cho_factor(S * d[:, None] * d[None, :])
+        L = np.linalg.cholesky(S * d[:, None] * d[None, :])
     except np.linalg.LinAlgError:
         return None
-    return d * scipy.linalg.cho_solve(cf, rhs * d)
+    return d * np.linalg.solve(L.T, np.linalg.solve(L, rhs * d))
 
 
 def apply_step(state: State, lay: Layout, dg: np.ndarray, dX: np.ndarray) -> State:

@@ -1,4 +1,5 @@
-"""Rotations: the exponential map ``exp([w]x)`` and its inverse, angles, ``A = K R``.
+"""Rotations: the exponential map ``exp([w]x)`` and its inverse, quaternions, angles,
+``A = K R``.
 
 A rotation vector ``w`` (radians) maps to ``R = exp([w]x)`` by Rodrigues' formula::
 
@@ -10,11 +11,11 @@ Every local rotation update in the project (``R <- exp([dw]x) R``) uses these.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from ..errors import MirroredError
 
-__all__ = ["rotvec_to_matrix", "matrix_to_rotvec", "skew", "rotation_angle_deg", "rq_decompose"]
+__all__ = ["rotvec_to_matrix", "matrix_to_rotvec", "matrix_to_quaternion", "skew", "rotation_angle_deg",
+           "rq_decompose"]
 
 
 def skew(w: np.ndarray) -> np.ndarray:
@@ -38,6 +39,31 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     s = float(np.linalg.norm(sin))
     theta = float(np.arctan2(s, (np.trace(R) - 1.0) / 2.0))
     return sin if s < 1e-12 else sin * (theta / s)
+
+
+def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
+    """The unit quaternion ``(qx, qy, qz, qw)`` of a rotation matrix ``R`` (3, 3), with
+    ``qw >= 0``.
+
+    Of ``4 qw^2 = 1 + tr R`` and ``4 qx^2 = 1 + R00 - R11 - R22`` (and likewise for y,
+    z), the largest is taken for its square root; the other components follow from the
+    off-diagonal sums and differences (Shepperd), accurate for every angle.
+    """
+    R = np.asarray(R, dtype=float)
+    t = np.trace(R)
+    diag = np.array([R[0, 0], R[1, 1], R[2, 2]])
+    k = int(np.argmax([*diag, t]))
+    if k == 3:
+        q = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], 1.0 + t])
+    else:
+        i, j, m = k, (k + 1) % 3, (k + 2) % 3
+        q = np.empty(4)
+        q[i] = 1.0 + 2.0 * R[i, i] - t
+        q[j] = R[j, i] + R[i, j]
+        q[m] = R[m, i] + R[i, m]
+        q[3] = R[m, j] - R[j, m]
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
 
 
 def rotation_angle_deg(R: np.ndarray) -> float:
@@ -76,7 +102,9 @@ def rq_decompose(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             "or tracks that barely move (far background, static overlays) - run the robust "
             "estimator (the default from 8 points) or remove such tracks; then run again."
         )
-    K, R = scipy.linalg.rq(A)
+    # RQ from QR: with P the row reversal, (P A)^T = Q U gives A = (P U^T P)(P Q^T)
+    Q, U = np.linalg.qr(A[::-1].T)
+    K, R = U.T[::-1, ::-1], Q.T[::-1]
     signs = np.sign(np.diag(K))
     signs[signs == 0] = 1.0
     K = K * signs[None, :]  # K D, with D = diag(signs) = D^-1

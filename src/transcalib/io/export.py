@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..geometry.rotation import matrix_to_quaternion
 from . import text
 from .files import atomic_write
 from .ids import point_id_array
@@ -152,9 +153,7 @@ def _write_images(path, cal, uv, seen, pid, names) -> None:
     ``t = -R T_i``); the line of a view is formatted in chunks of points, on threads."""
     from functools import partial
 
-    from scipy.spatial.transform import Rotation
-
-    qx, qy, qz, qw = (float(q) for q in Rotation.from_matrix(cal.R).as_quat())
+    qx, qy, qz, qw = matrix_to_quaternion(cal.R).tolist()
 
     def pieces():
         yield f"# Image list with two lines of data per image; {len(names)} images\n".encode()
