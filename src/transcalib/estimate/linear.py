@@ -89,35 +89,46 @@ def _normalisation(uv: np.ndarray, used: np.ndarray, T: np.ndarray) -> _Normalis
 
 
 @dataclass(frozen=True)
-class _Group:
-    """Points of one chunk that are seen in the same views, component-major.
+class _Chunk:
+    """Used points of one chunk that share their reference view, component-major, with
+    a slot for every view (zero where the point is not seen).
 
-    Their first seen view is their reference (the head, slot 0), the other seen views
-    the tail, so every slot is seen. With ``z_i`` the normalised homogeneous pixels in
-    slot ``i`` and ``t_k = T_k - T_r``, the blocks of ``M = C^T C`` are::
+    A point's first seen view is its reference ``r`` (the head), its other seen views
+    the tail. With ``z_i`` the normalised homogeneous pixels in view ``i`` and ``t_k =
+    T_k - T_r`` (the same for every point of the chunk), the blocks of ``M = C^T C`` are::
 
-        D[0, 0] = (V_g - 1) |z_0|^2,   D[k, k] = |z_k|^2,   D[0, k] = -z_0 . z_k
-        B[i] = kron(z_i, tt_i)   with tt_0 = -sum_k t_k, tt_k = t_k
+        D[r, r] = (V_j - 1) |z_r|^2,   D[k, k] = |z_k|^2,   D[r, k] = -z_r . z_k
+        B[i] = kron(z_i, tt_i)   with tt_r = -sum_k t_k (per point), tt_k = t_k
+
+    Which views see a point only masks the tail: every visibility pattern is handled by
+    the same array operations.
     """
 
     points: np.ndarray  # (m,) point index
-    views: np.ndarray  # (V_g,) seen views, reference first
-    Z: np.ndarray  # (V_g, 3, m)
-    tt: np.ndarray  # (V_g, 3)
+    ref: int  # the reference view r
+    tail: np.ndarray  # (V, m) bool: seen, not the reference
+    Z: np.ndarray  # (V, 3, m), zero where unseen
+    t: np.ndarray  # (V, 3): T_k - T_r, zero in row r
+    tt_head: np.ndarray  # (3, m): -sum_k t_k over the point's tail
     D00: np.ndarray  # (m,)
-    D0k: np.ndarray  # (V_g - 1, m)
-    Dkk: np.ndarray  # (V_g - 1, m)
+    D0k: np.ndarray  # (V, m), zero off the tail
+    Dkk: np.ndarray  # (V, m), zero off the tail
     s: np.ndarray  # (m,) translation scale of each point (its row weight, see fit_linear)
+
+
+def _kron_sum(P: np.ndarray, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``sum_k kron(P_k, t_k u_k^T)`` (9, 9) for ``P (V, 3, 3)``, ``t, u (V, 3)``."""
+    return np.einsum("kac,kb,kd->abcd", P, t, u).reshape(9, 9)
 
 
 class _Arrowhead:
     """``M = C^T C = [[D, B], [B^T, E]]`` of the normalised system, streamed in chunks.
 
     ``D`` is block diagonal, one small arrowhead block ``D_j`` per point; ``B_j``'s rows
-    are Kronecker products ``kron(z_i, tt_i)`` whose ``tt`` depends only on the views that
-    see the point. Sums over points of ``B_j^T W_j B_j`` are therefore
-    ``kron(sum_j ... z z^T, tt tt^T)``: per-point work on 3-vectors, sums as matrix
-    products, nothing of size O(n) kept between passes.
+    are Kronecker products ``kron(z_i, tt_i)`` whose tail ``tt`` depends only on the
+    point's reference view. Sums over points of ``B_j^T W_j B_j`` are therefore
+    ``sum_k kron(sum_j ... z z^T, t_k t_k^T)`` plus a 9-vector per point: per-point work
+    on 3-vectors, sums as matrix products, nothing of size O(n) kept between passes.
 
     ``(D_j - mu I)^-1`` is applied in closed form: with ``delta_k = D_kk - mu``,
     ``q_k = D_0k / delta_k`` and the head's Schur scalar ``s = D_00 - mu - sum_k D_0k q_k``::
@@ -128,62 +139,64 @@ class _Arrowhead:
     def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights: np.ndarray | None = None):
         self.uv, self.norm = uv, norm
         self.weights = np.ones(uv.shape[1]) if weights is None else weights
-        # the used points grouped by visibility pattern: [(seen views, point indices)]
-        seen = np.isfinite(uv[..., 0])
-        if uv.shape[0] <= 62:  # pattern as an integer, bit v set: seen in view v
-            key = (1 << np.arange(uv.shape[0], dtype=np.int64)) @ seen
-            key[~used] = 0
-            patterns = np.flatnonzero(np.bincount(key)) if uv.shape[0] <= 16 else np.unique(key)
-            patterns = patterns[patterns > 0]
-            self.patterns = [
-                (np.flatnonzero(p >> np.arange(uv.shape[0]) & 1),
-                 np.arange(key.size) if patterns.size == 1 and used.all() else np.flatnonzero(key == p))
-                for p in patterns
-            ]
-        else:
-            used_idx = np.flatnonzero(used)
-            rows, inverse = np.unique(seen[:, used].T, axis=0, return_inverse=True)
-            self.patterns = [(np.flatnonzero(r), used_idx[inverse.ravel() == k]) for k, r in enumerate(rows)]
+        # the used points by reference view (their first seen view), in index order
+        used = np.flatnonzero(used)
+        ref = np.concatenate([np.argmax(np.isfinite(uv[:, used[c], 0]), axis=0) for c in _chunks(used.size)] or [[]])
+        order = np.argsort(ref, kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(ref.astype(np.intp), minlength=uv.shape[0]))])
+        self.by_ref = [(r, used[order[bounds[r]:bounds[r + 1]]]) for r in range(uv.shape[0]) if bounds[r + 1] > bounds[r]]
         self.E = None  # kron(I_3, sum t t^T), accumulated by the first taylor() pass
 
-    def groups(self):
-        """Yield :class:`_Group` s: chunks of the points of each visibility pattern."""
-        H, Tn, V = self.norm.H, self.norm.T, self.uv.shape[0]
-        for views, members in self.patterns:
-            t = Tn[views[1:]] - Tn[views[0]]
-            tt = np.vstack([-t.sum(axis=0), t])
-            contiguous = members[-1] - members[0] + 1 == members.size
+    def chunks(self):
+        """Yield the used points as :class:`_Chunk` s (by reference view, then chunk)."""
+        for r, members in self.by_ref:
             for c in _chunks(members.size):
-                if contiguous:  # a view of uv, no copy
-                    cols = slice(members[c.start], members[c.stop - 1] + 1)
-                    x = self.uv[:, cols] if views.size == V else self.uv[views, cols]
+                points = members[c]
+                if points[-1] - points[0] + 1 == points.size:  # contiguous: a view of uv, no copy
+                    x = self.uv[:, points[0]:points[-1] + 1]
                 else:
-                    x = self.uv[views[:, None], members[c][None, :]]
-                Z = np.empty((views.size, 3, x.shape[1]))  # normalised homogeneous pixels
-                Z[:, 0] = x[..., 0] * H[0, 0] + H[0, 2]
-                Z[:, 1] = x[..., 1] * H[1, 1] + H[1, 2]
-                Z[:, 2] = 1.0
-                yield _Group(
-                    points=members[c], views=views, Z=Z, tt=tt, s=self.weights[members[c]],
-                    D00=(views.size - 1) * np.einsum("am,am->m", Z[0], Z[0]),
-                    D0k=-np.einsum("kam,am->km", Z[1:], Z[0]),
-                    Dkk=np.einsum("kam,kam->km", Z[1:], Z[1:]),
-                )
+                    x = self.uv[:, points]
+                yield self._chunk(points, r, x, np.isfinite(x[..., 0]))
+
+    def _chunk(self, points, r: int, x: np.ndarray, seen: np.ndarray) -> _Chunk:
+        """The :class:`_Chunk` of ``points``, all with reference view ``r``; ``x`` their
+        pixels ``(V, m, 2)``, ``seen`` ``(V, m)``."""
+        H = self.norm.H
+        tail = seen.copy()
+        tail[r] = False
+        Z = np.empty((seen.shape[0], 3, points.size))  # normalised homogeneous pixels
+        np.multiply(x[..., 0], H[0, 0], out=Z[:, 0])
+        np.multiply(x[..., 1], H[1, 1], out=Z[:, 1])
+        Z[:, 0] += H[0, 2]
+        Z[:, 1] += H[1, 2]
+        Z[:, 2] = 1.0
+        if not tail.sum() == tail.size - points.size:  # some unseen (NaN): zero there
+            np.copyto(Z, 0.0, where=~seen[:, None])
+        t = self.norm.T - self.norm.T[r]
+        return _Chunk(points=points, ref=r, tail=tail, Z=Z, t=t, tt_head=-(t.T @ tail), s=self.weights[points],
+                      D00=(seen.sum(axis=0) - 1) * np.einsum("am,am->m", Z[r], Z[r]),
+                      D0k=-np.einsum("iam,am->im", Z, Z[r]) * tail,
+                      Dkk=np.einsum("iam,iam->im", Z, Z) * tail)
 
     @staticmethod
-    def _inverse(g: _Group, mu: float):
-        """Closed-form pieces of ``(D_j - mu I)^-1``: ``(q, 1/s, 1/delta)``, or None if
-        some ``D_j - mu I`` is not positive definite (``mu`` past a pole)."""
-        delta = g.Dkk - mu
-        q = g.D0k / delta
-        s = g.D00 - mu - np.einsum("km,km->m", g.D0k, q)
-        if np.any(delta <= 0) or np.any(s <= 0):
+    def _inverse(c: _Chunk, mu: float):
+        """Closed-form pieces of ``(D_j - mu I)^-1`` as ``(V, m)`` arrays, zero off the
+        tail: ``(q, 1/s, 1/delta)``, or None if some ``D_j - mu I`` is not positive
+        definite (``mu`` past a pole)."""
+        delta = c.Dkk - mu
+        if np.any((delta <= 0) & c.tail):
             return None
-        return q, 1.0 / s, 1.0 / delta
+        delta[~c.tail] = 1.0
+        inv_delta = c.tail / delta
+        q = c.D0k * inv_delta
+        s = c.D00 - mu - np.einsum("km,km->m", c.D0k, q)
+        if np.any(s <= 0):
+            return None
+        return q, 1.0 / s, inv_delta
 
     def below_poles(self, mu: float) -> bool:
         """Is every ``D_j - mu I`` positive definite (``mu`` below the smallest pole)?"""
-        return all(self._inverse(g, mu) is not None for g in self.groups())
+        return all(self._inverse(c, mu) is not None for c in self.chunks())
 
     def taylor(self, mu: float) -> tuple[np.ndarray, np.ndarray] | None:
         """First two Taylor coefficients of ``F(nu) = sum_j B_j^T (D_j - nu I)^-1 B_j`` at
@@ -197,30 +210,28 @@ class _Arrowhead:
             G_2 = sum_k B_k B_k^T / delta_k^2 - sum_k q_k / (s delta_k) (B_k w^T + w B_k^T)
                   + (1 + |q|^2) w w^T / s^2
 
-        and ``sum_j c_j B_jk B_jk^T = kron(sum_j c_j z_jk z_jk^T, tt_k tt_k^T)``.
+        and ``sum_j c_j B_jk B_jk^T = kron(sum_j c_j z_jk z_jk^T, t_k t_k^T)``.
         """
         G1, G2, E3 = np.zeros((9, 9)), np.zeros((9, 9)), np.zeros((3, 3))
-        for g in self.groups():
-            parts = self._inverse(g, mu)
+        for c in self.chunks():
+            parts = self._inverse(c, mu)
             if parts is None:
                 return None
             q, inv_s, inv_delta = parts
-            s2 = g.s * g.s
-            E3 += np.sum(s2) * g.tt[1:].T @ g.tt[1:]
-            # w_j = s_j sum_i qhat_i kron(z_i, tt_i), as columns (9, m)
-            qz = g.Z * g.s
-            qz[1:] *= -q[:, None, :]
-            w = np.tensordot(g.tt, qz, axes=(0, 0)).transpose(1, 0, 2).reshape(9, -1)
+            s2 = c.s * c.s
+            E3 += c.t.T @ (c.t * (c.tail @ s2)[:, None])
+            # w_j = s_j (kron(z_r, tt_head) - sum_k q_k kron(z_k, t_k)), as columns (9, m)
+            w = np.einsum("am,bm->abm", c.Z[c.ref], c.tt_head) - np.einsum("kam,kb->abm", c.Z * q[:, None], c.t)
+            w = w.reshape(9, -1) * c.s
             G1 += (w * inv_s) @ w.T
             G2 += (w * ((1.0 + np.einsum("km,km->m", q, q)) * inv_s**2)) @ w.T
-            for k in range(1, len(g.views)):
-                zk, t, d1 = g.Z[k], g.tt[k], inv_delta[k - 1]
-                tt_outer = np.outer(t, t)
-                G1 += np.kron((zk * (d1 * s2)) @ zk.T, tt_outer)
-                G2 += np.kron((zk * (d1 * d1 * s2)) @ zk.T, tt_outer)
-                X = (zk * (q[k - 1] * inv_s * d1 * g.s)) @ w.T  # (3, 9)
-                cross = np.einsum("am,b->abm", X, t).reshape(9, 9)
-                G2 -= cross + cross.T
+            d1 = inv_delta * s2
+            Zd = c.Z * d1[:, None]
+            G1 += _kron_sum(np.matmul(Zd, c.Z.transpose(0, 2, 1)), c.t, c.t)
+            G2 += _kron_sum(np.matmul(Zd * inv_delta[:, None], c.Z.transpose(0, 2, 1)), c.t, c.t)
+            X = np.matmul(c.Z * (q * inv_delta * (inv_s * c.s))[:, None], w.T)  # (V, 3, 9)
+            cross = np.einsum("kaq,kb->abq", X, c.t).reshape(9, 9)
+            G2 -= cross + cross.T
         self.E = np.kron(np.eye(3), E3)
         return G1, G2
 
@@ -229,13 +240,15 @@ class _Arrowhead:
         unused."""
         A = a.reshape(3, 3)
         y = np.full(self.uv.shape[:2], np.nan)
-        for g in self.groups():
-            b = np.einsum("iam,ia->im", g.Z, g.tt @ A.T) * g.s  # B_j a = s_j z_i^T A tt_i
-            q, inv_s, inv_delta = self._inverse(g, mu)
-            y0 = (b[0] - np.einsum("km,km->m", q, b[1:])) * inv_s
-            # the unknowns are s_j lam_ij: divide the weight out
-            y[g.views[0], g.points] = -y0 / g.s
-            y[g.views[1:, None], g.points[None, :]] = -(b[1:] - g.D0k * y0) * inv_delta / g.s
+        for c in self.chunks():
+            b = np.einsum("kam,ka->km", c.Z, c.t @ A.T) * c.s  # B_j a = s_j z_i^T A tt_i
+            b_head = np.einsum("am,am->m", c.Z[c.ref], A @ c.tt_head) * c.s
+            q, inv_s, inv_delta = self._inverse(c, mu)
+            y0 = (b_head - np.einsum("km,km->m", q, b)) * inv_s
+            lam = (c.D0k * y0 - b) * inv_delta  # the unknowns are s_j lam_ij: divide the weight out
+            lam[c.ref] = -y0
+            lam[~c.tail & (np.arange(len(lam)) != c.ref)[:, None]] = np.nan
+            y[:, c.points] = lam / c.s
         return y
 
 
