@@ -78,6 +78,25 @@ def test_fast_equals_dense(seed, n_views, missing, noise):
     np.testing.assert_allclose(fast.singular_values, dense.singular_values, rtol=1e-6, atol=1e-12)
 
 
+def test_fast_equals_dense_across_chunks(monkeypatch):
+    """Chunks of 7 points, every reference view and visibility pattern mixed, unused
+    points in between: still the dense SVD's solution."""
+    from transcalib.estimate import linear
+
+    monkeypatch.setattr(linear, "_CHUNK", 7)
+    scene = simulate.random_scene(60, 6, noise_px=1.0, missing=0.45, rng=12)
+    used = np.isfinite(scene.uv[..., 0]).sum(axis=0) >= 2
+    used[::5] = False
+    first = np.argmax(np.isfinite(scene.uv[..., 0]), axis=0)[used]
+    assert len(np.unique(first)) >= 3  # several reference views
+    weights = np.random.default_rng(3).uniform(0.2, 3.0, scene.n_points)
+    A_fast, depth_fast, _ = solve_tls(scene.uv, scene.T, used, "fast", weights)
+    A_dense, depth_dense, _ = solve_tls(scene.uv, scene.T, used, "dense", weights)
+    np.testing.assert_allclose(A_fast, A_dense, atol=1e-9 * np.abs(A_dense).max())
+    np.testing.assert_allclose(depth_fast, depth_dense, rtol=1e-8)
+    assert np.isnan(depth_fast[:, ~used]).all()
+
+
 def test_paper_preset_noise_free_and_noisy():
     scene = simulate.paper_scene()
     est = estimate_linear(scene.uv, scene.T)
