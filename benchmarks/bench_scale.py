@@ -35,8 +35,34 @@ import numpy as np
 TARGETS = {10**5: (2.0, None), 10**6: (15.0, 2.5)}  # seconds, GiB
 
 
-#: Lens distortion of the second scene (OpenCV k1, k2).
+#: Lens distortion of the distorted scenes (OpenCV k1, k2).
 LENS = (-0.12, 0.03)
+
+#: The scenes: views, pixel noise, lens, missing observations, corrupted tracks.
+SCENES = {
+    "pinhole": dict(n_views=5, noise_px=0.5, lens=False, missing=0.0, corrupted=0.0),
+    "radial distortion": dict(n_views=5, noise_px=0.5, lens=True, missing=0.0, corrupted=0.0),
+    "hard": dict(n_views=8, noise_px=1.5, lens=True, missing=0.2, corrupted=0.05),
+}
+
+
+def make_inputs(folder: Path, n_points: int, scene: str = "pinhole", seed: int = 0) -> None:
+    """A random scene of :data:`SCENES` (setup, not timed). ``hard``: 8 views, 1.5 px
+    noise, :data:`LENS`, 20 % of the observations missing and 5 % of the tracks
+    corrupted (one observation moved by 5-50 px)."""
+    from transcalib import io as tio
+    from transcalib.synth import simulate
+
+    c = SCENES[scene]
+    sim = simulate.random_scene(n_points, c["n_views"], noise_px=c["noise_px"], missing=c["missing"], rng=seed,
+                                dist=LENS if c["lens"] else ())
+    uv = sim.uv.copy()
+    rng = np.random.default_rng(seed + 1)
+    bad = np.flatnonzero(rng.random(n_points) < c["corrupted"])
+    view = np.argmax(np.isfinite(uv[:, bad, 0]) * rng.random((uv.shape[0], bad.size)), axis=0)  # a seen view
+    uv[view, bad] += rng.uniform(5.0, 50.0, (bad.size, 2)) * rng.choice([-1.0, 1.0], (bad.size, 2))
+    tio.write_tracks_csv(folder / "tracks.csv", uv)
+    tio.write_poses_csv(folder / "poses.csv", sim.T)
 
 
 def run_cli_apart(folder: Path, out: Path) -> dict:

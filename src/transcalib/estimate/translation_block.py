@@ -72,6 +72,7 @@ def normal_equations(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss:
     y = R @ state.X.T  # (3, n) points in camera axes
     centres = R @ state.T.T  # (3, V) view centres c_i in camera axes
     xc = y[:, None, :] - centres[:, :, None]  # (3, V, n)
+    unit = weight is None and loss == "linear" and seen.all()  # every weight 1: nothing to whiten
     weight = seen.astype(float) if weight is None else weight
     proj = project_camera_frame(state.intr, state.dist5, xc, jacobian=True, valid=seen,
                                 dist_jacobian=lay.dist_free)
@@ -85,10 +86,13 @@ def normal_equations(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss:
         weight = weight * irls
     cost = 0.5 * rho if not np.any(seen & (xc[2] <= 0)) else np.inf
 
-    root = np.sqrt(weight)  # whitened rows: sums of products carry the weights once
-    P = proj.P * root  # (2, 3, V, n)
-    r *= root
-    JA = _camera_columns(proj, lay) * root  # (m, 2, V, n): intrinsics, distortion
+    P = proj.P  # (2, 3, V, n)
+    JA = _camera_columns(proj, lay)  # (m, 2, V, n): intrinsics, distortion
+    if not unit:  # whitened rows: sums of products carry the weights once
+        root = np.sqrt(weight)
+        P *= root
+        r *= root
+        JA *= root
     m = JA.shape[0]
 
     # point blocks in camera axes: V' = sum_i Q_i, and sum_i c_ik Q_i for the rotation
@@ -136,10 +140,13 @@ def _cross(c) -> np.ndarray:
 
 
 def _camera_columns(proj, lay) -> np.ndarray:
-    """d pixel / d (free intrinsics, free distortion coefficients) ``(m, 2, V, n)``."""
-    cols = proj.intrinsic_jacobian(lay.intr_basis)
-    if lay.dist_free:
-        cols = np.concatenate([cols, proj.J_dist])
+    """d pixel / d (free intrinsics, free distortion coefficients) ``(m, 2, V, n)``, in
+    one new array."""
+    q, k = lay.intr_basis.shape[1], len(lay.dist_free)
+    cols = np.empty((q + k, 2) + proj.xd.shape)
+    proj.intrinsic_jacobian(lay.intr_basis, out=cols[:q])
+    if k:
+        cols[q:] = proj.J_dist
     return cols
 
 

@@ -227,14 +227,25 @@ class Projection(NamedTuple):
     yd: np.ndarray | None = None
     J_dist: np.ndarray | None = None
 
-    def intrinsic_jacobian(self, basis: np.ndarray) -> np.ndarray:
+    def intrinsic_jacobian(self, basis: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """d pixel / d (free intrinsics) ``(q, 2, ...)`` for a basis ``E (5, q)`` of
-        ``(fx, fy, cx, cy, skew)`` increments."""
-        out = np.empty((basis.shape[1], 2) + self.xd.shape)
+        ``(fx, fy, cx, cy, skew)`` increments (into ``out`` when given)."""
+        out = np.empty((basis.shape[1], 2) + self.xd.shape) if out is None else out
         for p, (efx, efy, ecx, ecy, es) in enumerate(basis.T):
-            out[p, 0] = efx * self.xd + es * self.yd + ecx
-            out[p, 1] = efy * self.yd + ecy
+            _affine(out[p, 0], ((efx, self.xd), (es, self.yd)), ecx)
+            _affine(out[p, 1], ((efy, self.yd),), ecy)
         return out
+
+
+def _affine(out: np.ndarray, terms, const: float) -> None:
+    """``out = sum(c * a for c, a in terms) + const`` in place, skipping zero terms (a
+    basis column is mostly zeros and ones)."""
+    out[...] = const
+    for c, a in terms:
+        if c == 1.0:
+            out += a
+        elif c:
+            out += c * a
 
 
 def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *, jacobian: bool = False,
