@@ -73,8 +73,8 @@ def tune_process() -> None:
     """Settings for the command's own process, never for the library's callers: glibc
     keeps freed memory (:func:`keep_freed_memory`), Arrow allocates from glibc too (its
     default mimalloc pool hands freed pages back and faults them in again, as huge
-    pages that are zeroed whole: a sixth of a 10^5-point run's time), and BLAS runs on
-    one thread (:func:`quiet_blas_threads`). A user's own ``ARROW_DEFAULT_MEMORY_POOL``
+    pages that are zeroed whole: about 15 % of a 10^5-point run's CPU time), and BLAS
+    runs on one thread (:func:`quiet_blas_threads`). A user's own ``ARROW_DEFAULT_MEMORY_POOL``
     or BLAS thread count is kept."""
     keep_freed_memory()
     os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")  # read when pyarrow is first used
