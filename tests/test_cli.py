@@ -287,10 +287,15 @@ def test_missing_truth_fails_first(simulated, tmp_path):
             "--truth", tmp_path / "nope.json")
     assert_clean_error(r, "--truth", "does not exist")
     assert not out.exists()
-    (tmp_path / "bad.json").write_text("{not json")
-    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", out,
-            "--truth", tmp_path / "bad.json")
-    assert_clean_error(r, "--truth", "not a truth.json")
+    K = [[800.0, 0.0, 400.0], [0.0, 800.0, 300.0], [0.0, 0.0, 1.0]]
+    for text in ("{not json", "[1, 2]", '{"R": []}', json.dumps({"K": K, "points": [[1.0, 2.0]]}),
+                 json.dumps({"K": K, "points": [[1.0, 2.0, "x"]]}), b"\xff\xfe"):
+        bad = tmp_path / "bad.json"
+        (bad.write_bytes if isinstance(text, bytes) else bad.write_text)(text)
+        r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", simulated / "poses.csv", "--out", out,
+                "--truth", bad)
+        assert_clean_error(r, "--truth", "not a truth.json")
+        assert not out.exists()
 
 
 def test_track_output_onto_folder(tmp_path):
