@@ -110,6 +110,8 @@ def report(n: int, runs: list, label: str) -> None:
         verdict.append(f"time {'OK' if max(walls) <= t_target else 'OVER'} (every run <= {t_target:g} s)")
     if m_target:
         verdict.append(f"memory {'OK' if peak <= m_target else 'OVER'} (<= {m_target:g} GiB)")
+    if verdict and s["n_views"] != 5:
+        verdict.append("for information: the targets are for 5 views")
     spread = f" (runs: {', '.join(f'{w:.2f}' for w in walls)} s)" if len(walls) > 1 else ""
     print(f"\n{n:>9,d} points x {s['n_views']} views, {label}: wall {s['wall_s']:.2f} s{spread}, "
           f"peak RSS {peak:.2f} GiB   {'; '.join(verdict)}")
