@@ -141,10 +141,11 @@ class _Arrowhead:
         self.weights = np.ones(uv.shape[1]) if weights is None else weights
         # the used points by reference view (their first seen view), in index order
         used = np.flatnonzero(used)
-        ref = np.concatenate([np.argmax(np.isfinite(uv[:, used[c], 0]), axis=0) for c in _chunks(used.size)] or [[]])
-        order = np.argsort(ref, kind="stable")
-        bounds = np.concatenate([[0], np.cumsum(np.bincount(ref.astype(np.intp), minlength=uv.shape[0]))])
-        self.by_ref = [(r, used[order[bounds[r]:bounds[r + 1]]]) for r in range(uv.shape[0]) if bounds[r + 1] > bounds[r]]
+        ref = np.empty(used.size, dtype=np.intp)
+        for c in _chunks(used.size):
+            ref[c] = np.argmax(np.isfinite(uv[:, used[c], 0]), axis=0)
+        groups = np.split(used[np.argsort(ref, kind="stable")], np.cumsum(np.bincount(ref, minlength=uv.shape[0]))[:-1])
+        self.by_ref = [(r, members) for r, members in enumerate(groups) if members.size]
         self.E = None  # kron(I_3, sum t t^T), accumulated by the first taylor() pass
 
     def chunks(self):
@@ -170,7 +171,7 @@ class _Arrowhead:
         Z[:, 0] += H[0, 2]
         Z[:, 1] += H[1, 2]
         Z[:, 2] = 1.0
-        if not tail.sum() == tail.size - points.size:  # some unseen (NaN): zero there
+        if not seen.all():  # unseen pixels are NaN: zero there
             np.copyto(Z, 0.0, where=~seen[:, None])
         t = self.norm.T - self.norm.T[r]
         return _Chunk(points=points, ref=r, tail=tail, Z=Z, t=t, tt_head=-(t.T @ tail), s=self.weights[points],
