@@ -45,7 +45,8 @@ __all__ = ["Layout", "State", "Data", "build_data", "predict_view", "NormalEquat
            "solve_spd", "Reduced", "reduced_system", "BLOCK_POINTS", "one_blas_thread", "levenberg_marquardt",
            "gauss_newton", "cost", "view_residuals", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
 
-_MU0 = 1e-3  # initial LM damping, relative to the diagonal of the normal matrix
+_MU0 = 1e-5  # initial LM damping, relative to the diagonal of the normal matrix
+_MU_SHRINK = 0.1  # smallest factor of the damping after a step (Nielsen's rule; 1/3 in his paper)
 _DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see Data
 
 
@@ -838,7 +839,7 @@ def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=1
         while True:
             new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
             if gain > 0:
-                mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                mu *= max(_MU_SHRINK, 1.0 - (2.0 * gain - 1.0) ** 3)
                 nu = 2.0
                 break
             mu *= nu
