@@ -152,7 +152,11 @@ def compile_package() -> None:
 
 def main(argv: list[str]) -> int:
     if argv[:1] == ["--make-inputs"]:
-        make_inputs(Path(argv[1]), int(argv[2]), " ".join(argv[3:]) or "pinhole")
+        scene = " ".join(argv[3:]) or "pinhole"
+        if scene not in SCENES:
+            print(f"bench_scale: unknown scene {scene!r}; choose one of {', '.join(SCENES)}", file=sys.stderr)
+            return 2
+        make_inputs(Path(argv[1]), int(argv[2]), scene)
         return 0
     if argv[:1] == ["--run-cli"]:
         print(json.dumps(run_cli(Path(argv[1]), Path(argv[2]))))
