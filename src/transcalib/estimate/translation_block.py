@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.camera import project_camera_frame
+from ..geometry.rotation import skew
 
 __all__ = ["applies", "normal_equations", "residuals"]
 
@@ -124,7 +125,7 @@ def _global_block(JA, P, r, Q, centres):
     F = np.einsum("mkvn,kdvn->vmd", JA, P)  # per view: sum_j JA^T P
     Qv = Q.sum(axis=-1)  # (V, 3, 3)
     bv = np.einsum("kdvn,kvn->vd", P, r)  # per view: sum_j P^T r
-    C = np.array([_cross(c) for c in centres.T])  # (V, 3, 3): [c_i]x
+    C = np.array([skew(c) for c in centres.T])  # (V, 3, 3): [c_i]x
     U = np.empty((m + 3, m + 3))
     flat = JA.reshape(m, r.size)  # (m, 2 V n); m is 0 when every intrinsic is known
     U[:m, :m] = flat @ flat.T
@@ -132,11 +133,6 @@ def _global_block(JA, P, r, Q, centres):
     U[m:, m:] = np.einsum("vda,vde,veb->ab", C, Qv, C)  # sum_i [c_i]x^T Q_i [c_i]x
     bg = np.concatenate([flat @ r.reshape(-1), np.einsum("vda,vd->a", C, bv)])
     return U, bg
-
-
-def _cross(c) -> np.ndarray:
-    """``[c]x`` (3, 3) of one 3-vector."""
-    return np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])
 
 
 def _camera_columns(proj, lay) -> np.ndarray:
