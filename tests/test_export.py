@@ -83,7 +83,8 @@ def test_colmap_model_read_by_pycolmap(cal, uv, tmp_path):
         ids = [p.point3D_id for p in image.points2D]
         X_col = np.array([rec.points3D[k].xyz for k in ids])
         np.testing.assert_allclose(X_col, cal.X[seen], atol=1e-12)
-        proj = np.array([cam.img_from_cam(M[:, :3] @ x + M[:, 3]) for x in X_col])
+        # pycolmap 3.10 returns (1, 2) per point, 3.11 and later (2,)
+        proj = np.array([np.reshape(cam.img_from_cam(M[:, :3] @ x + M[:, 3]), 2) for x in X_col])
         from transcalib.geometry.camera import project
 
         ours = project(cal.K, cal.R, X_col, cal.T[i:i + 1], cal.dist)[0]

@@ -112,11 +112,11 @@ def test_overlay_is_static_and_specular_moves_with_the_camera():
     sf, _ = render.checker_board([0, 0, 100.0], np.eye(3), 10.0, 8, 8)
     K = K_from_params(200.0, 200.0, 80.0, 60.0)
     T = np.array([[0, 0, 0], [5.0, 0, 0], [0, 5.0, 0]])
-    opt = Degradations(overlay="CAM 1 {view:02d}", overlay_scale=0.5)
+    opt = Degradations(overlay="CAM 1 {view:02d}", overlay_scale=1.0)  # a solid white core in OpenCV 4.8 and 5
     img = render.render([sf], K, np.eye(3), T, (160, 120), degrade=opt)
     from transcalib.synth.degrade import overlay_box
     u0, v0, u1, v1 = overlay_box(opt, (160, 120))
-    white = img[:, v0:v1, u0:u1] == 255
+    white = img[:, v0:v1, u0:u1] >= 250  # the text's core (the scene is at most 235 here)
     assert white[0].sum() > 20 and (white[0] & white[1]).sum() > 0.6 * white[0].sum()  # same pixels
     img, eff = _flat(Degradations(specular=0.4, specular_sigma_px=5.0, specular_drift_px=20.0), n=3)
     peaks = np.array([np.unravel_index(np.argmax(v), v.shape)[::-1] for v in img], float)

@@ -149,9 +149,9 @@ def _overlay(img_u8: np.ndarray, text: str, scale: float) -> np.ndarray:
     h = img_u8.shape[0]
     org = (int(0.02 * img_u8.shape[1]) + 2, h - int(0.03 * h) - 2)
     thick = max(1, int(round(2 * scale)))
-    cv2.putText(img_u8, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 0, thick + 2, cv2.LINE_AA)
-    cv2.putText(img_u8, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 255, thick, cv2.LINE_AA)
-    return img_u8
+    # the returned image: older OpenCV (4.8) draws into a copy of a non-contiguous array
+    img_u8 = cv2.putText(img_u8, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 0, thick + 2, cv2.LINE_AA)
+    return cv2.putText(img_u8, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 255, thick, cv2.LINE_AA)
 
 
 def overlay_box(opt: Degradations, image_size) -> tuple[int, int, int, int] | None:
