@@ -11,7 +11,7 @@ import transcalib
 from transcalib.cli.main import main
 from transcalib.errors import DegenerateError, InputError
 from transcalib.planning import PATTERNS, PlanOptions, evaluate_plan, plan, view_rotation
-from transcalib.planning.bound import crlb
+from transcalib import crlb
 from transcalib.planning.fisher import predict
 from transcalib.planning.model import design_scene, scene_points, visible
 from transcalib.planning.optimise import Pool, _criterion_index, _rest, _score

@@ -12,7 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.estimate.bundle import Layout, State, apply_step, intrinsic_basis, predict_view
+from transcalib.estimate.bundle import predict_view
+from transcalib.estimate.layout import Layout, State, intrinsic_basis
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import crlb, refine
 from transcalib.geometry.rotation import rotvec_to_matrix
@@ -107,8 +108,8 @@ def test_jacobians_match_finite_differences(view, sessions):
         h = 1e-6 * max(1.0, abs(state.intr[k]) if k < 5 else 1.0)
         dg = np.zeros(lay.size)
         dg[k] = h
-        plus = predict_view(apply_step(state, lay, dg, zero_X), lay, view, pts, False)[0]
-        minus = predict_view(apply_step(state, lay, -dg, zero_X), lay, view, pts, False)[0]
+        plus = predict_view(state.moved(lay, dg, zero_X), lay, view, pts, False)[0]
+        minus = predict_view(state.moved(lay, -dg, zero_X), lay, view, pts, False)[0]
         fd = (plus - minus) / (2 * h)
         scale = max(np.abs(fd).max(), 1e-3)
         assert np.abs(Jg[local] - fd).max() / scale < 1e-6, lay.names()[k]
@@ -118,8 +119,8 @@ def test_jacobians_match_finite_differences(view, sessions):
         h = 1e-4
         dX = np.zeros((3, len(pts)))
         dX[a] = h
-        plus = predict_view(apply_step(state, lay, np.zeros(lay.size), dX), lay, view, pts, False)[0]
-        minus = predict_view(apply_step(state, lay, np.zeros(lay.size), -dX), lay, view, pts, False)[0]
+        plus = predict_view(state.moved(lay, np.zeros(lay.size), dX), lay, view, pts, False)[0]
+        minus = predict_view(state.moved(lay, np.zeros(lay.size), -dX), lay, view, pts, False)[0]
         fd = (plus - minus) / (2 * h)
         assert np.abs(JX[a] - fd).max() / np.abs(fd).max() < 1e-6
 
@@ -509,11 +510,11 @@ def test_dense_and_gathered_linearisation_agree(monkeypatch):
     """Views seeing most points are linearised densely with zero weights: same result."""
     import sys
 
-    bundle_module = sys.modules["transcalib.estimate.bundle"]
+    observations = sys.modules["transcalib.estimate.observations"]
     scene = simulate.random_scene(120, 5, noise_px=0.5, missing=0.2, dist=(-0.1, 0.02), rng=23)
     start = perturbed_start(scene, 24)
     dense = refine(scene.uv, scene.T, start, distortion="radial2", options=RefineOptions(loss="huber"))
-    monkeypatch.setattr(bundle_module, "_DENSE_FRACTION", 2.0)  # never dense
+    monkeypatch.setattr(observations, "DENSE_FRACTION", 2.0)  # never dense
     gathered = refine(scene.uv, scene.T, start, distortion="radial2", options=RefineOptions(loss="huber"))
     assert np.allclose(dense.K, gathered.K, rtol=1e-12, atol=1e-9)
     assert np.allclose(dense.cov, gathered.cov, rtol=1e-8)
@@ -533,8 +534,8 @@ def test_jacobian_of_zero_distortion_matches_finite_differences():
         dg = np.zeros(lay.size)
         dg[lay.i_dist + c] = 1e-7
         zero = np.zeros((3, len(pts)))
-        fd = (predict_view(apply_step(state, lay, dg, zero), lay, 1, pts, False)[0]
-              - predict_view(apply_step(state, lay, -dg, zero), lay, 1, pts, False)[0]) / 2e-7
+        fd = (predict_view(state.moved(lay, dg, zero), lay, 1, pts, False)[0]
+              - predict_view(state.moved(lay, -dg, zero), lay, 1, pts, False)[0]) / 2e-7
         assert np.abs(Jg[lay.i_dist + c] - fd).max() < 1e-5 * max(np.abs(fd).max(), 1.0)
 
 
@@ -565,7 +566,9 @@ def test_translation_block_equals_the_general_assembly(monkeypatch, model, fix, 
     view-by-view normal equations, reduced system, cost and residuals to rounding, for
     every camera layout it serves, weights, left-out points and missing observations."""
     from transcalib.estimate import bundle, translation_block
-    from transcalib.estimate.bundle import build_data, dist_indices, reduced_system, view_residuals
+    from transcalib.estimate.bundle import reduced_system, view_residuals
+    from transcalib.estimate.layout import dist_indices
+    from transcalib.estimate.observations import build_data
 
     scene = simulate.random_scene(1500, 6, noise_px=0.7, missing=missing, rng=1,
                                   dist=(-0.1, 0.02) if model != "none" else ())

@@ -20,6 +20,7 @@ Options are frozen dataclasses, checked when they are made: a misspelt option na
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 
@@ -41,6 +42,7 @@ __all__ = [
     "Calibration",
     "Camera",
     "INTRINSIC_NAMES",
+    "ProgressEvent",
 ]
 
 #: Names of the intrinsic parameters, as used by ``fix`` and ``Calibration.std``.
@@ -439,6 +441,38 @@ class Calibration:
     __hash__ = None
 
 
+@dataclass(frozen=True)
+class ProgressEvent:
+    """What a long computation reports to its ``progress`` callable, the one progress
+    protocol of every stage: ``progress(event)``.
+
+    Attributes
+    ----------
+    stage : str
+        What is running, e.g. ``"robust"``, ``"refine: iteration"``, ``"track: detect"``.
+    done, total : int or None
+        Steps done so far of ``total`` (``total`` None: open-ended, e.g. iterations);
+        both None: the stage has finished.
+    info : mapping of str to value
+        Figures of the stage (``rms_px``, ``inliers``, ``cost``, ...).
+    """
+
+    stage: str
+    done: int | None = None
+    total: int | None = None
+    info: Mapping = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def finished(self) -> bool:
+        return self.done is None and self.total is None
+
+
+def report(progress, stage: str, done: int | None = None, total: int | None = None, **info) -> None:
+    """Send ``progress`` (a callable or None) a :class:`ProgressEvent`."""
+    if progress is not None:
+        progress(ProgressEvent(stage, done, total, MappingProxyType(info)))
+
+
 def _same_fields(a, b) -> bool:
     return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
 
@@ -448,7 +482,7 @@ def _same(a, b) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         a, b = np.asarray(a), np.asarray(b)
         return a.shape == b.shape and bool(np.all((a == b) | (_isnan(a) & _isnan(b))))
-    if isinstance(a, dict) and isinstance(b, dict):
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
         return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))

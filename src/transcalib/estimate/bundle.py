@@ -1,4 +1,4 @@
-"""The one bundle adjuster: model, Jacobians, normal equations, Schur step, Levenberg-Marquardt.
+"""The one bundle adjuster's model: residuals, Jacobians and normal equations of every motion.
 
 Residual of observation ``(i, j)`` (paper eq. 2 with OpenCV distortion)::
 
@@ -10,257 +10,33 @@ pure-translation session; ``R_i^T`` of the flange for several sessions, then ``R
 an optional model-violation rotation of view ``i`` (rotation test) and ``T_i`` the
 translation, optionally a noisy measurement with prior ``|T_i - T_i^meas|^2 / sigma_T^2``.
 ``pi`` is :func:`transcalib.geometry.camera.project_camera_frame`, the project's only
-projection.
+projection. The parameters are laid out by :class:`~transcalib.estimate.layout.Layout`.
 
-The parameters are laid out by :class:`Layout`: free intrinsics (``fix``, square pixels),
-free distortion coefficients, ``R`` (local update ``R <- exp([dw]x) R``), ``t`` (when
-free), the rotations ``w_i`` and translations ``T_i`` of the views that have them, then
-the points. The Jacobian has one 2x3 block per observation for its point, so the normal
-matrix is ``[[U, W], [W^T, V]]`` with ``V`` block-diagonal; each step eliminates the points
-with the Schur complement ::
-
-    S = U - sum_j W_j V_j^-1 W_j^T,    S dg = b_g - sum_j W_j V_j^-1 b_j,
-    dX_j = V_j^-1 (b_j - W_j^T dg),
-
-O(n) time and memory (batched 3x3 inverses, BLAS products; no loop over points).
+The Jacobian has one 2x3 block per observation for its point, so the normal matrix is
+``[[U, W], [W^T, V]]`` with ``V`` block-diagonal, and the points are eliminated by the
+Schur complement (:mod:`transcalib.estimate.schur`): O(n) time and memory.
+:class:`BundleProblem` offers the model to the generic solvers
+(:mod:`transcalib.estimate.solvers`).
 """
 
 from __future__ import annotations
 
-import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from dataclasses import replace
 
 import numpy as np
 
-from ..errors import DegenerateError
-from ..geometry.camera import DIST_MODELS, DIST_NAMES, project_camera_frame
-from ..geometry.rotation import rotvec_to_matrix
-from ..types import INTRINSIC_NAMES
-from . import translation_block
+from ..geometry.camera import project_camera_frame
+from . import observations, translation_block
+from .layout import Layout, State
+from .observations import Data, build_data
+from .schur import NormalEquations, Reduced, one_blas_thread, schur
 
-__all__ = ["Layout", "State", "Data", "build_data", "predict_view", "NormalEquations", "normal_equations", "schur",
-           "solve_spd", "Reduced", "reduced_system", "BLOCK_POINTS", "one_blas_thread", "levenberg_marquardt",
-           "gauss_newton", "cost", "view_residuals", "sum_sq", "all_residuals", "loss_weights", "intrinsic_basis"]
-
-_MU0 = 1e-5  # initial LM damping, relative to the diagonal of the normal matrix
-_MU_SHRINK = 0.1  # smallest factor of the damping after a step (Nielsen's rule; 1/3 in his paper)
-_DENSE_FRACTION = 0.5  # views seeing at least this fraction of the points: see Data
-
-
-# ----------------------------------------------------------------------------------------
-# Parameter layout and state
-# ----------------------------------------------------------------------------------------
-
-
-def intrinsic_basis(fix, estimate_skew: bool, square_pixels: bool) -> tuple[np.ndarray, tuple]:
-    """Free intrinsic parameters as a basis ``E (5, q)``: ``d(fx, fy, cx, cy, s) = E dp``.
-
-    ``fix`` holds some of fx, fy, cx, cy, skew at known values; the skew is fixed unless
-    ``estimate_skew``; with ``square_pixels`` one focal length ``f`` moves fx and fy
-    together. Returns ``E`` and the names of the free parameters.
-    """
-    columns, names = [], []
-    if square_pixels:
-        if "fx" not in fix and "fy" not in fix:
-            columns.append([1.0, 1.0, 0, 0, 0])
-            names.append("f")
-    else:
-        for k in (0, 1):
-            if INTRINSIC_NAMES[k] not in fix:
-                columns.append(np.eye(5)[k])
-                names.append(INTRINSIC_NAMES[k])
-    for k in (2, 3):
-        if INTRINSIC_NAMES[k] not in fix:
-            columns.append(np.eye(5)[k])
-            names.append(INTRINSIC_NAMES[k])
-    if estimate_skew and "skew" not in fix:
-        columns.append(np.eye(5)[4])
-        names.append("skew")
-    E = np.array(columns, dtype=float).T.reshape(5, len(columns))
-    return E, tuple(names)
-
-
-@dataclass
-class Layout:
-    """Where each global parameter sits in the vector ``g`` solved for by the Schur step.
-
-    Parameters
-    ----------
-    n_views : int
-    intr_basis : (5, q) float
-        Free intrinsics (:func:`intrinsic_basis`).
-    intr_names : tuple of str
-    dist_free : tuple of int
-        Free distortion coefficients, indices into OpenCV's five.
-    rot_views : tuple of int
-        Views with a rotation ``Q_i``.
-    T_views : tuple of int
-        Views whose translation is a parameter.
-    t_basis : (3, k) float or None
-        Free directions of the offset ``t`` (the hand-eye translation): ``dt = B dp``;
-        None (or k = 0): ``t`` is fixed. Directions the data cannot determine (a rotation
-        axis shared by every session) are left out, so ``t`` keeps its value there.
-    """
-
-    n_views: int
-    intr_basis: np.ndarray
-    intr_names: tuple
-    dist_free: tuple = ()
-    rot_views: tuple = ()
-    T_views: tuple = ()
-    t_basis: np.ndarray | None = None
-    i_vrot: dict = field(init=False)
-    i_T: dict = field(init=False)
-
-    def __post_init__(self):
-        self.n_intr = self.intr_basis.shape[1]
-        self.i_dist = self.n_intr
-        self.n_dist = len(self.dist_free)
-        self.i_rot = self.i_dist + self.n_dist
-        self.i_t = self.i_rot + 3
-        self.n_t = 0 if self.t_basis is None else self.t_basis.shape[1]
-        self.t_free = self.n_t > 0
-        self.n_common = self.i_t + self.n_t
-        start = self.n_common
-        self.i_vrot, self.i_T = {}, {}
-        for i in self.rot_views:
-            self.i_vrot[int(i)] = start
-            start += 3
-        for i in self.T_views:
-            self.i_T[int(i)] = start
-            start += 3
-        self.size = start
-
-    @property
-    def n_global_no_T(self) -> int:
-        """Parameters other than the translations (these have priors)."""
-        return self.size - 3 * len(self.i_T)
-
-    def view_columns(self, i: int) -> np.ndarray:
-        """Global indices of the columns of view ``i``'s local Jacobian (common first)."""
-        cols = list(range(self.n_common))
-        if i in self.i_vrot:
-            cols += range(self.i_vrot[i], self.i_vrot[i] + 3)
-        if i in self.i_T:
-            cols += range(self.i_T[i], self.i_T[i] + 3)
-        return np.array(cols)
-
-    def names(self) -> tuple:
-        names = list(self.intr_names) + [DIST_NAMES[k] for k in self.dist_free] + ["rx", "ry", "rz"]
-        names += ["t_x", "t_y", "t_z"][: self.n_t] if self.n_t == 3 else [f"t_{k}" for k in range(self.n_t)]
-        for i in self.i_vrot:
-            names += [f"view{i}_rx", f"view{i}_ry", f"view{i}_rz"]
-        for i in self.i_T:
-            names += [f"T{i}_x", f"T{i}_y", f"T{i}_z"]
-        return tuple(names)
-
-    def rotation_mask(self) -> np.ndarray:
-        """(size,) bool: parameters that are rotation angles (reported in degrees)."""
-        m = np.zeros(self.size, bool)
-        m[self.i_rot: self.i_rot + 3] = True
-        for s in self.i_vrot.values():
-            m[s: s + 3] = True
-        return m
-
-
-def dist_indices(model: str, fix=()) -> tuple:
-    """Free coefficients of distortion ``model`` (indices into OpenCV's five), less ``fix``."""
-    return tuple(DIST_NAMES.index(k) for k in DIST_MODELS[model] if k not in fix)
-
-
-@dataclass
-class State:
-    """Current estimate. ``X`` holds only the used points; ``F`` None means identity."""
-
-    intr: np.ndarray  # (5,) fx, fy, cx, cy, skew
-    dist5: np.ndarray  # (5,) k1, k2, p1, p2, k3
-    R: np.ndarray  # (3, 3)
-    Q: np.ndarray  # (n_views, 3, 3) model-violation rotations, identity by default
-    T: np.ndarray  # (n_views, 3)
-    X: np.ndarray  # (n_used, 3)
-    F: np.ndarray | None = None  # (n_views, 3, 3) known per-view rotations (sessions)
-    t: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) offset (hand-eye)
-
-    def copy(self) -> "State":
-        return State(self.intr.copy(), self.dist5.copy(), self.R.copy(), self.Q.copy(), self.T.copy(),
-                     self.X.copy(), self.F, self.t.copy())
-
-
-@dataclass
-class Data:
-    """Observations grouped by view: ``pts[i]`` indexes the used points seen in view i.
-
-    Views seeing most points are also kept as full arrays over *all* used points with a
-    mask (``full_uv``, ``full_seen``): contiguous arrays instead of a gather/scatter per
-    accumulated quantity.
-    """
-
-    pts: list  # of (n_i,) int
-    uv: list  # of (2, n_i) float
-    T_meas: np.ndarray  # (n_views, 3)
-    t_weight: np.ndarray  # (n_views,) sigma_px / sigma_T_i for free translations (else 0)
-    n_points: int  # used points
-    full_uv: list  # of (2, n) float (0 where unseen) or None
-    full_seen: list  # of (n,) bool or None
-
-    @property
-    def n_obs(self) -> int:
-        return int(sum(len(p) for p in self.pts))
-
-    def points(self, lo: int, hi: int) -> "Data":
-        """The observations of the used points ``lo <= j < hi`` (renumbered from 0)."""
-        cuts = [np.searchsorted(p, (lo, hi)) for p in self.pts]
-        return Data(pts=[p[a:b] - lo for p, (a, b) in zip(self.pts, cuts)],
-                    uv=[u[:, a:b] for u, (a, b) in zip(self.uv, cuts)], T_meas=self.T_meas, t_weight=self.t_weight,
-                    n_points=hi - lo, full_uv=[None if f is None else f[:, lo:hi] for f in self.full_uv],
-                    full_seen=[None if f is None else f[lo:hi] for f in self.full_seen])
-
-    def dense(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every view's observations over all points: ``uv (2, n_views, n)`` (0 where
-        unseen) and ``seen (n_views, n)`` bool."""
-        uv, seen = np.zeros((2, len(self.pts), self.n_points)), np.zeros((len(self.pts), self.n_points), bool)
-        for i, (pts, obs, full) in enumerate(zip(self.pts, self.uv, self.full_uv)):
-            if full is not None:
-                uv[:, i], seen[i] = full, self.full_seen[i]
-            else:
-                uv[:, i, pts], seen[i, pts] = obs, True
-        return uv, seen
-
-    def dense_weights(self, weights: list) -> np.ndarray:
-        """Per-view weights over the observations ``(n_i,)`` as ``(n_views, n)`` (0 where unseen)."""
-        out = np.zeros((len(self.pts), self.n_points))
-        for i, (pts, w) in enumerate(zip(self.pts, weights)):
-            out[i, pts] = w
-        return out
-
-
-def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
-    """Group the observations ``seen (V, n_all)`` of the points ``used_idx`` by view."""
-    pts, obs, full_uv, full_seen = [], [], [], []
-    n = len(used_idx)
-    for i in range(uv.shape[0]):
-        mask = seen[i, used_idx]
-        sel = np.flatnonzero(mask)
-        pts.append(sel)
-        dense = _DENSE_FRACTION * n <= len(sel)
-        if dense:  # one gather of the view; a second one only when some points are unseen
-            full = np.where(mask, uv[i, used_idx].T, 0.0)  # (2, n)
-            obs.append(full if len(sel) == n else full[:, sel])
-        else:
-            obs.append(np.ascontiguousarray(uv[i, used_idx[sel]].T))  # (2, n_i)
-        partial = dense and len(sel) < n
-        full_uv.append(full if partial else None)
-        full_seen.append(mask if partial else None)
-    return Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=n, full_uv=full_uv,
-                full_seen=full_seen)
-
-
-# ----------------------------------------------------------------------------------------
-# Model and Jacobians of one view
-# ----------------------------------------------------------------------------------------
+#: Points per block of :func:`reduced_system` (its temporaries stay in the CPU cache).
+BLOCK_POINTS = 8192
+#: Threads of :func:`reduced_system`: the cores of the machine, at most 4.
+THREADS = min(4, os.cpu_count() or 1)
 
 
 def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, valid=None):
@@ -324,11 +100,6 @@ def _cross_rows(v: np.ndarray, A: np.ndarray, out: np.ndarray) -> None:
         out[2, k] = v[0] * a[1] - v[1] * a[0]
 
 
-# ----------------------------------------------------------------------------------------
-# Losses, cost, residuals
-# ----------------------------------------------------------------------------------------
-
-
 def loss_weights(e2: np.ndarray, loss: str, c: float):
     """``rho(e^2)`` and the IRLS weight ``w = d rho / d(e^2)`` (cost = sum rho / 2) of the
     residual norm ``e`` (px): linear ``e^2``; Huber ``e^2`` (e <= c) else ``2 c e - c^2``;
@@ -374,7 +145,7 @@ def _all_views_at_once(state: State, lay: Layout, data: Data) -> bool:
     handled in the same numpy calls (:mod:`transcalib.estimate.translation_block`), with
     temporaries of ``n_views x n_points`` (unseen included). From tens of points to a
     few thousand that is 1-4x faster than view by view, and as fast beyond."""
-    return translation_block.applies(state, lay) and data.n_obs >= _DENSE_FRACTION * len(data.pts) * data.n_points
+    return translation_block.applies(state, lay) and data.n_obs >= observations.DENSE_FRACTION * len(data.pts) * data.n_points
 
 
 def _residuals_all_views(state: State, data: Data) -> list | None:
@@ -406,10 +177,13 @@ def _prior_cost(state: State, data: Data) -> float:
     return float(np.sum(dT * dT))
 
 
-def cost(state: State, lay: Layout, data: Data, loss: str, c: float, residuals: list | None = None) -> float:
-    """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0.
-    ``residuals``: those of :func:`view_residuals` at ``state``, when already known."""
-    residuals = view_residuals(state, lay, data) if residuals is None else residuals
+def cost(state: State, lay: Layout, data: Data, loss: str, c: float) -> float:
+    """``0.5 sum rho(|r_ij|^2) + 0.5 sum_i t_w_i^2 |T_i - T_i^meas|^2``; inf if a depth <= 0."""
+    return _cost(view_residuals(state, lay, data), state, data, loss, c)
+
+
+def _cost(residuals: list | None, state: State, data: Data, loss: str, c: float) -> float:
+    """:func:`cost` from the residuals of :func:`view_residuals` at ``state``."""
     if residuals is None:
         return np.inf
     return 0.5 * (sum(_rho_sum(r, loss, c) for r in residuals) + _prior_cost(state, data))
@@ -437,11 +211,6 @@ def all_residuals(state, lay, uv, seen, used_idx, T) -> np.ndarray:
     return out
 
 
-# ----------------------------------------------------------------------------------------
-# Normal equations and the Schur step
-# ----------------------------------------------------------------------------------------
-
-
 def _view_system(state, lay, data, i, loss, c, obs_weight):
     """Residuals, weights and Jacobians of view ``i`` over its points (or all points with a
     mask): ``(r (2, m), w (m,) or None for ones, Jg, JX, pts, rho)`` with ``rho`` the sum
@@ -464,19 +233,6 @@ def _view_system(state, lay, data, i, loss, c, obs_weight):
         w = np.zeros(n)
         w[data.pts[i]] = obs_weight[i]
     return r, w, Jg, JX, np.arange(n), rho
-
-
-class NormalEquations(NamedTuple):
-    """``[[U, W], [W^T, V]] [dg; dX] = [b_g; b_X]`` (points last) and the cost at the
-    linearisation point (``0.5 sum rho``, inf if a point is behind the camera; without
-    the translation priors unless they were included)."""
-
-    U: np.ndarray  # (p, p)
-    W: np.ndarray  # (p, 3, n)
-    V: np.ndarray  # (3, 3, n)
-    bg: np.ndarray  # (p,)
-    bX: np.ndarray  # (3, n)
-    cost: float
 
 
 def normal_equations(state, lay, data, loss="linear", c=1.0, obs_weight=None, priors: bool = True) -> NormalEquations:
@@ -546,112 +302,6 @@ def _add_priors(U, bg, state, lay, data) -> None:
         bg[s: s + 3] += tw2 * (data.T_meas[i] - state.T[i])
 
 
-def inv3_spd(V: np.ndarray):
-    """Inverses of symmetric positive definite 3x3 blocks ``V (3, 3, n)``, vectorised.
-
-    Jacobi-scaled adjugate: ``V^-1 = D (D V D)^-1 D`` with ``D = diag(V)^-1/2``. Returns
-    the inverses ``(3, 3, n)`` and the determinants of the scaled blocks ``(n,)``.
-    """
-    d = 1.0 / np.sqrt(np.maximum(np.stack([V[0, 0], V[1, 1], V[2, 2]]), 1e-300))
-    A = V * d[:, None] * d[None, :]
-    a, b, c = A[0, 0], A[0, 1], A[0, 2]
-    e, f, h = A[1, 1], A[1, 2], A[2, 2]
-    c00, c01, c02 = e * h - f * f, c * f - b * h, b * f - c * e
-    c11, c12, c22 = a * h - c * c, b * c - a * f, a * e - b * b
-    det = a * c00 + b * c01 + c * c02
-    idet = 1.0 / np.where(det > 0, det, 1.0)
-    inv = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) * idet
-    return inv * d[:, None] * d[None, :], det
-
-
-def matvec3(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``M_j v_j`` for M (3, 3, n), v (3, n)."""
-    return M[:, 0] * v[0] + M[:, 1] * v[1] + M[:, 2] * v[2]
-
-
-def schur(U, W, V, bg, bX):
-    """Reduced system ``S dg = rhs`` with the points eliminated, and ``V^-1``.
-
-    ``S = U - sum_j W_j V_j^-1 W_j^T``, ``rhs = b_g - sum_j W_j V_j^-1 b_j``; returns
-    ``S, rhs, V^-1, det`` (scaled determinants of the point blocks) and ``Y = W V^-1
-    (p, 3, n)``.
-    """
-    Vinv, det = inv3_spd(V)
-    p = U.shape[0]
-    Y = np.einsum("pdn,den->pen", W, Vinv)  # W_j V_j^-1
-    S = U - Y.reshape(p, -1) @ W.reshape(p, -1).T
-    rhs = bg - Y.reshape(p, -1) @ bX.reshape(-1)
-    return 0.5 * (S + S.T), rhs, Vinv, det, Y
-
-
-#: Points per block of :func:`reduced_system` (its temporaries stay in the CPU cache).
-BLOCK_POINTS = 8192
-#: Threads of :func:`reduced_system`: the cores of the machine, at most 4.
-THREADS = min(4, os.cpu_count() or 1)
-
-
-@dataclass(frozen=True, eq=False)
-class Reduced:
-    """The normal equations with the points eliminated (:func:`reduced_system`).
-
-    ``S dg = rhs`` for the global parameters; per point ``V_j^-1`` (3, 3, n), ``Y_j =
-    W_j V_j^-1`` (p, 3, n), ``b_j`` (3, n) and the scaled determinants ``det`` (n,) of
-    ``V_j``: the points' step is ``dX_j = V_j^-1 b_j - Y_j^T dg`` and, with ``Sinv =
-    S^-1``, their covariance ``V_j^-1 + Y_j^T Sinv Y_j`` (module docstring). ``cost``:
-    the cost at the linearisation point (:func:`cost`; inf if a point is behind the camera).
-    ``U_diag (p,)``: the information of each global parameter with the points held fixed
-    (the diagonal of ``U``), the scale for deciding whether ``S`` is singular: in an
-    undetermined direction ``S`` is a difference of large sums, rounding noise at the
-    scale of ``U``, not of itself.
-    """
-
-    S: np.ndarray
-    rhs: np.ndarray
-    Vinv: np.ndarray
-    Y: np.ndarray
-    bX: np.ndarray
-    det: np.ndarray
-    cost: float
-    U_diag: np.ndarray
-
-    def point_step(self, dg: np.ndarray) -> np.ndarray:
-        """``dX (3, n)`` given the global step ``dg (p,)``."""
-        return np.einsum("abn,bn->an", self.Vinv, self.bX) - np.tensordot(dg, self.Y, axes=1)
-
-    def point_variances(self, Sinv: np.ndarray) -> np.ndarray:
-        """Diagonal of each point's covariance ``(n, 3)`` (unit noise) given ``S^-1``:
-        ``diag(V_j^-1) + |L^T Y_j|^2`` column-wise, with ``S^-1 = L L^T``."""
-        p, n = self.Y.shape[0], self.Y.shape[2]
-        L = _psd_factor(Sinv)
-        out = np.empty((3, n))
-        for a in range(3):
-            LY = L.T @ self.Y[:, a]  # (p, n)
-            out[a] = self.Vinv[a, a] + np.einsum("pn,pn->n", LY, LY)
-        return out.T
-
-
-def one_blas_thread():
-    """A context in which BLAS runs on one thread (``threadpoolctl``): the products of
-    the assembly are small, and BLAS's own threads would spin on the cores that numpy
-    and :func:`reduced_system`'s threads use."""
-    return _blas_threads().limit(limits=1, user_api="blas")
-
-
-@functools.cache
-def _blas_threads():
-    """The BLAS libraries' thread pools (looked up once: 0.3 ms)."""
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
-
-
-def _psd_factor(M: np.ndarray) -> np.ndarray:
-    """``L`` with ``L L^T = M`` for a symmetric positive semi-definite ``M`` (from its
-    eigen-decomposition: exact for singular ``M`` too)."""
-    w, V = np.linalg.eigh(M)
-    return V * np.sqrt(np.maximum(w, 0.0))
-
-
 def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None,
                    out: Reduced | None = None) -> Reduced:
     """The Schur-reduced normal equations of all points, assembled :data:`BLOCK_POINTS`
@@ -717,141 +367,40 @@ def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=N
     return Reduced(S + priors, rhs, Vinv, Y, bX, det, total + 0.5 * _prior_cost(state, data), U_diag + np.diag(priors))
 
 
-def solve_spd(S: np.ndarray, rhs: np.ndarray):
-    """Solve ``S x = rhs`` (Jacobi-scaled Cholesky); None if not positive definite."""
-    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
-    try:
-        L = np.linalg.cholesky(S * d[:, None] * d[None, :])
-    except np.linalg.LinAlgError:
-        return None
-    return d * np.linalg.solve(L.T, np.linalg.solve(L, rhs * d))
+class BundleProblem:
+    """The cost of the observations ``data`` over the parameters of ``lay`` (loss ``loss``
+    of scale ``c``, pixels) as the generic solvers take it
+    (:class:`transcalib.estimate.solvers.Problem`). A step is ``(dg, dX)``: the global
+    parameters in ``lay``'s order and the points ``(3, n)``. The residuals of the last
+    state whose cost was asked for are kept (:meth:`residuals`): a converged solve
+    reports them without projecting every point again."""
 
+    invalid_start = ("the initial estimate puts some used points behind the camera; "
+                     "start from a better initial estimate (e.g. the linear one)")
 
-def apply_step(state: State, lay: Layout, dg: np.ndarray, dX: np.ndarray) -> State:
-    """The state moved by ``dg`` (global, layout order) and ``dX (3, n)``."""
-    new = state.copy()
-    new.intr += lay.intr_basis @ dg[: lay.n_intr]
-    new.dist5[list(lay.dist_free)] += dg[lay.i_dist: lay.i_rot]
-    new.R = rotvec_to_matrix(dg[lay.i_rot: lay.i_rot + 3]) @ state.R
-    if lay.t_free:
-        new.t += lay.t_basis @ dg[lay.i_t: lay.i_t + lay.n_t]
-    for i, s in lay.i_vrot.items():
-        new.Q[i] = rotvec_to_matrix(dg[s: s + 3]) @ state.Q[i]
-    for i, s in lay.i_T.items():
-        new.T[i] += dg[s: s + 3]
-    new.X += dX.T
-    return new
+    def __init__(self, lay: Layout, data: Data, loss: str = "linear", c: float = 1.0):
+        self.lay, self.data, self.loss, self.c = lay, data, loss, c
+        self.dof = lay.residual_dof(data.n_obs, data.n_points)
+        self.zero_cost = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
+        self._kept = (None, None)
 
+    def residuals(self, state: State) -> list | None:
+        """:func:`view_residuals` at ``state`` (None if a point is behind the camera)."""
+        if self._kept[0] is not state:
+            self._kept = (state, view_residuals(state, self.lay, self.data))
+        return self._kept[1]
 
-# ----------------------------------------------------------------------------------------
-# Levenberg-Marquardt
-# ----------------------------------------------------------------------------------------
+    def cost(self, state: State) -> float:
+        return _cost(self.residuals(state), state, self.data, self.loss, self.c)
 
+    def linearise(self, state: State, damped: bool = True, reuse: Reduced | None = None):
+        """The normal equations at ``state`` (:func:`normal_equations`) for damped steps,
+        else the reduced system assembled block by block (:func:`reduced_system`, whose
+        per-point arrays may overwrite those of ``reuse``)."""
+        if damped:
+            return normal_equations(state, self.lay, self.data, self.loss, self.c)
+        return reduced_system(state, self.lay, self.data, self.loss, self.c, out=reuse)
 
-def _damped_step(state, f, lay, data, system, mu, loss, c):
-    """One damped Schur step from ``state`` (cost ``f``): ``(new_state, new_cost, gain)``,
-    gain < 0 if rejected."""
-    U, W, V, bg, bX, _ = system
-    dU = np.maximum(np.diag(U), 1e-12 * max(np.diag(U).max(), 1e-300))
-    dV = np.stack([V[0, 0], V[1, 1], V[2, 2]])  # (3, n)
-    dV = np.maximum(dV, 1e-12 * dV.max(axis=0))
-    Vd = V.copy()
-    for a in range(3):
-        Vd[a, a] += mu * dV[a]
-    S, rhs, Vinv, det, _ = schur(U + np.diag(mu * dU), W, Vd, bg, bX)
-    dg = solve_spd(S, rhs) if np.all(det > 0) else None
-    if dg is None:
-        return None, np.inf, -1.0
-    dX = matvec3(Vinv, bX - np.tensordot(dg, W, axes=1))  # (3, n)
-    new = apply_step(state, lay, dg, dX)
-    new_cost = cost(new, lay, data, loss, c)
-    # decrease predicted by the damped quadratic model
-    predicted = 0.5 * (dg @ (mu * dU * dg + bg) + np.sum(dX * (mu * dV * dX + bX)))
-    gain = (f - new_cost) / predicted if predicted > 0 else -1.0
-    return new, new_cost, gain
-
-
-def gauss_newton(state, lay, data, loss="linear", c=1.0, steps: int = 2, tol=1e-6, progress=None):
-    """Undamped Gauss-Newton steps from a start near the solution (the fit of a subset of
-    the points), each on the block-wise reduced system (:func:`reduced_system`: small
-    temporaries at any number of points), which also gives the cost at its state: a
-    step is checked by the next step's system, the last by the residuals at the
-    solution. A step that does not lower the cost hands over to
-    :func:`levenberg_marquardt`.
-
-    Returns ``(state, cost, iterations, stop reason, system, residuals)`` with ``system``
-    the :class:`Reduced` system of the last step (linearised one step before the
-    returned state) and ``residuals`` those of :func:`view_residuals` at the returned
-    state (both None after Levenberg-Marquardt).
-    """
-    red = reduced_system(state, lay, data, loss, c)
-    f = red.cost
-    if not np.isfinite(f):
-        raise DegenerateError("the initial estimate puts some used points behind the camera; "
-                              "start from a better initial estimate (e.g. the linear one)")
-    system = residuals = None
-    for it in range(steps):
-        dg = solve_spd(red.S, red.rhs) if np.all(red.det > 0) else None
-        new = None if dg is None else apply_step(state, lay, dg, red.point_step(dg))
-        last = it == steps - 1
-        if new is None:
-            new_f = np.inf
-        elif last:
-            residuals = view_residuals(new, lay, data)
-            new_f = cost(new, lay, data, loss, c, residuals)
-        else:  # the arrays of this step's system are free once the step is taken
-            new_red = reduced_system(new, lay, data, loss, c, out=red)
-            new_f = new_red.cost
-        if not new_f < f:
-            state, f, more, reason = levenberg_marquardt(state, lay, data, loss, c, steps - it, tol, progress)
-            return state, f, it + more, reason, None, None
-        state, f = new, new_f
-        if last:
-            system = red
-        else:
-            red = new_red
-        if progress is not None:
-            progress({"iteration": it + 1, "cost": f, "damping": 0.0})
-    return state, f, steps, f"{steps} Gauss-Newton step(s)", system, residuals
-
-
-def levenberg_marquardt(state, lay, data, loss="linear", c=1.0, max_iterations=100, tol=1e-6, progress=None):
-    """Minimise the (robust) cost; returns ``(state, cost, iterations, stop reason)``.
-
-    Stops when a step decreases the cost by less than ``tol * sigma^2`` with
-    ``sigma^2 = 2 cost / dof`` (the parameters moved by about ``sqrt(2 tol)`` standard
-    deviations), when no step decreases it, or at zero residual.
-    """
-    f = cost(state, lay, data, loss, c)
-    if not np.isfinite(f):
-        raise DegenerateError("the initial estimate puts some used points behind the camera; "
-                              "start from a better initial estimate (e.g. the linear one)")
-    mu, nu = _MU0, 2.0
-    reason = f"max_iterations ({max_iterations}) reached"
-    floor = 1e-24 * max(data.n_obs, 1)  # residuals ~1e-12 px: exact data
-    dof = max(2 * data.n_obs - lay.n_global_no_T - 3 * data.n_points, 1)
-    it = 0
-    while it < max_iterations:
-        if f <= floor:
-            reason = "converged: zero residual"
-            break
-        system = normal_equations(state, lay, data, loss, c)
-        while True:
-            new, new_f, gain = _damped_step(state, f, lay, data, system, mu, loss, c)
-            if gain > 0:
-                mu *= max(_MU_SHRINK, 1.0 - (2.0 * gain - 1.0) ** 3)
-                nu = 2.0
-                break
-            mu *= nu
-            nu *= 2.0
-            if mu > 1e16:
-                return state, f, it, "converged: no step decreases the cost (minimum within numerical precision)"
-        it += 1
-        decrease = f - new_f
-        state, f = new, new_f
-        if progress is not None:
-            progress({"iteration": it, "cost": f, "damping": mu})
-        if decrease <= tol * 2.0 * f / dof:
-            reason = f"converged: cost decrease below tol={tol:g} x sigma^2"
-            break
-    return state, f, it, reason
+    def apply(self, state: State, step) -> State:
+        dg, dX = step
+        return state.moved(self.lay, dg, dX)

@@ -1,7 +1,7 @@
 """Uncertainty: the reduced Fisher information, the covariance at a solution, the CRLB.
 
 With the Jacobian ``J`` of the whitened residuals at the solution and the points
-eliminated (:func:`transcalib.estimate.bundle.schur`), the information of the global
+eliminated (:func:`transcalib.estimate.schur.schur`), the information of the global
 parameters is ``S = U - sum_j W_j V_j^-1 W_j^T`` (pixel units, unscaled), so
 
     cov(g) = sigma^2 S^-1,    cov(X_j) = sigma^2 (V_j^-1 + Z_j^T S^-1 Z_j),  Z_j = W_j V_j^-1
@@ -13,14 +13,18 @@ problem does not determine some parameters: :func:`check_identifiable` names the
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, pad_dist
-from dataclasses import dataclass, replace
-
-from . import bundle
-from .bundle import Layout, Reduced, State, build_data, dist_indices, intrinsic_basis, reduced_system
+from ..types import RefineOptions
+from .bundle import BundleProblem, cost, reduced_system
+from .layout import Layout, State, robot_sigma
+from .observations import build_data
+from .schur import Reduced
+from .solvers import levenberg_marquardt
 
 __all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "bound_std", "linearise", "Linearised", "profile_step",
            "IDENTIFIABILITY_RTOL"]
@@ -28,6 +32,9 @@ __all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "b
 #: Relative eigenvalue of the (Jacobi-scaled) reduced information below which a parameter
 #: combination counts as undetermined.
 IDENTIFIABILITY_RTOL = 1e-10
+#: Determinant of a point's Jacobi-scaled 3x3 information block at or below which the
+#: point counts as undetermined (its rays are, to rounding, parallel).
+UNDETERMINED_POINT_DET = 1e-12
 
 
 def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=None) -> Reduced:
@@ -84,7 +91,7 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "",
     for _ in range(2):  # a second pass only if some points turn out undetermined
         reuse = system is not None and obs_weight is None and ok.all()
         red = system if reuse else reduced_information(state, lay, data, obs_weight, None if ok.all() else ok)
-        undetermined = ok & (red.det <= 1e-12)  # rays (nearly) parallel: X_j not determined
+        undetermined = ok & (red.det <= UNDETERMINED_POINT_DET)  # rays (nearly) parallel
         if not undetermined.any():
             break
         ok &= ~undetermined
@@ -129,26 +136,49 @@ def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, f
     """
     if not scene.noise_px > 0:
         raise InputError(f"the CRLB needs a scene with pixel noise > 0, got noise_px={scene.noise_px!r}")
+    red, lay, _ = scene_information(scene, distortion=distortion, estimate_skew=estimate_skew, fix=fix,
+                                    square_pixels=square_pixels, estimate_view_rotations=estimate_view_rotations)
+    return bound_std(red.S, lay, scene.noise_px, red.U_diag)
+
+
+def scene_information(scene, *, distortion: str | None = None, estimate_skew: bool = False, fix=None,
+                      square_pixels: bool = False, estimate_view_rotations=False):
+    """The reduced Fisher information (unit pixel noise) at the ground truth of a simulated
+    scene, for the observation pattern of ``scene.uv``: the problem :func:`crlb` bounds
+    (its parameters; the robot-noise priors of ``scene.robot_noise``).
+
+    Returns
+    -------
+    red : Reduced
+        ``S`` and the per-point blocks of the points that count.
+    lay : Layout
+    used : (n_points,) bool
+        Points that count: seen in >= 2 views, their 3x3 block determined (rays not parallel).
+    """
     if distortion is None:
         distortion = {0: "none", 1: "radial1", 2: "radial2"}.get(np.asarray(scene.dist).size, "opencv5")
     if distortion not in DIST_MODELS:
         raise InputError(f"distortion must be one of {', '.join(DIST_MODELS)}, got {distortion!r}")
-    fix = dict(fix or {})
     n_views = scene.uv.shape[0]
     seen = np.isfinite(scene.uv[..., 0])
     used_idx = np.flatnonzero(seen.sum(axis=0) >= 2)
-    T_views = tuple(range(1, n_views)) if scene.robot_noise > 0 else ()
-    E, names = intrinsic_basis(fix, estimate_skew, square_pixels)
-    rot_views = _rot_views(estimate_view_rotations, n_views)
-    lay = Layout(n_views, E, names, dist_indices(distortion, fix), rot_views, T_views)
+    robot = scene.robot_noise > 0
+    sigma_T = (0.0,) + (scene.robot_noise,) * (n_views - 1) if robot else None  # view 0: exact
+    lay = Layout.from_options(RefineOptions(distortion=distortion, fix=dict(fix or {}), estimate_skew=estimate_skew,
+                                            square_pixels=square_pixels, sigma_T=sigma_T,
+                                            estimate_view_rotations=estimate_view_rotations), n_views)
     K = scene.K
     state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), pad_dist(scene.dist), scene.R.copy(),
                   np.tile(np.eye(3), (n_views, 1, 1)), scene.T_true.copy(), scene.X[used_idx].copy())
-    tw = np.zeros(n_views)
-    tw[list(T_views)] = scene.noise_px / scene.robot_noise if T_views else 0.0
+    tw = np.where(robot & (np.arange(n_views) > 0), scene.noise_px / max(scene.robot_noise, 1e-300), 0.0)
     data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
     red = reduced_information(state, lay, data)
-    return bound_std(red.S, lay, scene.noise_px, red.U_diag)
+    ok = red.det > UNDETERMINED_POINT_DET
+    if not ok.all():  # rays (nearly) parallel: such a point determines nothing
+        red = reduced_information(state, lay, data, ok=ok)
+    used = np.zeros(scene.uv.shape[1], bool)
+    used[used_idx[ok]] = True
+    return red, lay, used
 
 
 def bound_std(S: np.ndarray, lay: Layout, noise_px: float, scale=None) -> dict:
@@ -163,20 +193,6 @@ def bound_std(S: np.ndarray, lay: Layout, noise_px: float, scale=None) -> dict:
     if "f" in out:
         out["fx"] = out["fy"] = out["f"]
     return out
-
-
-def _rot_views(spec, n_views: int) -> tuple:
-    """Views with a rotation parameter: True -> 1..n_views-1, False -> none, or the listed
-    views (at least one view must stay unrotated, as the reference)."""
-    if spec is True:
-        return tuple(range(1, n_views))
-    if spec is False or spec is None:
-        return ()
-    views = tuple(sorted({int(v) for v in spec}))
-    if any(v < 0 or v >= n_views for v in views) or len(views) >= n_views:
-        raise InputError(f"estimate_view_rotations={spec!r}: view indices must be in 0..{n_views - 1} and at "
-                         "least one view must stay unrotated (the reference)")
-    return views
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +212,7 @@ class Linearised:
         (the calibration's plus extra parameters at their current values) and the
         residual sum of squares."""
         red = reduced_system(self.state, layout, self.data)
-        return red.S, red.rhs, 2.0 * bundle.cost(self.state, layout, self.data, "linear", 1.0)
+        return red.S, red.rhs, 2.0 * cost(self.state, layout, self.data, "linear", 1.0)
 
 
 def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Linearised:
@@ -211,11 +227,9 @@ def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Lineari
     if calibration.inliers is not None:
         use &= np.asarray(calibration.inliers, bool)
     idx = np.flatnonzero(use)
-    t_sigma = np.zeros(n_views) if opts.sigma_T is None else np.broadcast_to(
-        np.asarray(opts.sigma_T, float), (n_views,)).copy()
-    E, names = intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
-    layout = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix), (), tuple(np.flatnonzero(t_sigma > 0)),
-                    None if flange is None else flange.t_basis)
+    t_sigma = robot_sigma(opts.sigma_T, n_views)
+    layout = Layout.from_options(replace(opts, estimate_view_rotations=False), n_views,
+                                 None if flange is None else flange.t_basis)
     sigma_px = calibration.sigma_px or max(calibration.rms_px / np.sqrt(2), 1e-6)
     tw = np.where(t_sigma > 0, sigma_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
     T_start = np.asarray(calibration.T, float) if t_sigma.any() else T
@@ -223,11 +237,11 @@ def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Lineari
                   np.tile(np.eye(3), (n_views, 1, 1)), T_start.copy(), X[idx].copy(),
                   None if flange is None else flange.F, np.zeros(3) if flange is None else np.array(flange.t0, float))
     data = build_data(uv, seen, idx, T, tw)
-    dof = 2 * data.n_obs - layout.n_global_no_T - 3 * len(idx)
+    dof = layout.residual_dof(data.n_obs, len(idx))
     if dof <= 3:
         raise DegenerateError(f"too few observations ({data.n_obs}) for a test of extra parameters")
     if polish:
-        state = bundle.levenberg_marquardt(state, layout, data, max_iterations=polish, tol=1e-9)[0]
+        state = levenberg_marquardt(BundleProblem(layout, data), state, max_iterations=polish, tol=1e-9).state
     return Linearised(state, layout, data, int(dof), float(sigma_px))
 
 

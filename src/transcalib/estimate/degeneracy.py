@@ -34,10 +34,11 @@ import numpy as np
 from ..errors import DegenerateError, Diagnostic, InputError
 from ..geometry.camera import project
 from ..geometry.rotation import rotvec_to_matrix
-from ..types import INTRINSIC_NAMES
+from ..types import INTRINSIC_NAMES, RefineOptions
 from ..validate import SPAN_TOL, translation_singular_values
-from .bundle import Layout, State, build_data, dist_indices, intrinsic_basis
 from .covariance import check_identifiable, reduced_information
+from .layout import Layout, State
+from .observations import build_data
 
 __all__ = ["translation_rank", "translation_basis", "explain_span", "identifiability_hint", "format_direction"]
 
@@ -196,11 +197,8 @@ def _generic_information(T, P, s, fix, square_pixels, estimate_skew, distortion)
     X = (np.linalg.solve(K, pix.T) * depth).T @ R + T.mean(axis=0)
     uv = project(K, R, X, T)
     n_views = T.shape[0]
-    try:
-        E, names = intrinsic_basis(fix, estimate_skew, square_pixels)
-        lay = Layout(n_views, E, names, dist_indices(distortion, fix))
-    except KeyError:
-        raise InputError(f"unknown distortion model {distortion!r}") from None
+    lay = Layout.from_options(RefineOptions(distortion=distortion, fix=fix, estimate_skew=estimate_skew,
+                                            square_pixels=square_pixels), n_views)
     state = State(intr, np.zeros(5), R, np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X)
     data = build_data(uv, np.ones((n_views, n), bool), np.arange(n), T, np.zeros(n_views))
     return reduced_information(state, lay, data), lay.names()

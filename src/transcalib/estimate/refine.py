@@ -23,11 +23,13 @@ from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pa
 from ..geometry.rotation import matrix_to_rotvec
 from ..types import CalibrateOptions, Calibration, LinearEstimate, RefineOptions
 from ..validate import as_uv_T
-from . import bundle
-from .bundle import Layout, State, build_data, dist_indices, gauss_newton, intrinsic_basis, levenberg_marquardt
-from .covariance import _rot_views, covariance, linearise, profile_step
+from .bundle import BundleProblem, all_residuals, cost, sum_sq
+from .covariance import covariance, linearise, profile_step
 from .degeneracy import identifiability_hint
 from .distributions import f_sf
+from .layout import Layout, State, dist_indices, robot_sigma
+from .observations import build_data
+from .solvers import gauss_newton, levenberg_marquardt
 from .scoring import SIGMA_FLOOR_PX
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
@@ -152,14 +154,8 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
     if len(used_idx) < 2:
         raise DegenerateError(f"only {len(used_idx)} usable points (finite initial X, seen in >= 2 views, in "
                               "front of the camera); refinement needs at least 2. Track more points.")
-    t_sigma = np.zeros(n_views) if opts.sigma_T is None else np.asarray(opts.sigma_T, dtype=float)
-    if t_sigma.shape not in ((), (n_views,)):
-        raise InputError(f"sigma_T must be one number or one per view ({n_views}), got {len(t_sigma)} values")
-    t_sigma = np.broadcast_to(t_sigma, (n_views,)).copy()
-    E, names = intrinsic_basis(opts.fix, opts.estimate_skew, opts.square_pixels)
-    lay = Layout(n_views, E, names, dist_indices(opts.distortion, opts.fix),
-                 _rot_views(opts.estimate_view_rotations, n_views), tuple(np.flatnonzero(t_sigma > 0)),
-                 None if flange is None else flange.t_basis)
+    t_sigma = robot_sigma(opts.sigma_T, n_views)
+    lay = Layout.from_options(opts, n_views, None if flange is None else flange.t_basis)
     intr = _start_intrinsics(K0, opts)
     dist5 = pad_dist(getattr(initial, "dist", ()) if isinstance(initial, Calibration) else ())
     keep = np.zeros(5, bool)
@@ -170,7 +166,7 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
     start = State(intr, dist5, R0.copy(), np.tile(np.eye(3), (n_views, 1, 1)), T.copy(), X0[used_idx],
                   None if flange is None else flange.F, np.zeros(3) if flange is None else flange.t0.copy())
     n_obs = int(views[used_idx].sum())
-    dof = 2 * n_obs - lay.n_global_no_T - 3 * len(used_idx)
+    dof = lay.residual_dof(n_obs, len(used_idx))
     if dof < 0 or (dof == 0 and opts.sigma_px is None):
         raise DegenerateError(f"too few observations: {2 * n_obs} residuals for {lay.n_global_no_T + 3 * len(used_idx)} "
                               f"unknowns ({len(used_idx)} points, {lay.n_global_no_T} camera parameters). Track more "
@@ -312,14 +308,15 @@ class _Fitter:
         step's reduced system is kept for the covariance, ``self.system``, and the
         residuals at the solution, ``self.residuals``)."""
         o = self.pb.opts
+        problem = BundleProblem(lay, data, loss, self.c)
         if self.near_solution:
-            state, f, it, reason, self.system, self.residuals = gauss_newton(
-                state, lay, data, loss, self.c, o.max_iterations, o.tol, self.progress)
+            sol = gauss_newton(problem, state, o.max_iterations, o.tol, self.progress)
+            self.system = sol.linearisation
+            self.residuals = None if sol.linearisation is None else problem.residuals(sol.state)
         else:
-            state, f, it, reason = levenberg_marquardt(state, lay, data, loss, self.c, o.max_iterations, o.tol,
-                                                       self.progress)
-        self.iterations += it
-        return state, f, reason
+            sol = levenberg_marquardt(problem, state, o.max_iterations, o.tol, self.progress)
+        self.iterations += sol.iterations
+        return sol.state, sol.cost, sol.reason
 
     def _weights(self, sigma):
         s = self.pb.t_sigma
@@ -336,24 +333,24 @@ class _Fitter:
         if pb.opts.sigma_px is not None:
             data = build_data(pb.uv, mask, idx, pb.T, self._weights(pb.opts.sigma_px))
             return (*self._lm(state, lay, data, loss), data, float(pb.opts.sigma_px))
-        dof = 2 * int(mask[:, idx].sum()) - lay.n_global_no_T - 3 * len(idx)
+        dof = lay.residual_dof(int(mask[:, idx].sum()), len(idx))
         fixed = replace(lay, T_views=())
         data = build_data(pb.uv, mask, idx, pb.T, np.zeros(n_views))
         state, _, _ = self._lm(state, fixed, data, loss)
-        sigma = np.sqrt(bundle.sum_sq(state, fixed, data, loss, self.thr) / max(dof, 1))
+        sigma = np.sqrt(sum_sq(state, fixed, data, loss, self.thr) / max(dof, 1))
         free = pb.t_sigma > 0
         for _ in range(5):
             data = build_data(pb.uv, mask, idx, pb.T, self._weights(sigma))
             state, f, reason = self._lm(state, lay, data, loss)
             chi2_T = float(np.sum(((state.T - pb.T)[free] / pb.t_sigma[free, None]) ** 2))
-            new = float(np.sqrt(bundle.sum_sq(state, lay, data, loss, self.thr) / max(dof - chi2_T, 0.5 * dof)))
+            new = float(np.sqrt(sum_sq(state, lay, data, loss, self.thr) / max(dof - chi2_T, 0.5 * dof)))
             done = abs(new - sigma) <= 1e-3 * sigma
             sigma = new
             if done:
                 break
         data = build_data(pb.uv, mask, idx, pb.T, self._weights(sigma))
         self.system = self.residuals = None  # linearised with other prior weights than the final data's
-        return state, bundle.cost(state, lay, data, loss, self.c), reason, data, sigma
+        return state, cost(state, lay, data, loss, self.c), reason, data, sigma
 
 
 @dataclass
@@ -414,16 +411,16 @@ _OBS_QUANTILE = float(np.sqrt(-2.0 * np.log(1e-3)))
 def _robust_sigma(pb: _Problem, state: State) -> float:
     """Pixel noise per coordinate from the median absolute residual coordinate, scaled to
     the residual degrees of freedom (outliers barely move a median)."""
-    res = bundle.all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    res = all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
     r = np.abs(res[np.isfinite(res)])
-    dof = max(r.size - pb.lay.n_global_no_T - 3 * len(pb.used_idx), 1)
+    dof = max(pb.lay.residual_dof(r.size // 2, len(pb.used_idx)), 1)
     return max(float(1.4826 * np.median(r) * np.sqrt(r.size / dof)), SIGMA_FLOOR_PX)
 
 
 def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
     """(n_views, n_points) bool: observations of the used points with residual norm <= thr."""
     obs_in = np.zeros(pb.seen.shape, bool)
-    res = bundle.all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    res = all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
     obs_in[:, pb.used_idx] = pb.seen[:, pb.used_idx] & (np.sum(res**2, axis=2) <= thr * thr)
     return obs_in
 
@@ -438,7 +435,7 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     lay, n_views, n_points = pb.lay, *pb.uv.shape[:2]
     Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T),
                                  system=fitter.system)
-    dof_fit = 2 * int(fit.mask[:, fit.idx].sum()) - lay.n_global_no_T - 3 * len(fit.idx)
+    dof_fit = lay.residual_dof(int(fit.mask[:, fit.idx].sum()), len(fit.idx))
     sigma = _sigma(pb, fit, fitter.cost, dof_fit)
     names = lay.names()
     scale = np.where(lay.rotation_mask(), np.degrees(1.0), 1.0)  # rotations in degrees
@@ -481,7 +478,7 @@ def _residuals(pb: _Problem, fit: _Fit, fitter: _Fitter) -> tuple[np.ndarray, fl
             out[i, idx[pts]] = r.T
         sse = sum(float(np.einsum("kn,kn->", r, r)) for r in fitter.residuals)
         return out, float(np.sqrt(sse / fit.data.n_obs))
-    used = bundle.all_residuals(fit.state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
+    used = all_residuals(fit.state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
     out[:, pb.used_idx] = used
     return out, float(np.sqrt(np.nanmean(np.einsum("vnk,vnk->vn", used, used))))
 
@@ -496,7 +493,7 @@ def _sigma(pb: _Problem, fit: _Fit, cost: float, dof_fit: int) -> float:
     if dof_fit <= 0:
         raise DegenerateError("no residual degrees of freedom left among the inliers to estimate the pixel "
                               "noise; pass sigma_px or track more points")
-    sse = 2.0 * cost if not pb.lay.i_T else bundle.sum_sq(fit.last, pb.lay, fit.data)
+    sse = 2.0 * cost if not pb.lay.i_T else sum_sq(fit.last, pb.lay, fit.data)
     return float(np.sqrt(sse / dof_fit))
 
 

@@ -48,9 +48,9 @@ def normal_equations(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss:
 
     Parameters
     ----------
-    state : bundle.State
+    state : transcalib.estimate.layout.State
         ``X`` holds the points ``(n, 3)``.
-    lay : bundle.Layout
+    lay : transcalib.estimate.layout.Layout
         Intrinsics, distortion and the rotation (:func:`applies`).
     uv : (2, n_views, n) float
         Observed pixels (any finite value where not seen).

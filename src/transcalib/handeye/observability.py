@@ -26,10 +26,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..estimate.bundle import Layout, State, build_data, dist_indices, intrinsic_basis, normal_equations
+from ..estimate.bundle import normal_equations
 from ..estimate.covariance import bound_std, check_identifiable, reduced_information
+from ..estimate.layout import Layout, State
+from ..estimate.observations import build_data
 from ..geometry.camera import pad_dist
 from ..geometry.rotation import matrix_to_rotvec
+from ..types import RefineOptions
 
 __all__ = ["Observability", "offset_observability", "sessions_crlb", "relative_axes", "T_RTOL"]
 
@@ -85,8 +88,9 @@ def _fisher(K, dist5, R_cam, t, X, uv, T, F, fix, estimate_skew, square_pixels, 
     """Reduced information ``S`` and its layout (points eliminated) at the given state."""
     seen = np.all(np.isfinite(uv), axis=2)
     used = np.flatnonzero((seen.sum(axis=0) >= 2) & np.all(np.isfinite(X), axis=1))
-    E, names = intrinsic_basis(fix, estimate_skew, square_pixels)
-    lay = Layout(len(T), E, names, dist_indices(distortion, fix), (), (), np.eye(3) if t_basis is None else t_basis)
+    lay = Layout.from_options(RefineOptions(distortion=distortion, fix=fix, estimate_skew=estimate_skew,
+                                            square_pixels=square_pixels), len(T),
+                              np.eye(3) if t_basis is None else t_basis)
     state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), pad_dist(dist5), R_cam,
                   np.tile(np.eye(3), (len(T), 1, 1)), T, X[used], F, np.asarray(t, float))
     data = build_data(uv, seen, used, T, np.zeros(len(T)))

@@ -1,7 +1,8 @@
 """The optimiser: translations inside the box that minimise the design criterion.
 
 The information of a design is a sum over views, point by point (``U_j``, ``W_j``,
-``V_j`` of :mod:`.fisher`, before the points are eliminated). Replacing one view by a
+``V_j`` from the observation Jacobians of :func:`.fisher.view_jacobians`, before the
+points are eliminated). Replacing one view by a
 candidate position therefore costs only the candidate's own per-point contributions, and
 all candidates of a step are scored in one vectorised call:
 
@@ -23,7 +24,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .fisher import _jacobians, inv3_spd
+from ..estimate.covariance import UNDETERMINED_POINT_DET
+from ..estimate.schur import inv3_spd
+from .fisher import view_jacobians
 from .model import CRITERIA, PlanOptions
 
 __all__ = ["Pool", "optimise"]
@@ -44,8 +47,7 @@ class Pool(NamedTuple):
     @classmethod
     def of(cls, options: PlanOptions, X: np.ndarray, P) -> "Pool":
         P = np.atleast_2d(np.asarray(P, dtype=float))
-        Jg, JX, seen = _jacobians(options, X, P[None])
-        Jg, JX, seen = Jg[0], JX[0], seen[0]
+        Jg, JX, seen = view_jacobians(options, X, P)
         wf = seen.astype(float)[..., None, None]
         U = np.einsum("knaq,knar->knqr", Jg * wf, Jg)
         W = np.einsum("knaq,knaj->knqj", Jg * wf, JX)
@@ -69,8 +71,9 @@ def _score(rest: tuple, cand: Pool, crit_idx: np.ndarray) -> np.ndarray:
     W = W0 + cand.W
     V = V0 + cand.V
     used = (n0 + cand.seen) >= 2
-    Vinv, ok = inv3_spd(V)
-    ok &= used
+    Vinv, det = inv3_spd(np.moveaxis(V, (-2, -1), (0, 1)))  # blocks last, as the bundle adjuster's
+    Vinv = np.moveaxis(Vinv, (0, 1), (-2, -1))
+    ok = (det > UNDETERMINED_POINT_DET) & used
     okf = ok.astype(float)[..., None, None]
     S = np.einsum("knqr->kqr", U * okf) - np.einsum("knqi,knij,knrj->kqr", W * okf, Vinv, W, optimize=True)
     out = np.full(len(S), np.inf)
