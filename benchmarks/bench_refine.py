@@ -135,7 +135,7 @@ def speed(n_points: int, with_scipy: bool, seed: int = 1) -> str:
         t = time.perf_counter()
         cal = refine(scene.uv, scene.T, est)
         t_ours = min(t_ours, time.perf_counter() - t)
-    line = (f"  {n_points:>7d} {t_ours:9.3f} {cal.info['iterations']:6d} {cal.info['cost']:14.6f}")
+    line = (f"  {n_points:>7d} {t_ours:9.3f} {cal.stats.refine.iterations:6d} {cal.stats.refine.cost:14.6f}")
     if with_scipy:
         t_sp, res = _scipy_refine(scene.uv, scene.T, est)
         line += f" {t_sp:10.3f} {res.nfev:6d} {res.cost:14.6f} {t_sp / t_ours:8.1f}"

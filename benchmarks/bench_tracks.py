@@ -78,7 +78,7 @@ def main(argv: list[str] = ()) -> list[dict]:
     print(head)
     print("-" * len(head))
     for rw in rows[:-1]:
-        cal, info, dK = rw["cal"], rw["cal"].info, rw["cal"].K - rw["K"]
+        cal, info, dK = rw["cal"], rw["cal"].stats.timings_s, rw["cal"].K - rw["K"]
         print(f"{rw['scene']:<8} {info.get('robust_s', 0):7.2f} {info.get('refine_s', 0):7.2f} "
               f"{info.get('diagnostics_s', 0):7.2f} {rw['track'] + rw['t_cal']:8.2f} "
               f"{int(cal.inliers.sum()):>8d} {dK[0, 0]:+8.3f} {dK[1, 1]:+8.3f} {dK[0, 2]:+8.3f} {dK[1, 2]:+8.3f}")

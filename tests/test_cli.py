@@ -89,7 +89,7 @@ def test_calibrate_outputs(simulated, calibrated):
     for p in ("calibration.json", "points.csv", "camera.yaml", "report.html"):
         assert b"\r\n" not in (out / p).read_bytes(), p
     doc = json.loads((out / "calibration.json").read_text())
-    assert doc["schema_version"] == 1 and "arrays.npz" == doc["arrays"]["file"]
+    assert doc["schema_version"] == 2 and "arrays.npz" == doc["arrays"]["file"]
 
 
 def test_point_errors_against_the_truth(calibrated):
@@ -133,7 +133,7 @@ def test_no_refine_gives_linear(simulated, tmp_path):
             "--out", tmp_path, "--no-refine", "--no-robust", "--quiet", "--formats", "json,csv")
     assert r.returncode == 0, r.stderr
     cal = load_calibration(tmp_path)
-    assert cal.info["stages"] == ["linear"] and cal.dist.size == 0
+    assert cal.stats.stages == ("linear",) and cal.dist.size == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arrays.npz", "calibration.json", "points.csv"]
 
 
@@ -143,7 +143,7 @@ def test_json_summary_and_show(calibrated, tmp_path):
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)  # stdout is JSON only
     assert d["status"] == "ok" and d["exit_code"] == 0 and d["n_views"] == 5
-    assert np.array(d["K"]).shape == (3, 3) and "fx" in d["std"] and d["schema_version"] == 1
+    assert np.array(d["K"]).shape == (3, 3) and "fx" in d["std"] and d["schema_version"] == 2
     r = run("show", out)
     assert r.returncode == 0 and "fx =" in r.stdout and "schema 1" in r.stdout
     r = run("show", tmp_path)

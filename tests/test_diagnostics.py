@@ -264,7 +264,7 @@ def test_rendered_images_pure_silent_and_rotated_view_flagged():
 
     r = render.render_scene("natural", n_views=4, image_size=(560, 420), rng=5)
     cal = calibrate(tracks.track(r.images).uv, r.T)
-    assert cal.diagnostics == []
+    assert cal.diagnostics == ()
     Q = Rotation.from_rotvec(np.radians(0.2) * np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2]))
     images = r.images.copy()
     images[3] = render.render(r.surfaces, r.K, Q.as_matrix() @ r.R, r.T[3:4], r.image_size, rng=5)[0]

@@ -41,7 +41,7 @@ def test_images_to_calibration(kind, seed):
     tracks = track(rendered.images)
     cal = calibrate(tracks.uv, rendered.T)
     check(cal, rendered, tracks.uv, distance=1000.0)
-    assert cal.diagnostics == []
+    assert cal.diagnostics == ()
 
 
 def test_paper_board_target_mode():

@@ -2,6 +2,7 @@
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -202,8 +203,8 @@ def full_calibration(n_points=40, n_views=5, seed=0):
     """A Calibration with every field set (NaNs, nested options, arrays in info)."""
     from transcalib.errors import Diagnostic
     from transcalib.geometry.camera import Camera, K_from_params
-    from transcalib.types import (CalibrateOptions, Calibration, LinearEstimate, RansacOptions,
-                                  RefineOptions)
+    from transcalib.types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, LinearEstimate,
+                                  RansacOptions, RansacStats, RefineOptions, RefineStats, ViewRotations)
 
     rng = np.random.default_rng(seed)
     from scipy.spatial.transform import Rotation
@@ -230,9 +231,20 @@ def full_calibration(n_points=40, n_views=5, seed=0):
         diagnostics=[Diagnostic("few_points", "only 40 points: add points"), Diagnostic("x", "second, with ±")],
         linear=lin, cov=cov, std={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)} | {"skew": np.nan},
         param_names=names, X_std=np.abs(X) / 100, inliers=np.arange(n_points) % 7 != 0, options=opts,
-        info={"stages": ["robust", "refine"], "iterations": 7, "cost": 1.5, "converged": True,
-              "T_std": np.ones((n_views, 3)) / 3, "nan": float("nan"), "none": None, "refine_s": 0.25,
-              "pair": (1, 2)},
+        T_std=np.ones((n_views, 3)) / 3, t_flange_camera=np.array([1.5, -2.0, 30.25]),
+        view_rotations=ViewRotations(np.arange(15.0).reshape(5, 3) / 7, np.full((5, 3), 0.01), np.arange(5.0)),
+        stats=CalibrationStats(
+            stages=("robust", "refine"), timings_s={"robust_s": 0.125, "refine_s": 0.25},
+            ransac=RansacStats(trials=48, trials_needed=float("inf"), n_inliers=34, sigma_px=0.31, rule_sigma_px=0.5,
+                               time_s=0.01),
+            refine=RefineStats(iterations=7, cost=1.5, stop_reason="converged: cost decrease below tol", converged=True,
+                               dof=101, n_observations=180, n_points_used=39, n_points_excluded=1,
+                               n_points_behind_camera=1, n_points_undetermined=0, inlier_threshold_px=1.25,
+                               time_s=0.2),
+            distortion_selection=(DistortionStep("radial2", 12.5, 1e-8, 0.01, True),
+                                  DistortionStep("opencv5", 0.5, 0.7, 0.01, False, "not asked for")),
+            sigma_truncation_factor=0.98),
+        info={"nan": float("nan"), "none": None, "pair": (1, 2), "array": np.ones((2, 3)) / 3},
     )
 
 
@@ -247,19 +259,37 @@ def test_calibration_round_trip_every_field(tmp_path):
     assert back == cal
     from dataclasses import fields
     for f in fields(cal):  # each field on its own, so a failure names it
-        from transcalib.types import _same
+        from transcalib.types.results import _same
         assert _same(getattr(back, f.name), getattr(cal, f.name)), f.name
     assert back.options == cal.options and back.options.refinement.sigma_T == (0.0, 0.1, 0.1, 0.1, 0.2)
     assert [d.code for d in back.diagnostics] == ["few_points", "x"]
-    assert isinstance(back.info["T_std"], np.ndarray) and back.info["pair"] == (1, 2)
+    assert isinstance(back.info["array"], np.ndarray) and back.info["pair"] == (1, 2)
+    assert back.stats.ransac.trials_needed == float("inf") and back.stats.distortion_selection[1].reason
+    with pytest.raises(ValueError):  # a loaded result is frozen like a computed one
+        back.X[0, 0] = 1.0
     saved = load_saved(json_path)
     assert saved.point_ids.tolist() == ids and saved.inputs["tracks"] == "t.csv" and saved.inputs["n_points"] == 40
     doc = json.loads(json_path.read_text())  # plain JSON: no NaN tokens
-    assert doc["schema_version"] == 1 and doc["image_size"] == [640, 480] and doc["software"]["name"] == "transcalib"
-    assert doc["timings_s"] == {"refine_s": 0.25}
+    assert doc["schema_version"] == 2 and doc["image_size"] == [640, 480] and doc["software"]["name"] == "transcalib"
+    assert doc["stats"]["timings_s"] == {"robust_s": 0.125, "refine_s": 0.25}
     # a changed field is detected (the test can fail)
     from dataclasses import replace
     assert load_calibration(json_path) != replace(cal, rms_px=cal.rms_px + 1e-12)
+    assert load_calibration(json_path) != replace(cal, stats=replace(cal.stats, stages=("linear",)))
+
+
+def test_schema_1_file_still_loads():
+    """A calibration saved by the schema-1 writer (tests/data/calibration-v1: 30 points,
+    5 views, robot noise 0.2 mm; its statistics and T_std in one ``info`` dict) loads
+    with the statistics and estimates in their typed fields."""
+    from transcalib.io.calibration_file import load_calibration
+
+    cal = load_calibration(Path(__file__).parent / "data" / "calibration-v1")
+    assert cal.stats.stages == ("robust", "refine") and set(cal.stats.timings_s) >= {"robust_s", "refine_s"}
+    assert cal.stats.refine.converged and cal.stats.refine.n_points_used == 30
+    assert cal.T_std.shape == (5, 3) and np.all(cal.T_std[1:] > 0)
+    assert cal.stats.distortion_selection[0].model == "radial2" and cal.stats.sigma_truncation_factor < 1
+    assert dict(cal.info) == {}
 
 
 def test_calibration_json_stays_small(tmp_path):

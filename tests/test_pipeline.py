@@ -31,9 +31,9 @@ def test_sigma_T_models_robot_noise():
     scene = _scene(noise_px=0.3, robot_noise=0.5, seed=4)
     cal = calibrate(scene.uv, scene.T, sigma_T=0.5, rng=0)
     assert cal.options.refinement.sigma_T == 0.5
-    assert "T_std" in cal.info and cal.info["T_std"].shape == (5, 3)
+    assert cal.T_std is not None and cal.T_std.shape == (5, 3)
     assert not np.allclose(cal.T, scene.T)  # the translations were refined
-    assert np.all(cal.info["T_std"][1:] > 0)
+    assert np.all(cal.T_std[1:] > 0)
 
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
@@ -53,7 +53,7 @@ def test_each_robust_loss_marks_corrupted_observations(loss):
 def test_refine_false_returns_the_linear_estimate():
     scene = _scene(noise_px=0.5, seed=6)
     cal = calibrate(scene.uv, scene.T, refine=False, rng=0)
-    assert cal.info["stages"] == ["robust"] and cal.cov is None and cal.std == {}
+    assert cal.stats.stages == ("robust",) and cal.cov is None and cal.std == {}
     np.testing.assert_array_equal(cal.K, cal.linear.K)
 
 
@@ -100,7 +100,7 @@ def test_rejudging_after_refinement_recovers_tracks_under_strong_distortion():
     with distortion takes back the good tracks it rejected."""
     scene = simulate.random_scene(300, 5, dist=(-0.35, 0.12), noise_px=0.2, rng=11)
     cal = calibrate(scene.uv, scene.T, distortion="radial2", ransac=RansacOptions(threshold_px=1.0), rng=0)
-    assert "reclassify+refine" in cal.info["stages"]
+    assert "reclassify+refine" in cal.stats.stages
     assert cal.inliers.mean() > 0.98
     assert abs(cal.K[0, 0] / scene.K[0, 0] - 1) < 1e-3
 
@@ -120,8 +120,8 @@ def test_subset_then_one_step_is_the_full_maximum_likelihood():
     scene = simulate.random_scene(3000, 5, dist=(-0.05, 0.01), noise_px=1.0, rng=11)
     full = calibrate(scene.uv, scene.T, robust=False, distortion="radial2", subset_points=None)
     fast = calibrate(scene.uv, scene.T, robust=False, distortion="radial2", subset_points=500, rng=1)
-    assert fast.info["stages"][-1] == "all tracks" and fast.info["subset"]["n_points_used"] == 500
-    assert "all tracks" not in full.info["stages"]
+    assert fast.stats.stages[-1] == "all tracks" and fast.stats.subset.n_points_used == 500
+    assert "all tracks" not in full.stats.stages
     for name, (a, b) in _INTRINSICS.items():
         assert abs(fast.K[a, b] - full.K[a, b]) < 0.005 * full.std[name], name
         assert fast.std[name] == pytest.approx(full.std[name], rel=1e-3)
@@ -139,7 +139,7 @@ def test_subset_path_exact_on_noise_free_data_and_judges_every_track():
     bad = every_tenth[np.isfinite(uv[2, every_tenth, 0])]  # ~10 % of the tracks corrupted in one view
     uv[2, bad] += 40.0
     cal = calibrate(uv, scene.T, subset_points=400, rng=0)
-    assert cal.info["stages"][-1] == "all tracks"
+    assert cal.stats.stages[-1] == "all tracks"
     assert np.abs(cal.K - scene.K).max() / scene.K[0, 0] < 1e-9
     assert cal.dist_model == "radial2" and np.allclose(cal.dist, [-0.08, 0.02], atol=1e-9)
     assert set(np.flatnonzero(~cal.inliers)) == set(bad)
@@ -154,5 +154,5 @@ def test_subset_points_is_checked_and_recorded():
     with pytest.raises(InputError, match="subset_points"):
         CalibrateOptions(subset_points=2.5)
     cal = calibrate(scene.uv, scene.T, subset_points=100, rng=0)
-    assert cal.options.subset_points == 100 and cal.info["stages"][-1] == "all tracks"
-    assert calibrate(scene.uv, scene.T, rng=0).info["stages"][-1] != "all tracks"  # 150 <= the default
+    assert cal.options.subset_points == 100 and cal.stats.stages[-1] == "all tracks"
+    assert calibrate(scene.uv, scene.T, rng=0).stats.stages[-1] != "all tracks"  # 150 <= the default

@@ -82,10 +82,10 @@ def test_few_inliers_reported():
 def test_distortion_chosen_from_the_data():
     plain = simulate.random_scene(300, 5, noise_px=1.0, rng=7)
     cal = calibrate(plain.uv, plain.T, rng=0, check_rotation=False)
-    assert cal.dist_model == "none" and cal.info["distortion_selection"][0]["chosen"] is False
+    assert cal.dist_model == "none" and cal.stats.distortion_selection[0].chosen is False
     lens = simulate.random_scene(300, 5, noise_px=1.0, dist=(-0.1, 0.0), rng=7)
     cal = calibrate(lens.uv, lens.T, rng=0, check_rotation=False)
-    assert cal.dist_model == "radial2" and cal.info["distortion_selection"][0]["p_value"] < 1e-6
+    assert cal.dist_model == "radial2" and cal.stats.distortion_selection[0].p_value < 1e-6
     assert abs(cal.dist[0] + 0.1) < 5 * cal.std["k1"]
     fixed = calibrate(lens.uv, lens.T, distortion="none", rng=0, check_rotation=False)
     assert fixed.dist_model == "none"

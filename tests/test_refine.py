@@ -62,7 +62,7 @@ def test_noise_free_exact(case):
         "random_planar": lambda: simulate.random_scene(40, 4, planar=True, rng=2),
     }[case]()
     cal = refine(scene.uv, scene.T, perturbed_start(scene, 3), options=RefineOptions(sigma_px=0.5))
-    assert cal.info["converged"], cal.info["stop_reason"]
+    assert cal.stats.refine.converged, cal.stats.refine.stop_reason
     assert rel(cal.K, scene.K) < 1e-9
     assert np.abs(cal.R - scene.R).max() < 1e-9
     assert rel(cal.X, scene.X) < 1e-9
@@ -179,7 +179,7 @@ def test_paper_monte_carlo_refined_beats_linear_and_std_is_honest():
         scene = simulate.observe(base, 0.5, rng=1000 + k)
         est = estimate_linear(scene.uv, scene.T)
         cal = refine(scene.uv, scene.T, est)
-        assert cal.info["converged"]
+        assert cal.stats.refine.converged
         lin.append(_k4(est.K))
         ref.append(_k4(cal.K))
         pred.append([cal.std[n] for n in KEYS])
@@ -248,9 +248,9 @@ def test_sigma_estimated_with_degrees_of_freedom():
     assert cal.options.refinement.sigma_px is None  # estimated
     assert abs(cal.sigma_px / 0.8 - 1) < 0.03
     n_obs = int(np.isfinite(scene.uv[..., 0]).sum())
-    assert cal.info["dof"] == 2 * n_obs - 7 - 3 * scene.n_points
+    assert cal.stats.refine.dof == 2 * n_obs - 7 - 3 * scene.n_points
     # OpenCV's RMS: sum |r|^2 = sigma^2 dof, so sqrt(mean(du^2 + dv^2)) = sigma sqrt(dof / n_obs)
-    assert np.isclose(cal.rms_px, cal.sigma_px * np.sqrt(cal.info["dof"] / n_obs))
+    assert np.isclose(cal.rms_px, cal.sigma_px * np.sqrt(cal.stats.refine.dof / n_obs))
 
 
 def test_point_std_matches_monte_carlo():
@@ -367,10 +367,10 @@ def test_view_rotation_noise_free_exact():
     cal = refine(uv, scene.T, perturbed_start(scene, 17), options=RefineOptions(estimate_view_rotations=True, sigma_px=0.5))
     expected = np.zeros((5, 3))
     expected[2] = [0.2, -0.1, 0.05]
-    assert np.abs(cal.info["view_rotations_deg"] - expected).max() < 1e-9
-    assert cal.info["view_rotations_std_deg"].shape == (5, 3)
-    assert np.all(cal.info["view_rotations_std_deg"][0] == 0)
-    chi2 = cal.info["view_rotations_chi2"]
+    assert np.abs(cal.view_rotations.deg - expected).max() < 1e-9
+    assert cal.view_rotations.std_deg.shape == (5, 3)
+    assert np.all(cal.view_rotations.std_deg[0] == 0)
+    chi2 = cal.view_rotations.chi2
     assert chi2[2] > 30 and chi2[0] == 0 and np.all(chi2[[1, 3, 4]] < 1e-6)
     assert rel(cal.K, scene.K) < 1e-9
 
@@ -391,7 +391,7 @@ def test_view_rotation_recovered_within_std(preset, views, noise_px, z_max):
     for _ in range(60):
         uv = _rotated_view_uv(base, 2, truth[2]) + rng.normal(0, noise_px, base.uv.shape)
         cal = refine(uv, base.T, linear_start(base, uv), options=RefineOptions(estimate_view_rotations=views))
-        est, std = cal.info["view_rotations_deg"], cal.info["view_rotations_std_deg"]
+        est, std = cal.view_rotations.deg, cal.view_rotations.std_deg
         z.append((est[rotated] - truth[rotated]) / std[rotated])
         assert np.all(est[[v for v in range(base.n_views) if v not in rotated]] == 0)
     z = np.array(z)
@@ -423,11 +423,12 @@ def test_accepts_linear_estimate_and_reports_info():
     steps = []
     cal = refine(scene.uv, scene.T, start, progress=steps.append)
     assert cal.linear is start
-    assert cal.info["iterations"] == len(steps) > 0
+    assert cal.stats.refine.iterations == len(steps) > 0
+    assert [e.done for e in steps] == list(range(1, len(steps) + 1)) and all("cost" in e.info for e in steps)
     assert cal.sigma_px > 0
-    for key in ("iterations", "cost", "stop_reason", "converged", "dof"):
-        assert key in cal.info
-    assert cal.diagnostics == []
+    r = cal.stats.refine
+    assert r.converged and r.cost > 0 and r.stop_reason and r.dof > 0 and cal.stats.stages == ("refine",)
+    assert cal.diagnostics == ()
     assert cal.X_std.shape == (scene.n_points, 3)
     assert np.allclose(cal.T, scene.T)
     used = np.isfinite(cal.residuals_px[..., 0])
@@ -442,7 +443,7 @@ def test_unused_points_stay_out():
     cal = refine(scene.uv, scene.T, replace(start, X=X))
     assert np.all(np.isnan(cal.X[[3, 7]])) and np.all(np.isnan(cal.residuals_px[:, [3, 7]]))
     assert np.all(np.isnan(cal.X_std[[3, 7]]))
-    assert cal.info["n_points_used"] == 28
+    assert cal.stats.refine.n_points_used == 28
 
 
 def test_bad_inputs_raise():
@@ -500,7 +501,7 @@ def test_sigma_T_forms_and_skew_from_linear_start():
     a = refine(scene.uv, scene.T, start, sigma_T=0.5, options=RefineOptions(estimate_skew=True))
     b = refine(scene.uv, scene.T, start, sigma_T=np.full(5, 0.5), options=RefineOptions(estimate_skew=True))
     assert np.allclose(a.K, b.K) and "T0_x" in a.std
-    assert a.info["T_std"].shape == (5, 3)
+    assert a.T_std.shape == (5, 3)
     assert abs(a.K[0, 1] - 2.0) < 4 * a.std["skew"]
     c = refine(scene.uv, scene.T, start, sigma_T=np.array([0.0, 0.5, 0.5, 0.5, 0.5]))
     assert "T0_x" not in c.std and np.array_equal(c.T[0], scene.T[0])

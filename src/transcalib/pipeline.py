@@ -28,7 +28,8 @@ from .estimate.robust import fit_robust
 from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
 from .geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from .geometry.triangulate import triangulate
-from .types import INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
+from .types import (INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibration, CalibrationStats, LinearEstimate,
+                    RansacOptions, RansacStats, RefineOptions, report)
 from .validate import as_uv_T
 
 __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
@@ -109,13 +110,15 @@ def calibrate(
     rng : seed or Generator
         Randomness of RANSAC.
     progress : callable, optional
-        ``progress(stage: str, info: dict)`` after each stage.
+        ``progress(event)`` with a :class:`~transcalib.types.ProgressEvent` after each
+        stage (and each step of the long ones).
 
     Returns
     -------
     Calibration
         With ``diagnostics``, ``inliers`` (robust runs), ``cov``/``std``/``X_std``
-        (refined runs), ``options`` and ``info["stages"]``.
+        (refined runs), ``options`` and ``stats`` (stages, timings, the robust stage,
+        the refinement).
 
     Raises
     ------
@@ -126,46 +129,44 @@ def calibrate(
     uv, T = as_uv_T(uv, T)
     opts = _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement,
                     check_rotation, unit, subset_points)
-    notify = progress or (lambda stage, info: None)
     timings = {}
     t0 = time.perf_counter()
     span = _explain_span(T, opts)  # degeneracy first: raises naming what the motion cannot determine
     subset = _fit_subset(uv, opts, rng)
     uv_sub = uv if subset is None else uv[:, subset]
-    linear, inliers, stages, rob = _initial_estimate(uv_sub, T, opts, rng, notify, coplanar=span is not None,
-                                                     image_size=image_size)
+    linear, inliers, stages, ransac_stats = _initial_estimate(uv_sub, T, opts, rng, progress,
+                                                              coplanar=span is not None, image_size=image_size)
     timings[f"{stages[0]}_s"] = time.perf_counter() - t0
     rotation_data = None
     if opts.refine:
         t1 = time.perf_counter()
-        cal, inliers, more = _refine_and_rejudge(uv_sub, T, linear, inliers, opts, notify)
+        cal, inliers, more = _refine_and_rejudge(uv_sub, T, linear, inliers, opts, progress)
         stages += more
         timings["refine_s"] = time.perf_counter() - t1
         if subset is not None:
             t1 = time.perf_counter()
             rotation_data = (_masked(uv_sub, inliers), cal)  # the rotation test runs on the subset's fit
-            cal, inliers = _extend_to_all_tracks(uv, T, cal, inliers, opts, notify)
+            cal, inliers = _extend_to_all_tracks(uv, T, cal, inliers, opts, progress)
             linear = _widened(linear, subset, uv.shape[1])
             stages.append("all tracks")
             timings["all_tracks_s"] = time.perf_counter() - t1
     else:
         cal = from_linear(_masked(uv, inliers), T, linear)
     result = replace(cal, camera=replace(cal.camera, image_size=image_size), linear=linear, inliers=inliers,
-                     residuals_px=_all_residuals(uv, cal, inliers), options=opts,
-                     info={**cal.info, "stages": stages, **timings}, diagnostics=[])
+                     residuals_px=_all_residuals(uv, cal, inliers), options=opts, diagnostics=())
     t2 = time.perf_counter()
+    result = replace(result, stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=ransac_stats))
     found = diagnose(uv, T, result, linear=linear, quaternions=quaternions,
-                     check_rotation=opts.check_rotation and opts.refine, unit=unit, robust=rob, all_uv=uv,
+                     check_rotation=opts.check_rotation and opts.refine, unit=unit, all_uv=uv,
                      rotation_data=rotation_data)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     if opts.check_rotation and not opts.refine:
         found.append(skipped("rotation test (did the robot rotate between views?)",
                              "it needs the refined calibration (refine=False, CLI --no-refine)"))
-    result.diagnostics.extend(found)
-    result.info["diagnostics_s"] = time.perf_counter() - t2
-    notify("diagnostics", {"warnings": len(found)})
-    return result
+    report(progress, "diagnostics", warnings=len(found))
+    timings = {**result.stats.timings_s, "diagnostics_s": time.perf_counter() - t2}
+    return replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings))
 
 
 def _masked(uv: np.ndarray, inliers) -> np.ndarray:
@@ -208,7 +209,7 @@ def _widened(linear: LinearEstimate, subset: np.ndarray, n_points: int) -> Linea
                    static=None if linear.static is None else spread(linear.static, False, 0))
 
 
-def _extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptions, notify):
+def _extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptions, progress):
     """From the calibration of a subset of the tracks, the maximum-likelihood one of all
     of them: every track triangulated and judged by the subset's camera (the inlier rule
     of the robust stage), then :data:`GAUSS_NEWTON_STEPS` undamped steps of the camera
@@ -228,17 +229,16 @@ def _extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptio
         inliers = full.inliers if inliers is None else inliers & full.inliers
     if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
         full = _untruncated(full, k[inliers], opts.ransac.false_rejection)
-    subset_info = {key: cal.info[key] for key in ("iterations", "stop_reason", "converged", "n_points_used")
-                   if key in cal.info}
     before, after = _camera_values(cal), _camera_values(full)
     moved = max((abs(after[k] - before[k]) / v for k, v in full.std.items() if v > 0 and k in before), default=0.0)
-    info = {**full.info, "subset": subset_info, "distortion_selection": cal.info.get("distortion_selection", []),
-            "stop_reason": f"{full.info['iterations']} Gauss-Newton step(s) from the fit of "
-                           f"{subset_info.get('n_points_used')} tracks (which moved the camera by {moved:.2g} "
-                           "standard deviations at most)",
-            "converged": True}
-    notify("all tracks", {"points": full.info.get("n_points_used"), "rms_px": full.rms_px})
-    return replace(full, options=replace(full.options, refinement=opts.refinement), info=info), inliers
+    subset = cal.stats.refine
+    refined = replace(full.stats.refine, converged=True,
+                      stop_reason=f"{full.stats.refine.iterations} Gauss-Newton step(s) from the fit of "
+                                  f"{subset.n_points_used} tracks (which moved the camera by {moved:.2g} standard "
+                                  "deviations at most)")
+    stats = replace(full.stats, refine=refined, subset=subset, distortion_selection=cal.stats.distortion_selection)
+    report(progress, "all tracks", points=refined.n_points_used, rms_px=full.rms_px)
+    return replace(full, options=replace(full.options, refinement=opts.refinement), stats=stats), inliers
 
 
 def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement, check_rotation,
@@ -281,9 +281,9 @@ def _coplanar_start_fix(uv, fix, image_size) -> dict:
     return fix
 
 
-def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool = False, image_size=None):
-    """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages, robust
-    estimate or None)``; coplanar translations take the known-parameter linear start."""
+def _initial_estimate(uv, T, opts: CalibrateOptions, rng, progress, coplanar: bool = False, image_size=None):
+    """RANSAC (or the plain linear estimate): ``(linear, inliers or None, stages,
+    RansacStats or None)``; coplanar translations take the known-parameter linear start."""
     n_tracked = int((np.isfinite(uv[..., 0]).sum(axis=0) >= 2).sum())
     robust = n_tracked >= ROBUST_MIN_POINTS if opts.robust is None else bool(opts.robust)
     if coplanar:
@@ -292,29 +292,31 @@ def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool
             linear, inliers, sigma = fit_coplanar_robust(
                 uv, T, fix=r.fix, square_pixels=r.square_pixels, threshold_px=opts.ransac.threshold_px,
                 false_rejection=opts.ransac.false_rejection, rng=rng, tol=COPLANAR_TOL)
-            notify("robust (coplanar)", {"inliers": int(inliers.sum()), "sigma_px": sigma})
+            report(progress, "robust (coplanar)", inliers=int(inliers.sum()), sigma_px=sigma)
             return linear, inliers, ["robust"], None
         linear = fit_coplanar(uv, T, fix=r.fix, square_pixels=r.square_pixels, tol=COPLANAR_TOL)
-        notify("linear (coplanar)", {"points": linear.n_used_points})
+        report(progress, "linear (coplanar)", points=linear.n_used_points)
         return linear, None, ["linear"], None
     if robust:
         rob = fit_robust(uv, T, opts.ransac, rng=rng)
-        notify("robust", {"inliers": int(rob.inliers.sum()), "trials": rob.trials, "sigma_px": rob.sigma_px})
-        return rob.linear, rob.inliers, ["robust"], rob
+        report(progress, "robust", inliers=rob.n_inliers, trials=rob.trials, sigma_px=rob.sigma_px)
+        stats = RansacStats(trials=rob.trials, trials_needed=rob.info["trials_needed"], n_inliers=rob.n_inliers,
+                            sigma_px=rob.sigma_px, rule_sigma_px=rob.rule_sigma_px, time_s=rob.info["time_s"])
+        return rob.linear, rob.inliers, ["robust"], stats
     linear = fit_linear(uv, T)
-    notify("linear", {"points": linear.n_used_points})
+    report(progress, "linear", points=linear.n_used_points)
     return linear, None, ["linear"], None
 
 
-def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
+def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress):
     """Refine on the inliers; then judge every track again with the refined camera (RANSAC
     judged them with the linear, distortion-free one: this matters under strong
     distortion) and refit while the inlier set changes. Returns ``(cal, inliers, stages)``."""
     cal = fit_refine(_masked(uv, inliers), T, linear, opts.refinement)
-    notify("refine", {"iterations": cal.info.get("iterations"), "rms_px": cal.rms_px, "distortion": cal.dist_model})
+    report(progress, "refine", iterations=cal.stats.refine.iterations, rms_px=cal.rms_px, distortion=cal.dist_model)
     stages = ["refine"]
     chosen = replace(opts.refinement, distortion=cal.dist_model)  # refits keep the model chosen
-    selection = cal.info.get("distortion_selection", [])
+    selection = cal.stats.distortion_selection
     k = np.isfinite(uv[..., 0]).sum(axis=0)
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         X_all = triangulate(cal.A, uv, cal.T, K=cal.K, dist=cal.dist)
@@ -328,7 +330,7 @@ def _refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, notify):
         stages.append("reclassify+refine")
     if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
         cal = climb_distortion(_masked(uv, inliers), T, cal, opts.refinement)
-        cal.info["distortion_selection"] = selection + cal.info["distortion_selection"]
+        cal = replace(cal, stats=replace(cal.stats, distortion_selection=selection + cal.stats.distortion_selection))
     if cal.inliers is not None:  # the robust loss classified points too
         inliers = cal.inliers if inliers is None else inliers & cal.inliers
     if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
@@ -344,7 +346,8 @@ def _untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
     root = float(np.sqrt(c))
     return replace(cal, sigma_px=float(cal.sigma_px / root), cov=cal.cov / c,
                    std={name: float(v / root) for name, v in cal.std.items()}, X_std=cal.X_std / root,
-                   info={**cal.info, "sigma_truncation_factor": c})
+                   T_std=None if cal.T_std is None else cal.T_std / root,
+                   stats=replace(cal.stats, sigma_truncation_factor=c))
 
 
 def _track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
@@ -399,4 +402,4 @@ def from_linear(uv: np.ndarray, T: np.ndarray, linear: LinearEstimate) -> Calibr
     r2 = np.sum(residuals**2, axis=2)
     rms = float(np.sqrt(np.nanmean(r2))) if np.isfinite(r2).any() else float("nan")
     return Calibration(camera=Camera(linear.K, linear.R), X=linear.X, residuals_px=residuals, rms_px=rms,
-                       T=T.copy(), linear=linear, info={"stage": "linear"})
+                       T=T.copy(), linear=linear, stats=CalibrationStats(stages=("linear",)))

@@ -52,8 +52,7 @@ def skipped(check: str, reason) -> Diagnostic:
 
 
 def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quaternions=None,
-             check_rotation: bool = True, unit: str = "units", robust=None, all_uv=None,
-             rotation_data=None) -> list:
+             check_rotation: bool = True, unit: str = "units", all_uv=None, rotation_data=None) -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
     Parameters
@@ -65,7 +64,9 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
     T : (n_views, 3) float
         Measured robot translations.
     calibration : Calibration or LinearEstimate
-        The result to check; its ``inliers`` (if any) select the points that count.
+        The result to check; its ``inliers`` (if any) select the points that count; its
+        ``stats.ransac`` (the robust stage's noise estimate) is checked against a user
+        threshold (``options.ransac.threshold_px``).
     linear : LinearEstimate, optional
         The linear estimate (default ``calibration.linear``) for the null-space check.
     quaternions : (n_views, 4) float, optional
@@ -74,8 +75,6 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         Run the model-violation (rotation) test (a refined calibration only).
     unit : str
         Length unit named in the messages.
-    robust : RobustEstimate, optional
-        The robust stage's result: its noise estimate against a user threshold.
     all_uv : (n_views, n_points, 2) float, optional
         Every track (outliers included), for the parallax and inlier-fraction checks.
     rotation_data : (uv, Calibration), optional
@@ -99,7 +98,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         out += check_null_space(linear)
     out += _behind(uv, T, calibration)
     if isinstance(calibration, Calibration):
-        out += _track_checks(uv if all_uv is None else all_uv, calibration, linear, robust)
+        out += _track_checks(uv if all_uv is None else all_uv, calibration)
         out += check_views(uv, calibration.residuals_px, used=calibration.inliers)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
         if check_rotation:
@@ -125,7 +124,8 @@ def _scene_distance(R, X, T) -> float | None:
 def _behind(uv, T, calibration) -> list:
     """Points behind the camera now, or left out of the refinement for being behind."""
     behind = check_points_behind(uv, T, calibration)
-    n_excluded = int(getattr(calibration, "info", {}).get("n_points_behind_camera", 0) or 0)
+    refined = calibration.stats.refine if isinstance(calibration, Calibration) else None
+    n_excluded = 0 if refined is None else refined.n_points_behind_camera
     if behind or n_excluded == 0:
         return behind
     return [Diagnostic(
@@ -135,18 +135,19 @@ def _behind(uv, T, calibration) -> list:
         "(calibrate(..., robust=True), CLI --robust).")]
 
 
-def _track_checks(uv, calibration: Calibration, linear, robust) -> list:
+def _track_checks(uv, calibration: Calibration) -> list:
     """Static and low-parallax tracks, the inlier fraction, a threshold small for the
     noise, implausible intrinsics."""
     out = []
+    robust = calibration.stats.ransac
     sigma = calibration.sigma_px if calibration.sigma_px else (robust.sigma_px if robust is not None else None)
     if sigma:
         out += check_parallax(uv, sigma)
     else:
         out.append(skipped("parallax check", "no estimate of the pixel noise (refine the calibration)"))
     out += check_inliers(calibration.inliers, uv)
-    if robust is not None:
-        out += check_threshold(robust.sigma_px, robust.rule_sigma_px, robust.options.threshold_px,
-                               robust.options.false_rejection)
+    if robust is not None and calibration.options is not None:
+        ransac = calibration.options.ransac
+        out += check_threshold(robust.sigma_px, robust.rule_sigma_px, ransac.threshold_px, ransac.false_rejection)
     out += check_intrinsics(calibration.K, calibration.image_size)
     return out

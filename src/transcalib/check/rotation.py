@@ -220,8 +220,7 @@ def _fit_rotated_views(uv, T, calibration: Calibration, candidates):
             c = refine(uv, T, calibration, options=replace(opts, estimate_view_rotations=(i,)))
         except DegenerateError:  # that rotation is not determined by these data
             continue
-        fits[i] = (2.0 * c.info["cost"], c.info["view_rotations_deg"][i], c.info["view_rotations_std_deg"][i],
-                   c.sigma_px)
+        fits[i] = (2.0 * c.stats.refine.cost, c.view_rotations.deg[i], c.view_rotations.std_deg[i], c.sigma_px)
     if not fits:
         return None
     best = min(fits, key=lambda i: fits[i][0])

@@ -328,7 +328,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
         cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
                         refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
                         image_size=plan["image_size"], unit=args.unit, subset_points=opts.subset_points,
-                        rng=args.seed, progress=progress.stage)
+                        rng=args.seed, progress=progress)
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),

@@ -150,10 +150,9 @@ class Parser(argparse.ArgumentParser):
 
 class Progress:
     """Progress on stderr: ``tqdm`` bars on a terminal, a few plain lines otherwise,
-    nothing when quiet.
-
-    ``stage(name, info)`` reports a finished stage; ``step(name, done, total)`` a step of
-    a long loop (the image front-end).
+    nothing when quiet. A progress callable of the library (:class:`ProgressEvent`):
+    a finished stage is one line with its figures, a step of a long loop with a known
+    total a bar (or a few lines), an open-ended step (an iteration) nothing.
     """
 
     def __init__(self, quiet: bool = False, stream=None):
@@ -165,6 +164,12 @@ class Progress:
     def log(self, message: str) -> None:
         if not self.quiet:
             print(message, file=self.stream, flush=True)
+
+    def __call__(self, event) -> None:
+        if event.finished:
+            self.stage(event.stage, event.info)
+        elif event.total is not None:
+            self.step(event.stage, event.done, event.total)
 
     def stage(self, name: str, info: dict) -> None:
         self.log(f"  {name}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"

@@ -39,7 +39,7 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
     Kt = None if truth is None else np.asarray(truth["K"], float)
     true_vals = None if Kt is None else {"fx": Kt[0, 0], "fy": Kt[1, 1], "cx": Kt[0, 2], "cy": Kt[1, 2],
                                          "skew": Kt[0, 1]}
-    stages = " → ".join(cal.info.get("stages", []))
+    stages = " → ".join(cal.stats.stages)
     lines = [f"transcalib: {cal.n_points} points in {cal.n_views} views ({stages})", "", "Intrinsics [px]:"]
     for name, v in values.items():
         if name == "skew" and "skew" not in cal.std and v == 0:
@@ -88,9 +88,9 @@ def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         "image_size": None if cal.image_size is None else list(cal.image_size),
         "K": cal.K, "dist_model": cal.dist_model, "dist": cal.dist, "dist_opencv": cal.dist_opencv,
         "R_cam_world": cal.R, "rms_px": cal.rms_px, "sigma_px": cal.sigma_px, "std": cal.std,
-        "stages": list(cal.info.get("stages", [])),
+        "stages": list(cal.stats.stages),
         "diagnostics": [{"code": getattr(d, "code", ""), "message": str(d)} for d in cal.diagnostics],
-        "timings_s": {k: v for k, v in cal.info.items() if k.endswith("_s") and np.isscalar(v)},
+        "timings_s": dict(cal.stats.timings_s),
     }
     if truth is not None:
         Kt = np.asarray(truth["K"], float)

@@ -21,7 +21,8 @@ import numpy as np
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
 from ..geometry.rotation import matrix_to_rotvec
-from ..types import CalibrateOptions, Calibration, LinearEstimate, RefineOptions
+from ..types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, LinearEstimate, RefineOptions,
+                     RefineStats, ViewRotations)
 from ..validate import as_uv_T
 from .bundle import BundleProblem, all_residuals, cost, sum_sq
 from .covariance import covariance, linearise, profile_step
@@ -87,7 +88,7 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
     initial : LinearEstimate or Calibration
         Starting point: ``K``, ``R``, ``X`` (and the distortion of a Calibration).
         Points with non-finite ``X``, seen in fewer than 2 views, or behind the camera in
-        some view are left out (NaN in the result, counted in ``info``).
+        some view are left out (NaN in the result, counted in ``stats.refine``).
     distortion : {"auto", "none", "radial1", "radial2", "opencv5"}, optional
         Lens distortion model (overrides ``options.distortion``; ``"auto"``, the default
         of :class:`RefineOptions`, chooses it from the data).
@@ -103,9 +104,10 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
     Calibration
         ``camera``, ``X``, ``residuals_px``, ``rms_px``, ``T`` (refined with
         ``sigma_T``), ``sigma_px``, ``cov`` / ``std`` / ``param_names`` (rotations in
-        degrees), ``X_std``, ``inliers`` (robust loss only), ``linear``, and ``info``
-        (iterations, cost, stop_reason, converged, dof, counts, time_s; ``T_std`` with
-        ``sigma_T``; ``view_rotations_deg``, ``_std_deg``, ``_chi2`` with view rotations).
+        degrees), ``X_std``, ``inliers`` (robust loss only), ``linear``, ``T_std`` (with
+        ``sigma_T``), ``view_rotations`` (with ``estimate_view_rotations``) and
+        ``stats.refine`` (:class:`~transcalib.types.RefineStats`: iterations, cost, stop
+        reason, degrees of freedom, counts, time).
 
     Raises
     ------
@@ -127,7 +129,7 @@ def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, prog
                flange: FlangeModel | None = None, near_solution: bool = False) -> Calibration:
     """:func:`refine` on validated arrays and options (the pipeline's entry); with
     ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
-    estimated (``info["flange_offset"]``, std ``t_x, t_y, t_z`` when fully determined).
+    estimated (``t_flange_camera``, std ``t_x, t_y, t_z`` when fully determined).
     ``near_solution``: ``initial`` is within a few standard deviations of the solution
     (the fit of a subset of the tracks): undamped Gauss-Newton steps."""
     if opts.distortion == "auto":
@@ -221,7 +223,7 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Cal
     (``k`` of them, the others profiled out) gives ``F = (D / k) / ((RSS - D) / (dof - k))``
     with ``D`` the RSS reduction of one Gauss-Newton step: F(k, dof - k) when ``m``
     suffices. ``m'`` is taken when ``p < AUTO_ALPHA`` and its refit determines every
-    coefficient (its covariance exists); ``info["distortion_selection"]`` says why.
+    coefficient (its covariance exists); ``stats.distortion_selection`` says why.
     """
     cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress, flange)
     return climb_distortion(uv, T, cal, opts, progress, flange)
@@ -235,21 +237,21 @@ def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None
     steps = []
     start = AUTO_CHAIN.index(cal.dist_model) if cal.dist_model in AUTO_CHAIN else len(AUTO_CHAIN) - 1
     for simpler, richer in zip(AUTO_CHAIN[start:], AUTO_CHAIN[start + 1:]):
-        at = None if flange is None else replace(flange, t0=np.asarray(cal.info["flange_offset"], float))
+        at = None if flange is None else replace(flange, t0=np.asarray(cal.t_flange_camera, float))
         F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer, at)
-        step = {"model": richer, "F": F, "p_value": p, "alpha": AUTO_ALPHA, "chosen": bool(p < AUTO_ALPHA)}
-        if step["chosen"]:
+        step = DistortionStep(richer, F, p, AUTO_ALPHA, bool(p < AUTO_ALPHA))
+        if step.chosen:
             try:
                 richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress, at)
             except DegenerateError as exc:  # the added coefficients are not determined
-                step.update(chosen=False, reason=f"not determined: {exc}")
+                step = replace(step, chosen=False, reason=f"not determined: {exc}")
             else:
                 cal = richer_cal
         steps.append(step)
-        if not step["chosen"]:
+        if not step.chosen:
             break
-    cal.info["distortion_selection"] = steps
-    return replace(cal, options=replace(cal.options, refinement=opts))
+    return replace(cal, options=replace(cal.options, refinement=opts),
+                   stats=replace(cal.stats, distortion_selection=tuple(steps)))
 
 
 def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str,
@@ -448,14 +450,11 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     X = np.full((n_points, 3), np.nan)
     X[pb.used_idx] = fit.state.X
     residuals, rms = _residuals(pb, fit, fitter)
-    info = _info(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)
-    info.update(_view_rotation_info(lay, fit.state, cov, n_views))
-    if fit.state.F is not None:
-        info["flange_offset"] = fit.state.t.copy()
+    T_std = None
     if lay.i_T:
-        info["T_std"] = np.zeros((n_views, 3))
+        T_std = np.zeros((n_views, 3))
         for i, s in lay.i_T.items():
-            info["T_std"][i] = np.sqrt(np.diag(cov)[s: s + 3])
+            T_std[i] = np.sqrt(np.diag(cov)[s: s + 3])
     image_size = initial.camera.image_size if isinstance(initial, Calibration) else None
     slots = [DIST_NAMES.index(k) for k in DIST_MODELS[pb.opts.distortion]]
     camera = Camera(K_from_params(*fit.state.intr), fit.state.R, fit.state.dist5[slots], pb.opts.distortion,
@@ -464,7 +463,10 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     return Calibration(
         camera=camera, X=X, residuals_px=residuals, rms_px=rms,
         T=fit.state.T.copy(), sigma_px=sigma, linear=linear, cov=cov, std=std, param_names=names, X_std=X_std,
-        inliers=fit.inliers, options=CalibrateOptions(robust=False, refinement=pb.opts), info=info)
+        inliers=fit.inliers, T_std=T_std, view_rotations=_view_rotations(lay, fit.state, cov, n_views),
+        t_flange_camera=None if fit.state.F is None else fit.state.t.copy(),
+        options=CalibrateOptions(robust=False, refinement=pb.opts),
+        stats=CalibrationStats(stages=("refine",), refine=_stats(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)))
 
 
 def _residuals(pb: _Problem, fit: _Fit, fitter: _Fitter) -> tuple[np.ndarray, float]:
@@ -497,33 +499,25 @@ def _sigma(pb: _Problem, fit: _Fit, cost: float, dof_fit: int) -> float:
     return float(np.sqrt(sse / dof_fit))
 
 
-def _info(pb, fit, dof_fit, n_undetermined, t_start) -> dict:
-    n_views, n_points = pb.uv.shape[:2]
-    return {
-        "stage": "refine",
-        "iterations": int(fit.iterations),
-        "cost": float(fit.cost),
-        "stop_reason": fit.reason,
-        "converged": fit.reason.startswith("converged"),
-        "dof": int(dof_fit),
-        "n_observations": int(pb.seen[:, pb.used_idx].sum()),
-        "n_points_used": int(len(pb.used_idx)),
-        "n_points_excluded": int(n_points - len(pb.used_idx)),
-        "n_points_behind_camera": pb.n_behind,
-        "n_points_undetermined": n_undetermined,
-        "inlier_threshold_px": fit.thr if pb.opts.loss != "linear" else None,
-        "time_s": time.perf_counter() - t_start,
-    }
+def _stats(pb, fit, dof_fit, n_undetermined, t_start) -> RefineStats:
+    n_points = pb.uv.shape[1]
+    return RefineStats(
+        iterations=int(fit.iterations), cost=float(fit.cost), stop_reason=fit.reason,
+        converged=fit.reason.startswith("converged"), dof=int(dof_fit),
+        n_observations=int(pb.seen[:, pb.used_idx].sum()), n_points_used=int(len(pb.used_idx)),
+        n_points_excluded=int(n_points - len(pb.used_idx)), n_points_behind_camera=pb.n_behind,
+        n_points_undetermined=n_undetermined,
+        inlier_threshold_px=fit.thr if pb.opts.loss != "linear" else None, time_s=time.perf_counter() - t_start)
 
 
-def _view_rotation_info(lay, state, cov, n_views) -> dict:
+def _view_rotations(lay, state, cov, n_views) -> ViewRotations | None:
     """Fitted view rotations (degrees), their std and Wald statistics ``w^T cov^-1 w``
-    (chi-square(3) if the view did not rotate)."""
+    (chi-square(3) if the view did not rotate); None without view rotations."""
     if not lay.i_vrot:
-        return {}
+        return None
     rot, std, chi2 = np.zeros((n_views, 3)), np.zeros((n_views, 3)), np.zeros(n_views)
     for i, s in lay.i_vrot.items():
         rot[i] = np.degrees(matrix_to_rotvec(state.Q[i]))
         std[i] = np.sqrt(np.diag(cov)[s: s + 3])
         chi2[i] = rot[i] @ np.linalg.solve(cov[s: s + 3, s: s + 3], rot[i])
-    return {"view_rotations_deg": rot, "view_rotations_std_deg": std, "view_rotations_chi2": chi2}
+    return ViewRotations(rot, std, chi2)

@@ -38,7 +38,7 @@ class HandEyeCalibration:
     calibration : Calibration
         The refined model: ``camera`` (``K``, distortion; ``camera.R`` is ``R_X^T``),
         ``X`` (base frame, absolute), residuals, ``cov``/``std`` (``t_x, t_y, t_z`` or
-        ``t_0 ..`` along ``determined``), ``info["flange_offset"]``.
+        ``t_0 ..`` along ``determined``), ``t_flange_camera``.
     R_flange_camera : (3, 3) float
         ``R_X``: camera axes in the flange frame (camera -> flange).
     t_flange_camera : (3,) float
@@ -164,6 +164,6 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, toleran
     cov_t = B @ cal.cov[np.ix_(i_t, i_t)] @ B.T if i_t else np.zeros((3, 3))
     R_std = np.array([cal.std[k] for k in ("rx", "ry", "rz")])
     notes = tuple(m for m in [obs.message, *grouping.messages()] if m)
-    return HandEyeCalibration(cal, cal.camera.R.T, np.asarray(cal.info["flange_offset"], float), R_std, cov_t,
+    return HandEyeCalibration(cal, cal.camera.R.T, np.asarray(cal.t_flange_camera, float), R_std, cov_t,
                               np.sqrt(np.clip(np.diag(cov_t), 0, None)), obs.undetermined, obs, grouping, lin,
                               cal.X, notes, lin.inliers)

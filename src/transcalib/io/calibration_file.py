@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import asdict, dataclass, fields, is_dataclass
 from pathlib import Path
 from types import MappingProxyType
 
@@ -25,8 +25,9 @@ from .ids import point_id_array
 
 __all__ = ["SCHEMA_VERSION", "Saved", "save_calibration", "load_calibration", "load_saved", "calibration_paths"]
 
-#: Version of the ``calibration.json`` schema; bumped on any incompatible change.
-SCHEMA_VERSION = 1
+#: Version of the ``calibration.json`` schema; bumped on any incompatible change. Version 1
+#: kept the statistics and some estimates in one ``info`` dict; it is still read.
+SCHEMA_VERSION = 2
 JSON_NAME = "calibration.json"
 ARRAYS_NAME = "arrays.npz"
 
@@ -84,7 +85,7 @@ def _tagged(value):
         return v if math.isfinite(v) else {"__float__": repr(v)}
     if value is None or isinstance(value, str):
         return value
-    raise InputError(f"cannot save a value of type {type(value).__name__} in Calibration.info: {value!r}")
+    raise InputError(f"cannot save a value of type {type(value).__name__} in a calibration file: {value!r}")
 
 
 def _untagged(value):
@@ -147,6 +148,88 @@ def _options_from_json(doc: dict | None):
 
     return build(CalibrateOptions, doc, ransac=build(RansacOptions, doc.get("ransac", {})),
                  refinement=build(RefineOptions, doc.get("refinement", {})))
+
+
+# --------------------------------------------------------------------------------------
+# typed statistics and estimates
+# --------------------------------------------------------------------------------------
+
+
+def _stats_to_json(stats) -> dict:
+    """:class:`~transcalib.types.CalibrationStats` as exact JSON (non-finite floats tagged)."""
+    return _tagged({"stages": tuple(stats.stages), "timings_s": dict(stats.timings_s),
+                    "ransac": None if stats.ransac is None else asdict(stats.ransac),
+                    "refine": None if stats.refine is None else asdict(stats.refine),
+                    "subset": None if stats.subset is None else asdict(stats.subset),
+                    "distortion_selection": [asdict(d) for d in stats.distortion_selection],
+                    "sigma_truncation_factor": stats.sigma_truncation_factor})
+
+
+def _stats_from_json(doc: dict):
+    from ..types import CalibrationStats, DistortionStep, RansacStats, RefineStats
+
+    d = _untagged(doc)
+
+    def make(cls, value):
+        return None if value is None else cls(**value)
+
+    return CalibrationStats(stages=tuple(d["stages"]), timings_s=d["timings_s"], ransac=make(RansacStats, d["ransac"]),
+                            refine=make(RefineStats, d["refine"]), subset=make(RefineStats, d["subset"]),
+                            distortion_selection=tuple(DistortionStep(**x) for x in d["distortion_selection"]),
+                            sigma_truncation_factor=d["sigma_truncation_factor"])
+
+
+def _estimates_to_json(cal) -> dict:
+    """The estimates beside the camera: refined translations' std, view rotations, the
+    camera's position in the flange (each None when not estimated)."""
+    vr = cal.view_rotations
+    return {"T_std": None if cal.T_std is None else cal.T_std.tolist(),
+            "view_rotations": None if vr is None else {"deg": vr.deg.tolist(), "std_deg": vr.std_deg.tolist(),
+                                                       "chi2": vr.chi2.tolist()},
+            "t_flange_camera": None if cal.t_flange_camera is None else cal.t_flange_camera.tolist()}
+
+
+def _estimates_from_json(doc: dict) -> dict:
+    from ..types import ViewRotations
+
+    vr = doc["view_rotations"]
+    return {"T_std": None if doc["T_std"] is None else _matrix(doc["T_std"]),
+            "view_rotations": None if vr is None else ViewRotations(*(_matrix(vr[k]) for k in ("deg", "std_deg", "chi2"))),
+            "t_flange_camera": None if doc["t_flange_camera"] is None else _matrix(doc["t_flange_camera"])}
+
+
+def _typed_fields(doc: dict) -> dict:
+    """``stats``, ``info`` and the estimates beside the camera, from either schema."""
+    if doc["schema_version"] == 1:
+        return _from_version_1(_untagged(doc["info"]))
+    return {"stats": _stats_from_json(doc["stats"]), "info": _untagged(doc["info"]),
+            **_estimates_from_json(doc["estimates"])}
+
+
+#: Keys of a version-1 ``info`` dict that were statistics of the refinement.
+_V1_REFINE = ("iterations", "cost", "stop_reason", "converged", "dof", "n_observations", "n_points_used",
+              "n_points_excluded", "n_points_behind_camera", "n_points_undetermined", "inlier_threshold_px", "time_s")
+
+
+def _from_version_1(info: dict) -> dict:
+    """The typed fields of a schema-1 file, whose ``info`` dict held them all."""
+    from ..types import CalibrationStats, DistortionStep, RefineStats, ViewRotations
+
+    info = dict(info)
+    refine = {k: info.pop(k) for k in _V1_REFINE if k in info}
+    info.pop("stage", None)
+    rot = [info.pop(f"view_rotations{k}", None) for k in ("_deg", "_std_deg", "_chi2")]
+    stats = CalibrationStats(
+        stages=tuple(info.pop("stages", ())),
+        timings_s={k: info.pop(k) for k in [k for k in info if k.endswith("_s") and np.isscalar(info[k])]},
+        refine=RefineStats(**refine) if len(refine) == len(_V1_REFINE) else None,
+        distortion_selection=tuple(DistortionStep(**d) for d in info.pop("distortion_selection", ())),
+        sigma_truncation_factor=info.pop("sigma_truncation_factor", None))
+    info.pop("subset", None)
+    flange = info.pop("flange_offset", None)
+    return {"stats": stats, "T_std": info.pop("T_std", None), "info": info,
+            "view_rotations": None if rot[0] is None else ViewRotations(*rot),
+            "t_flange_camera": None if flange is None else np.asarray(flange, float)}
 
 
 # --------------------------------------------------------------------------------------
@@ -217,7 +300,8 @@ def _document(cal, point_ids, inputs, arrays_name: str, arrays: dict) -> dict:
             "method": lin.method,
         },
         "options": _options_to_json(cal.options),
-        "timings_s": {k: jsonable(v) for k, v in cal.info.items() if k.endswith("_s") and np.isscalar(v)},
+        "estimates": _estimates_to_json(cal),
+        "stats": _stats_to_json(cal.stats),
         "info": _tagged(dict(cal.info)),
         "inputs": _summary(cal, point_ids, inputs),
         "arrays": {"file": arrays_name,
@@ -324,7 +408,7 @@ def load_saved(path) -> Saved:
         linear=_linear(doc, arrays), cov=None if doc["cov"] is None else _matrix(doc["cov"]),
         std={k: _float(v) for k, v in doc["std"].items()}, param_names=tuple(doc["param_names"]),
         X_std=arrays.get("X_std"), inliers=arrays.get("inliers"), options=_options_from_json(doc["options"]),
-        info=_untagged(doc["info"]),
+        **_typed_fields(doc),
     )
     return Saved(cal, arrays.get("point_ids"), doc.get("inputs", {}), doc)
 

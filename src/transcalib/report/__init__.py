@@ -131,7 +131,7 @@ def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "trans
         uv = observed_pixels(cal)  # once, for every figure
     sections = [f"<h1>{html.escape(title)}</h1>",
                 f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
-                f"stages {html.escape(' → '.join(cal.info.get('stages', [])))}; transcalib {software_version()}; "
+                f"stages {html.escape(' → '.join(cal.stats.stages))}; transcalib {software_version()}; "
                 f"{time.strftime('%Y-%m-%d %H:%M')}</p>",
                 "<h2>Parameters</h2>", _parameters(cal, truth), "<h2>Diagnostics</h2>", _diagnostics(cal)]
     return ReportData(title=title, sections=sections, figures=_figure_data(cal, uv, truth, point_ids, unit))

@@ -1,49 +1,19 @@
-"""Result types and option dataclasses shared by every stage (errors: :mod:`.errors`).
+"""Option dataclasses of every stage: checked when they are made.
 
-Conventions (see ``docs/conventions.md``):
-
-* ``uv``  ``(n_views, n_points, 2)`` pixels, NaN where a point is not seen; the centre of
-  the top-left pixel is (0, 0) (OpenCV).
-* ``T``   ``(n_views, 3)`` robot translations in the world (robot) frame, user units.
-* ``R``   world -> camera rotation (``R_cam_world``), det +1; camera x right, y down,
-  z forward.
-* ``K``   ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; ``A = K R``.
-* ``X``   ``(n_points, 3)`` scene points in world axes relative to the camera centre at
-  robot position ``T = 0``.
-
-Projection (paper eq. 2): ``lam_ij * [u_ij, v_ij, 1] = A (X_j - T_i)``.
-
-Options are frozen dataclasses, checked when they are made: a misspelt option name is a
-``TypeError``, a bad value an :class:`InputError` naming the option.
+A misspelt option name is a ``TypeError``, a bad value an :class:`InputError` naming the
+option. :class:`CalibrateOptions` records everything a calibration was asked to do.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 
 import numpy as np
 
-from .errors import DegenerateError, Diagnostic, InputError, MirroredError, TranscalibError
-from .geometry.camera import DIST_MODELS, Camera
-
-__all__ = [
-    "TranscalibError",
-    "InputError",
-    "DegenerateError",
-    "MirroredError",
-    "Diagnostic",
-    "RansacOptions",
-    "RefineOptions",
-    "CalibrateOptions",
-    "LinearEstimate",
-    "Calibration",
-    "Camera",
-    "INTRINSIC_NAMES",
-    "ProgressEvent",
-]
+from ..errors import InputError
+from ..geometry.camera import DIST_MODELS
 
 #: Names of the intrinsic parameters, as used by ``fix`` and ``Calibration.std``.
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "skew")
@@ -107,7 +77,7 @@ class RefineOptions:
         Lens distortion model (OpenCV convention). ``"auto"`` (default): chosen from the
         data, climbing none -> radial2 -> opencv5 while a score test of the added
         coefficients is significant at 1 % and they are determined
-        (``Calibration.info["distortion_selection"]`` says why).
+        (``Calibration.stats.distortion_selection`` says why).
     estimate_skew : bool
         Estimate the skew ``K[0, 1]`` (else fixed at its start value, 0 by default).
     fix : mapping of str to float
@@ -268,230 +238,3 @@ class CalibrateOptions:
                                  "drop them or refine")
         if self.robust is False and self.ransac != RansacOptions():
             raise InputError("robust=False ignores the RANSAC options given; drop them or use robust=True/None")
-
-
-@dataclass(frozen=True, eq=False)
-class LinearEstimate:
-    """The paper's linear (total-least-squares) estimate.
-
-    Attributes
-    ----------
-    K : (3, 3) float
-        Intrinsics, positive diagonal, ``K[2, 2] = 1``.
-    R : (3, 3) float
-        Rotation world -> camera, ``det R = +1``.
-    A : (3, 3) float
-        ``A = K R`` scaled so that ``||A[2]|| = 1`` (then ``depth`` is camera z).
-    X : (n_points, 3) float
-        Scene points (world axes, user units, relative to the camera centre at ``T = 0``),
-        triangulated from all views with ``A`` and the known translations. NaN for
-        points that were not used (seen in fewer than 2 views).
-    depth : (n_views, n_points) float
-        Projective depths lambda of the TLS solution (paper eq. 3), equal to the camera
-        z-coordinate for exact data; NaN where a point is not seen or not used.
-    singular_values : (k,) float
-        The smallest singular values of the normalised system ``C b = 0``, ascending.
-        Their ratio ``s[0] / s[1]`` measures how well the solution is determined
-        (near 1: ill-conditioned).
-    n_used_points : int
-        Number of points that entered the estimate.
-    used : (n_points,) bool
-        Which points entered the estimate.
-    method : str
-        ``"fast"`` (O(n) block elimination), ``"dense"`` (SVD of the whole system) or
-        ``"coplanar"`` (the 2-axis start with known parameters).
-    static : (n_points,) bool or None
-        Tracks left out because they do not move between views (no depth information).
-    """
-
-    K: np.ndarray
-    R: np.ndarray
-    A: np.ndarray
-    X: np.ndarray
-    depth: np.ndarray
-    singular_values: np.ndarray
-    n_used_points: int
-    used: np.ndarray
-    method: str = "fast"
-    static: np.ndarray | None = None
-
-    def __eq__(self, other) -> bool:
-        return isinstance(other, LinearEstimate) and _same_fields(self, other)
-
-    __hash__ = None
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class Calibration:
-    """A complete calibration: what :func:`transcalib.calibrate` returns.
-
-    Attributes
-    ----------
-    camera : Camera
-        ``K``, ``R``, distortion and image size (also as the properties ``K``, ``R``,
-        ``dist``, ``dist_model``, ``image_size``).
-    X : (n_points, 3) float
-        Scene points in world axes and user units; NaN for unused points.
-    residuals_px : (n_views, n_points, 2) float
-        Observed minus predicted pixel positions; NaN where a point is not seen or could
-        not be triangulated.
-    rms_px : float
-        ``sqrt(mean(du**2 + dv**2))`` over the used observations (OpenCV's RMS convention).
-    T : (n_views, 3) float
-        The translations used (the measured ones, or their refined values when the
-        robot noise was modelled).
-    sigma_px : float or None
-        Pixel noise per coordinate: estimated from the residuals (or the known value).
-    diagnostics : list of Diagnostic
-        Warnings, each naming the cause and what to do; empty when the data look healthy.
-    linear : LinearEstimate or None
-        The linear estimate the result started from.
-    cov : (p, p) float or None
-        Covariance of the parameters named by ``param_names`` (refined results only;
-        rotations in degrees).
-    std : dict of str to float
-        Standard deviations by parameter name (rotation angles in degrees).
-    param_names : tuple of str
-        Names of the parameters in ``cov``.
-    X_std : (n_points, 3) float or None
-        Standard deviation of each scene point coordinate.
-    inliers : (n_points,) bool or None
-        Points classified as inliers (robust estimation), else None (all used).
-    options : CalibrateOptions or None
-        What the calibration was asked to do.
-    info : dict
-        How the result was obtained (statistics only): stages run, iterations, final
-        cost, stop reason, timings.
-    """
-
-    camera: Camera
-    X: np.ndarray
-    residuals_px: np.ndarray
-    rms_px: float
-    T: np.ndarray
-    sigma_px: float | None = None
-    diagnostics: list = field(default_factory=list)
-    linear: LinearEstimate | None = None
-    cov: np.ndarray | None = None
-    std: dict = field(default_factory=dict)
-    param_names: tuple = ()
-    X_std: np.ndarray | None = None
-    inliers: np.ndarray | None = None
-    options: CalibrateOptions | None = None
-    info: dict = field(default_factory=dict)
-
-    @property
-    def K(self) -> np.ndarray:
-        return self.camera.K
-
-    @property
-    def R(self) -> np.ndarray:
-        return self.camera.R
-
-    @property
-    def dist(self) -> np.ndarray:
-        return self.camera.dist
-
-    @property
-    def dist_model(self) -> str:
-        return self.camera.dist_model
-
-    @property
-    def image_size(self) -> tuple | None:
-        return self.camera.image_size
-
-    @property
-    def A(self) -> np.ndarray:
-        """``K @ R`` (3, 3)."""
-        return self.camera.K @ self.camera.R
-
-    @property
-    def dist_opencv(self) -> np.ndarray:
-        """The five OpenCV coefficients ``k1, k2, p1, p2, k3`` (zeros beyond the model),
-        ready for ``cv2.undistort`` / ``cv2.projectPoints``."""
-        return self.camera.dist5
-
-    @property
-    def n_views(self) -> int:
-        return int(self.residuals_px.shape[0])
-
-    @property
-    def n_points(self) -> int:
-        return int(self.residuals_px.shape[1])
-
-    def save(self, path) -> None:
-        """Write this calibration to ``path`` (``calibration.json`` and its binary sidecar);
-        :func:`transcalib.load` reads it back, equal in every field."""
-        from .io.calibration_file import save_calibration  # io sits above types: import on use
-
-        save_calibration(self, path)
-
-    def export(self, folder, formats="all", context=None) -> list:
-        """Write this calibration to ``folder`` in ``formats`` (``"all"`` or some of json,
-        csv, opencv, ros, colmap, ply, report); see :func:`transcalib.io.export.export_calibration`."""
-        from .io.export import export_calibration  # io sits above types: import on use
-
-        if isinstance(formats, str) and formats != "all":
-            formats = tuple(f.strip() for f in formats.split(","))
-        return export_calibration(self, folder, formats, context)
-
-    def __eq__(self, other) -> bool:
-        return isinstance(other, Calibration) and _same_fields(self, other)
-
-    __hash__ = None
-
-
-@dataclass(frozen=True)
-class ProgressEvent:
-    """What a long computation reports to its ``progress`` callable, the one progress
-    protocol of every stage: ``progress(event)``.
-
-    Attributes
-    ----------
-    stage : str
-        What is running, e.g. ``"robust"``, ``"refine: iteration"``, ``"track: detect"``.
-    done, total : int or None
-        Steps done so far of ``total`` (``total`` None: open-ended, e.g. iterations);
-        both None: the stage has finished.
-    info : mapping of str to value
-        Figures of the stage (``rms_px``, ``inliers``, ``cost``, ...).
-    """
-
-    stage: str
-    done: int | None = None
-    total: int | None = None
-    info: Mapping = field(default_factory=lambda: MappingProxyType({}))
-
-    @property
-    def finished(self) -> bool:
-        return self.done is None and self.total is None
-
-
-def report(progress, stage: str, done: int | None = None, total: int | None = None, **info) -> None:
-    """Send ``progress`` (a callable or None) a :class:`ProgressEvent`."""
-    if progress is not None:
-        progress(ProgressEvent(stage, done, total, MappingProxyType(info)))
-
-
-def _same_fields(a, b) -> bool:
-    return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
-
-
-def _same(a, b) -> bool:
-    """Equality of result values: arrays element-wise (NaN equals NaN), containers deeply."""
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        a, b = np.asarray(a), np.asarray(b)
-        return a.shape == b.shape and bool(np.all((a == b) | (_isnan(a) & _isnan(b))))
-    if isinstance(a, Mapping) and isinstance(b, Mapping):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    if isinstance(a, Diagnostic) or isinstance(b, Diagnostic):
-        return str(a) == str(b) and getattr(a, "code", None) == getattr(b, "code", None)
-    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
-        return True
-    return bool(a == b)
-
-
-def _isnan(a: np.ndarray) -> np.ndarray:
-    return np.isnan(a) if np.issubdtype(a.dtype, np.floating) else np.zeros(a.shape, bool)

@@ -1,0 +1,375 @@
+"""Results of the stages: frozen dataclasses, never changed once made.
+
+:class:`LinearEstimate` (the paper's linear estimate), :class:`Calibration` (what
+:func:`transcalib.calibrate` returns) and the typed records of how each stage ran
+(:class:`RansacStats`, :class:`RefineStats`, :class:`DistortionStep`, gathered in
+:class:`CalibrationStats`). Arrays of a :class:`Calibration` are read-only views,
+its mappings read-only proxies and its lists tuples, so that no later stage can change a
+result another one holds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
+
+import numpy as np
+
+from ..errors import Diagnostic
+from ..geometry.camera import Camera
+from .options import CalibrateOptions
+
+
+def _read_only(a):
+    """A read-only view of array ``a`` (None stays None); ``a`` itself stays writeable."""
+    if a is None:
+        return None
+    view = np.asarray(a).view()
+    view.setflags(write=False)
+    return view
+
+
+def _freeze(obj, arrays=(), mappings=(), sequences=()) -> None:
+    """In a frozen dataclass's ``__post_init__``: the named fields as read-only arrays,
+    read-only mappings and tuples."""
+    for name in arrays:
+        object.__setattr__(obj, name, _read_only(getattr(obj, name)))
+    for name in mappings:
+        object.__setattr__(obj, name, MappingProxyType(dict(getattr(obj, name))))
+    for name in sequences:
+        object.__setattr__(obj, name, tuple(getattr(obj, name)))
+
+
+@dataclass(frozen=True, eq=False)
+class LinearEstimate:
+    """The paper's linear (total-least-squares) estimate.
+
+    Attributes
+    ----------
+    K : (3, 3) float
+        Intrinsics, positive diagonal, ``K[2, 2] = 1``.
+    R : (3, 3) float
+        Rotation world -> camera, ``det R = +1``.
+    A : (3, 3) float
+        ``A = K R`` scaled so that ``||A[2]|| = 1`` (then ``depth`` is camera z).
+    X : (n_points, 3) float
+        Scene points (world axes, user units, relative to the camera centre at ``T = 0``),
+        triangulated from all views with ``A`` and the known translations. NaN for
+        points that were not used (seen in fewer than 2 views).
+    depth : (n_views, n_points) float
+        Projective depths lambda of the TLS solution (paper eq. 3), equal to the camera
+        z-coordinate for exact data; NaN where a point is not seen or not used.
+    singular_values : (k,) float
+        The smallest singular values of the normalised system ``C b = 0``, ascending.
+        Their ratio ``s[0] / s[1]`` measures how well the solution is determined
+        (near 1: ill-conditioned).
+    n_used_points : int
+        Number of points that entered the estimate.
+    used : (n_points,) bool
+        Which points entered the estimate.
+    method : str
+        ``"fast"`` (O(n) block elimination), ``"dense"`` (SVD of the whole system) or
+        ``"coplanar"`` (the 2-axis start with known parameters).
+    static : (n_points,) bool or None
+        Tracks left out because they do not move between views (no depth information).
+    """
+
+    K: np.ndarray
+    R: np.ndarray
+    A: np.ndarray
+    X: np.ndarray
+    depth: np.ndarray
+    singular_values: np.ndarray
+    n_used_points: int
+    used: np.ndarray
+    method: str = "fast"
+    static: np.ndarray | None = None
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, LinearEstimate) and _same_fields(self, other)
+
+    __hash__ = None
+
+
+@dataclass(frozen=True)
+class RansacStats:
+    """How the robust stage ran (:attr:`CalibrationStats.ransac`).
+
+    Attributes
+    ----------
+    trials : int
+        Minimal-sample hypotheses drawn.
+    trials_needed : float
+        Trials the adaptive stopping rule asked for at the end (inf if never met).
+    n_inliers : int
+        Tracks kept.
+    sigma_px : float
+        Pixel noise per coordinate estimated from the inliers.
+    rule_sigma_px : float
+        The sigma of the inlier rule (``sigma_px``, or the one a user threshold implies).
+    time_s : float
+    """
+
+    trials: int
+    trials_needed: float
+    n_inliers: int
+    sigma_px: float
+    rule_sigma_px: float
+    time_s: float
+
+
+@dataclass(frozen=True)
+class RefineStats:
+    """How a refinement ran (:attr:`CalibrationStats.refine`).
+
+    Attributes
+    ----------
+    iterations : int
+        Accepted Levenberg-Marquardt (or Gauss-Newton) steps.
+    cost : float
+        Final cost ``0.5 sum rho(|r|^2)`` (+ the translation priors), px^2.
+    stop_reason : str
+    converged : bool
+    dof : int
+        Residual degrees of freedom of the final least-squares stage.
+    n_observations, n_points_used, n_points_excluded, n_points_behind_camera : int
+        Observations of the used points; points used; left out (not triangulated, seen
+        once, or behind the camera at the start); of those, behind the camera.
+    n_points_undetermined : int
+        Used points whose position the data do not determine (no covariance).
+    inlier_threshold_px : float or None
+        Residual norm above which a robust loss's observation is an outlier.
+    time_s : float
+    """
+
+    iterations: int
+    cost: float
+    stop_reason: str
+    converged: bool
+    dof: int
+    n_observations: int
+    n_points_used: int
+    n_points_excluded: int
+    n_points_behind_camera: int
+    n_points_undetermined: int
+    inlier_threshold_px: float | None
+    time_s: float
+
+
+@dataclass(frozen=True)
+class DistortionStep:
+    """One step of the distortion choice (``distortion="auto"``): the score test of the
+    coefficients ``model`` adds, ``F`` and its ``p_value`` against the level ``alpha``,
+    whether the model was taken and, if not although the test asked for it, why."""
+
+    model: str
+    F: float
+    p_value: float
+    alpha: float
+    chosen: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class CalibrationStats:
+    """How a calibration was obtained (:attr:`Calibration.stats`).
+
+    Attributes
+    ----------
+    stages : tuple of str
+        Stages run, in order (``"robust"`` or ``"linear"``, ``"refine"``,
+        ``"reclassify+refine"``, ``"all tracks"``).
+    timings_s : mapping of str to float
+        Seconds per stage (``robust_s`` / ``linear_s``, ``refine_s``, ``all_tracks_s``,
+        ``diagnostics_s``).
+    ransac : RansacStats or None
+        The robust stage, when it ran.
+    refine : RefineStats or None
+        The (last) refinement, when it ran.
+    subset : RefineStats or None
+        With more tracks than ``subset_points``: the refinement of the subset that the
+        Gauss-Newton steps with every track started from.
+    distortion_selection : tuple of DistortionStep
+        The steps of the distortion choice (``distortion="auto"``).
+    sigma_truncation_factor : float or None
+        Factor by which the inlier rule shrank the estimated noise variance, undone in
+        ``sigma_px`` and every variance (about 0.98).
+    """
+
+    stages: tuple = ()
+    timings_s: Mapping = field(default_factory=dict)
+    ransac: RansacStats | None = None
+    refine: RefineStats | None = None
+    subset: RefineStats | None = None
+    distortion_selection: tuple = ()
+    sigma_truncation_factor: float | None = None
+
+    def __post_init__(self):
+        _freeze(self, mappings=("timings_s",), sequences=("stages", "distortion_selection"))
+
+
+@dataclass(frozen=True, eq=False)
+class ViewRotations:
+    """Rotations fitted per view (the rotation test's alternative model): camera-frame
+    rotation vectors ``deg (n_views, 3)`` in degrees, their ``std_deg (n_views, 3)`` and
+    the Wald statistics ``chi2 (n_views,)`` (chi-square(3) for a view that did not rotate);
+    zero for views without a rotation parameter."""
+
+    deg: np.ndarray
+    std_deg: np.ndarray
+    chi2: np.ndarray
+
+    def __post_init__(self):
+        _freeze(self, arrays=("deg", "std_deg", "chi2"))
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ViewRotations) and _same_fields(self, other)
+
+    __hash__ = None
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Calibration:
+    """A complete calibration: what :func:`transcalib.calibrate` returns.
+
+    Attributes
+    ----------
+    camera : Camera
+        ``K``, ``R``, distortion and image size (also as the properties ``K``, ``R``,
+        ``dist``, ``dist_model``, ``image_size``).
+    X : (n_points, 3) float
+        Scene points in world axes and user units; NaN for unused points.
+    residuals_px : (n_views, n_points, 2) float
+        Observed minus predicted pixel positions; NaN where a point is not seen or could
+        not be triangulated.
+    rms_px : float
+        ``sqrt(mean(du**2 + dv**2))`` over the used observations (OpenCV's RMS convention).
+    T : (n_views, 3) float
+        The translations used (the measured ones, or their refined values when the
+        robot noise was modelled).
+    sigma_px : float or None
+        Pixel noise per coordinate: estimated from the residuals (or the known value).
+    diagnostics : tuple of Diagnostic
+        Warnings, each naming the cause and what to do; empty when the data look healthy.
+    linear : LinearEstimate or None
+        The linear estimate the result started from.
+    cov : (p, p) float or None
+        Covariance of the parameters named by ``param_names`` (refined results only;
+        rotations in degrees).
+    std : mapping of str to float
+        Standard deviations by parameter name (rotation angles in degrees).
+    param_names : tuple of str
+        Names of the parameters in ``cov``.
+    X_std : (n_points, 3) float or None
+        Standard deviation of each scene point coordinate.
+    inliers : (n_points,) bool or None
+        Points classified as inliers (robust estimation), else None (all used).
+    T_std : (n_views, 3) float or None
+        Standard deviation of each refined translation (robot noise modelled: ``sigma_T``).
+    view_rotations : ViewRotations or None
+        Rotations fitted per view (``RefineOptions.estimate_view_rotations``).
+    t_flange_camera : (3,) float or None
+        The camera's position in the flange ``t_X`` (several flange orientations; robot
+        units), zero along the directions the data do not determine.
+    options : CalibrateOptions or None
+        What the calibration was asked to do.
+    stats : CalibrationStats
+        How it was obtained: stages, timings, the robust stage, the refinement, the
+        distortion choice.
+    info : mapping
+        Free-form extras (read-only).
+    """
+
+    camera: Camera
+    X: np.ndarray
+    residuals_px: np.ndarray
+    rms_px: float
+    T: np.ndarray
+    sigma_px: float | None = None
+    diagnostics: tuple = ()
+    linear: LinearEstimate | None = None
+    cov: np.ndarray | None = None
+    std: Mapping = field(default_factory=dict)
+    param_names: tuple = ()
+    X_std: np.ndarray | None = None
+    inliers: np.ndarray | None = None
+    T_std: np.ndarray | None = None
+    view_rotations: ViewRotations | None = None
+    t_flange_camera: np.ndarray | None = None
+    options: CalibrateOptions | None = None
+    stats: CalibrationStats = field(default_factory=CalibrationStats)
+    info: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        _freeze(self, arrays=("X", "residuals_px", "T", "cov", "X_std", "inliers", "T_std", "t_flange_camera"),
+                mappings=("std", "info"), sequences=("diagnostics", "param_names"))
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K
+
+    @property
+    def R(self) -> np.ndarray:
+        return self.camera.R
+
+    @property
+    def dist(self) -> np.ndarray:
+        return self.camera.dist
+
+    @property
+    def dist_model(self) -> str:
+        return self.camera.dist_model
+
+    @property
+    def image_size(self) -> tuple | None:
+        return self.camera.image_size
+
+    @property
+    def A(self) -> np.ndarray:
+        """``K @ R`` (3, 3)."""
+        return self.camera.K @ self.camera.R
+
+    @property
+    def dist_opencv(self) -> np.ndarray:
+        """The five OpenCV coefficients ``k1, k2, p1, p2, k3`` (zeros beyond the model),
+        ready for ``cv2.undistort`` / ``cv2.projectPoints``."""
+        return self.camera.dist5
+
+    @property
+    def n_views(self) -> int:
+        return int(self.residuals_px.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        return int(self.residuals_px.shape[1])
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Calibration) and _same_fields(self, other)
+
+    __hash__ = None
+
+
+def _same_fields(a, b) -> bool:
+    return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+
+
+def _same(a, b) -> bool:
+    """Equality of result values: arrays element-wise (NaN equals NaN), containers deeply."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and bool(np.all((a == b) | (_isnan(a) & _isnan(b))))
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, Diagnostic) or isinstance(b, Diagnostic):
+        return str(a) == str(b) and getattr(a, "code", None) == getattr(b, "code", None)
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
+
+def _isnan(a: np.ndarray) -> np.ndarray:
+    return np.isnan(a) if np.issubdtype(a.dtype, np.floating) else np.zeros(a.shape, bool)
