@@ -417,22 +417,6 @@ class Calibration:
     def n_points(self) -> int:
         return int(self.residuals_px.shape[1])
 
-    def save(self, path) -> None:
-        """Write this calibration to ``path`` (``calibration.json`` and its binary sidecar);
-        :func:`transcalib.load` reads it back, equal in every field."""
-        from .io.calibration_file import save_calibration  # io sits above types: import on use
-
-        save_calibration(self, path)
-
-    def export(self, folder, formats="all", context=None) -> list:
-        """Write this calibration to ``folder`` in ``formats`` (``"all"`` or some of json,
-        csv, opencv, ros, colmap, ply, report); see :func:`transcalib.io.export.export_calibration`."""
-        from .io.export import export_calibration  # io sits above types: import on use
-
-        if isinstance(formats, str) and formats != "all":
-            formats = tuple(f.strip() for f in formats.split(","))
-        return export_calibration(self, folder, formats, context)
-
     def __eq__(self, other) -> bool:
         return isinstance(other, Calibration) and _same_fields(self, other)
 
