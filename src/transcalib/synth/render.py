@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry.camera import pixels_to_rays, project
-from .degrade import Degradations, ViewEffects, degrade_view, draw_view_effects, overlay_box
+from .degrade import Degradations, degrade_view, draw_view_effects, overlay_box
 from .raycast import on_surface, render_view, sample_rays, surface_hits
 from .presets import SCENE_KINDS, default_camera, preset_scene, robot_translations
 from .simulate import Scene
