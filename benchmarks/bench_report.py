@@ -5,7 +5,7 @@ noise as residuals, 1 % outliers, a diagonal covariance of the intrinsics): its 
 shows what a real one shows, and the cost depends on the number of points only. Times:
 
 - ``in-process``: :func:`transcalib.report.write_report` in a fresh interpreter, the
-  matplotlib import included (what ``Calibration.export`` costs a library user);
+  matplotlib import included (what ``transcalib.export`` costs a library user);
 - its parts: ``reduce`` (:func:`~transcalib.report.report_data`, numpy only),
   ``import`` (matplotlib), ``draw`` (:func:`~transcalib.report.render_report`);
 - ``worker``: what ``transcalib calibrate`` waits for when nothing overlaps the drawing

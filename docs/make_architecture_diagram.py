@@ -43,7 +43,7 @@ def main() -> None:
     ax.text(5.6, 5.25, "calibrate()  (pipeline.py):  images / tracks  ->  robust  ->  linear  ->  refine  ->  "
             "diagnose  ->  Calibration", ha="center", fontsize=10, weight="bold")
     ax.text(5.6, -0.35, "layers: errors < geometry < types, validate < estimate < check < synth, images, handeye "
-            "< planning, pipeline < io, report < cli   (tests/test_architecture.py)", ha="center", fontsize=8.5)
+            "< planning, pipeline < io, report < cli; no import cycles   (tests/test_architecture.py)", ha="center", fontsize=8.5)
     ax.set_xlim(-0.7, 9.6)
     ax.set_ylim(-0.6, 5.5)
     ax.axis("off")

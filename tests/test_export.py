@@ -4,7 +4,7 @@ plyfile), values compared with the calibration."""
 import numpy as np
 import pytest
 
-from transcalib.io import export
+from transcalib.io import export, formats
 from transcalib.io.export import ExportContext, export_calibration
 
 from test_io import full_calibration
@@ -29,7 +29,7 @@ def uv(cal):
 def test_opencv_yaml_read_by_cv2(cal, tmp_path):
     import cv2
 
-    export.write_opencv_yaml(cal, tmp_path / "camera.yaml", (640, 480))
+    formats.write_opencv_yaml(cal, tmp_path / "camera.yaml", (640, 480))
     fs = cv2.FileStorage(str(tmp_path / "camera.yaml"), cv2.FILE_STORAGE_READ)
     assert fs.isOpened()
     np.testing.assert_array_equal(fs.getNode("camera_matrix").mat(), cal.K)
@@ -43,7 +43,7 @@ def test_opencv_yaml_read_by_cv2(cal, tmp_path):
 def test_ros_camera_info(cal, tmp_path):
     import yaml
 
-    export.write_ros_camera_info(cal, tmp_path / "camera_info.yaml", (640, 480), "wrist")
+    formats.write_ros_camera_info(cal, tmp_path / "camera_info.yaml", (640, 480), "wrist")
     d = yaml.safe_load((tmp_path / "camera_info.yaml").read_text())
     assert d["image_width"] == 640 and d["image_height"] == 480 and d["camera_name"] == "wrist"
     assert d["distortion_model"] == "plumb_bob"
@@ -58,7 +58,7 @@ def test_ros_camera_info(cal, tmp_path):
 def test_colmap_model_read_by_pycolmap(cal, uv, tmp_path):
     import pycolmap
 
-    export.write_colmap(cal, tmp_path, (640, 480), uv, view_names=[f"im{i}.png" for i in range(5)])
+    formats.write_colmap(cal, tmp_path, (640, 480), uv, view_names=[f"im{i}.png" for i in range(5)])
     rec = pycolmap.Reconstruction(str(tmp_path))
     assert rec.num_cameras() == 1 and rec.num_images() == 5
     ok = np.isfinite(cal.X[:, 0])
@@ -97,7 +97,7 @@ def test_ply_read_by_plyfile(cal, tmp_path):
     from plyfile import PlyData
 
     colors = np.random.default_rng(0).integers(0, 256, (cal.n_points, 3)).astype(np.uint8)
-    export.write_ply(cal, tmp_path / "points.ply", colors)
+    formats.write_ply(cal, tmp_path / "points.ply", colors)
     v = PlyData.read(str(tmp_path / "points.ply"))["vertex"]
     ok = np.isfinite(cal.X[:, 0])
     np.testing.assert_array_equal(np.column_stack([v["x"], v["y"], v["z"]]), cal.X[ok])
@@ -121,14 +121,32 @@ def test_export_all_and_errors(cal, uv, tmp_path):
     no_size = replace(cal, camera=replace(cal.camera, image_size=None))
     with pytest.raises(InputError, match="image size is unknown"):
         export_calibration(no_size, tmp_path / "x", ["opencv"])
-    assert export.image_size_or_extent(no_size, np.array([[[639.4, 10.0]], [[5.0, 479.6]]])) == (640, 480)
+    assert formats.image_size_or_extent(no_size, np.array([[[639.4, 10.0]], [[5.0, 479.6]]])) == (640, 480)
+
+
+def test_transcalib_export_takes_names_as_text(cal, uv, tmp_path):
+    """``transcalib.export(cal, folder, "opencv, ply")`` writes those two; "all" every format;
+    a misspelt name or anything but a Calibration is an InputError naming it."""
+    import transcalib
+    from transcalib.errors import InputError
+
+    written = transcalib.export(cal, tmp_path / "two", "opencv, ply")
+    assert [p.name for p in written] == ["camera.yaml", "points.ply"]
+    assert [p.name for p in transcalib.export(cal, tmp_path / "one", ["ply"])] == ["points.ply"]
+    with pytest.raises(InputError, match="unknown export format.*opencvv"):
+        transcalib.export(cal, tmp_path / "x", "opencvv,ply")
+    with pytest.raises(InputError, match="transcalib.export: expected a Calibration"):
+        transcalib.export(cal.camera, tmp_path / "x", "ply")
+    assert not (tmp_path / "x").exists()
+    with_all = transcalib.export(cal, tmp_path / "all", formats="all", context=ExportContext(uv=uv))
+    assert {p.name for p in with_all} >= {"calibration.json", "camera.yaml", "points.ply", "report.html"}
 
 
 def test_colmap_in_chunks_reads_back_the_same(cal, uv, tmp_path, monkeypatch):
     """Formatting a few points at a time (as at 10^6 points) writes the same model."""
-    export.write_colmap(cal, tmp_path / "one", (640, 480), uv)
-    monkeypatch.setattr(export, "CHUNK", 7)
-    export.write_colmap(cal, tmp_path / "many", (640, 480), uv)
+    formats.write_colmap(cal, tmp_path / "one", (640, 480), uv)
+    monkeypatch.setattr(formats, "CHUNK", 7)
+    formats.write_colmap(cal, tmp_path / "many", (640, 480), uv)
     for name in ("cameras.txt", "images.txt", "points3D.txt"):
         assert (tmp_path / "one" / name).read_text() == (tmp_path / "many" / name).read_text(), name
 
@@ -148,7 +166,7 @@ def test_export_with_a_report_worker(cal, uv, tmp_path):
 
 def test_colmap_precision(cal, uv, tmp_path):
     """2-D points and errors with 6 digits after the point (1e-6 px), 3-D points exact."""
-    export.write_colmap(cal, tmp_path, (640, 480), uv)
+    formats.write_colmap(cal, tmp_path, (640, 480), uv)
     lines = (tmp_path / "images.txt").read_text().splitlines()
     assert not any("  " in line or line != line.strip() for line in lines)  # COLMAP splits on single spaces
     ok = np.isfinite(cal.X[:, 0])

@@ -315,14 +315,19 @@ def test_load_errors(tmp_path):
         load_calibration(json_path)
 
 
-def test_calibration_save_method_round_trip(tmp_path):
-    """``Calibration.save`` (types.py) writes what ``load_calibration`` reads back equal."""
-    from transcalib.io.calibration_file import load_calibration
+def test_transcalib_save_round_trip(tmp_path):
+    """``transcalib.save`` writes what ``transcalib.load`` reads back equal; anything but a
+    Calibration is an InputError saying what was expected."""
+    import transcalib
+    from transcalib.errors import InputError
 
     cal = full_calibration(n_points=10)
-    cal.save(tmp_path / "c.json")
+    transcalib.save(cal, tmp_path / "c.json")
     assert (tmp_path / "c.arrays.npz").is_file()
-    assert load_calibration(tmp_path / "c.json") == cal
+    assert transcalib.load(tmp_path / "c.json") == cal
+    with pytest.raises(InputError, match="transcalib.save: expected a Calibration.*got dict"):
+        transcalib.save({"K": cal.K}, tmp_path / "d.json")
+    assert not (tmp_path / "d.json").exists()
 
 
 # --------------------------------------------------------------------------------------

@@ -36,6 +36,8 @@ _LAZY = {
     "refine": (".estimate.refine", "refine"),
     "calibrate_sessions": (".handeye.calibrate", "calibrate_sessions"),
     "load": (".io.calibration_file", "load_calibration"),
+    "save": (".io.calibration_file", "save_calibration"),
+    "export": (".io.export", "export_calibration"),
     "crlb": (".estimate.covariance", "crlb"),
     "diagnose": (".check", "diagnose"),
     "track": (".images", "track"),

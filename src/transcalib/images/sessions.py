@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import DegenerateError, InputError
+from .dispatch import track
 from .features import _match_pair, _to_u8, _union_find
 from .frames import Tracks, load_images
 
@@ -69,8 +70,6 @@ def track_sessions(images, session_of_view, *, link_ratio: float = 0.8, link_thr
     DegenerateError
         A session cannot be tracked, or no two sessions share enough points.
     """
-    from . import track  # the package's dispatcher (avoids an import cycle)
-
     t0 = time.perf_counter()
     grey, rgb, names = load_images(images)
     labels, groups = _sessions(session_of_view, len(grey))

@@ -1,7 +1,7 @@
 """Readers, writers and exports: tracks and poses in; calibration, points and exports out.
 
 ``tables`` (CSV / binary tracks), ``files`` (atomic writes), ``calibration_file``
-(``calibration.json`` + ``arrays.npz``), ``export`` (OpenCV, ROS, COLMAP, PLY).
+(``calibration.json`` + ``arrays.npz``), ``formats`` (OpenCV, ROS, COLMAP, PLY), ``export`` (all at once).
 """
 
 from .files import atomic_write, check_writable_dir, check_writable_file, write_json

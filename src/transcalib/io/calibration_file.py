@@ -23,7 +23,7 @@ from ..errors import Diagnostic, InputError
 from .files import atomic_write, jsonable
 from .ids import point_id_array
 
-__all__ = ["SCHEMA_VERSION", "Saved", "save_calibration", "load_calibration", "load_saved", "calibration_paths"]
+__all__ = ["SCHEMA_VERSION", "Saved", "check_calibration", "save_calibration", "load_calibration", "load_saved", "calibration_paths"]
 
 #: Version of the ``calibration.json`` schema; bumped on any incompatible change. Version 1
 #: kept the statistics and some estimates in one ``info`` dict; it is still read.
@@ -309,8 +309,19 @@ def _document(cal, point_ids, inputs, arrays_name: str, arrays: dict) -> dict:
     }
 
 
+def check_calibration(cal, caller: str) -> None:
+    """:class:`InputError` unless ``cal`` is a :class:`~transcalib.types.Calibration`
+    (what ``transcalib.<caller>`` writes)."""
+    from ..types import Calibration
+
+    if not isinstance(cal, Calibration):
+        raise InputError(f"transcalib.{caller}: expected a Calibration (what transcalib.calibrate returns), "
+                         f"got {type(cal).__name__}")
+
+
 def save_calibration(cal, path, *, point_ids=None, inputs: dict | None = None) -> tuple[Path, Path]:
-    """Write ``cal`` as ``calibration.json`` and its sidecar ``arrays.npz``, atomically.
+    """Write ``cal`` as ``calibration.json`` and its sidecar ``arrays.npz``, atomically:
+    :func:`transcalib.save`; :func:`transcalib.load` reads it back, equal in every field.
 
     Parameters
     ----------
@@ -328,7 +339,13 @@ def save_calibration(cal, path, *, point_ids=None, inputs: dict | None = None) -
     Returns
     -------
     (json_path, arrays_path)
+
+    Raises
+    ------
+    InputError
+        ``cal`` is not a Calibration.
     """
+    check_calibration(cal, "save")
     json_path, arrays_path = calibration_paths(path)
     arrays = _arrays(cal, point_ids)
     doc = _document(cal, point_ids, inputs, arrays_path.name, arrays)

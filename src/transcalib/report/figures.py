@@ -74,7 +74,7 @@ def observed_pixels(cal, uv=None) -> np.ndarray:
 def image_box(cal, uv=None) -> tuple[int, int]:
     """``(width, height)`` px: the image size, else the extent of the observations
     (``uv``, or the prediction plus residual)."""
-    from ..io.export import image_size_or_extent
+    from ..io.formats import image_size_or_extent
 
     return tuple(cal.image_size) if cal.image_size is not None else image_size_or_extent(cal, observed_pixels(cal, uv))
 
