@@ -145,7 +145,7 @@ def test_json_summary_and_show(calibrated, tmp_path):
     assert d["status"] == "ok" and d["exit_code"] == 0 and d["n_views"] == 5
     assert np.array(d["K"]).shape == (3, 3) and "fx" in d["std"] and d["schema_version"] == 2
     r = run("show", out)
-    assert r.returncode == 0 and "fx =" in r.stdout and "schema 1" in r.stdout
+    assert r.returncode == 0 and "fx =" in r.stdout and "schema 2" in r.stdout
     r = run("show", tmp_path)
     assert_clean_error(r, "does not exist")
 
