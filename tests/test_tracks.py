@@ -61,7 +61,7 @@ def test_checkerboard_repetitive_texture(seed):
 def test_mixed_scene_six_views_with_noise_and_blur():
     r = render.render_scene("mixed", n_views=6, image_size=(560, 420), noise_std=2.0, blur_sigma=0.7, rng=7)
     calls = []
-    tr = tracks.track(r.images, progress=lambda stage, done, total: calls.append((stage, done, total)))
+    tr = tracks.track(r.images, progress=lambda e: calls.append((e.stage, e.done, e.total)))
     _check(track_errors(r, tr), 0.12, 0.25)
     stages = {c[0] for c in calls}
     assert {"detect", "match", "verify", "refine"} <= stages

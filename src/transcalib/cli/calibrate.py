@@ -261,10 +261,10 @@ def track_images(images, target, progress: Progress, T=None, sessions=None):
     if target == "squares":
         from ..images import track_squares
 
-        return track_squares([str(p) for p in images], progress=progress.step)
+        return track_squares([str(p) for p in images], progress=progress)
     from ..images import track
 
-    return track([str(p) for p in images], progress=progress.step, T=T)
+    return track([str(p) for p in images], progress=progress, T=T)
 
 
 def _observations(args, plan, progress: Progress):

@@ -84,8 +84,9 @@ def track(
         Fewer final tracks raise :class:`DegenerateError`.
     max_tracks : int or None
         Keep at most this many tracks (the best spread over the reference image).
-    progress : None, True or callable ``(stage: str, done: int, total: int)``
-        Progress reports; ``True`` prints to stderr. Off by default.
+    progress : None, True or callable
+        Called with a :class:`~transcalib.types.ProgressEvent` per step of each stage
+        (``done`` of ``total``); ``True`` prints to stderr. Off by default.
     rng : seed or Generator
         For RANSAC.
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..types import InputError
+from ..types import InputError, report
 
 __all__ = ["Tracks", "load_images"]
 
@@ -143,10 +143,11 @@ def load_images(images) -> tuple[list[np.ndarray], list[np.ndarray | None], tupl
 
 
 def _progress_fn(progress):
+    """``step(stage, done, total)`` sending :class:`~transcalib.types.ProgressEvent` s to
+    ``progress`` (a callable; ``True``: one line per step on stderr; None / False: off)."""
     if progress is None or progress is False:
         return lambda stage, done, total: None
     if progress is True:
-        def report(stage, done, total):
-            print(f"[track] {stage}: {done}/{total}", file=sys.stderr, flush=True)
-        return report
-    return progress
+        def progress(event):
+            print(f"[track] {event.stage}: {event.done}/{event.total}", file=sys.stderr, flush=True)
+    return lambda stage, done, total: report(progress, stage, done, total)

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .frames import Tracks, load_images
+from .frames import Tracks, _progress_fn, load_images
 from ..types import DegenerateError, InputError
 
 __all__ = ["detect_squares", "track_squares"]
@@ -294,7 +294,9 @@ def track_squares(images, *, min_side_px: float = 8.0, min_squares: int = 2, pro
         Smallest square side (pixels).
     min_squares : int
         Fewer squares found in the reference view raises :class:`DegenerateError`.
-    progress : None, True or callable ``(stage, done, total)``
+    progress : None, True or callable
+        Called with a :class:`~transcalib.types.ProgressEvent` after each view; ``True``
+        prints to stderr.
 
     Returns
     -------
@@ -303,16 +305,11 @@ def track_squares(images, *, min_side_px: float = 8.0, min_squares: int = 2, pro
     """
     grey, rgb, names = load_images(images)
     n = len(grey)
-    if progress is True:
-        import sys
-
-        def progress(stage, done, total):
-            print(f"[target] {stage}: {done}/{total}", file=sys.stderr, flush=True)
+    step = _progress_fn(progress)
     per_view = []
     for i, g in enumerate(grey):
         per_view.append(detect_squares(g, min_side_px=min_side_px))
-        if progress:
-            progress("detect squares", i + 1, n)
+        step("detect squares", i + 1, n)
     counts = [len(c) for c in per_view]
     r = int(np.argmax(counts))
     if counts[r] < min_squares:
