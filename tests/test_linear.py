@@ -7,7 +7,9 @@ from hypothesis import strategies as st
 
 from transcalib import simulate
 from transcalib.geometry.camera import project
-from transcalib.geometry.rotation import matrix_to_quaternion, rotation_angle_deg, rq_decompose
+from transcalib.geometry.rotation import (euler_zyx_to_matrix, matrix_to_quaternion, matrix_to_rotvec,
+                                         quaternion_to_matrix, rotation_angle_deg, rotation_defect, rotvec_to_matrix,
+                                         rq_decompose)
 from transcalib.estimate.linear import estimate_linear, solve_tls
 from transcalib.types import DegenerateError, InputError, MirroredError
 
@@ -273,20 +275,68 @@ def test_rq_decompose_recovers_K_and_R():
         rq_decompose(np.diag([1.0, 1.0, -1.0]))
 
 
-def test_matrix_to_quaternion_agrees_with_scipy():
-    """Shepperd's method against scipy's Rotation (an independent implementation), on
-    random rotations and on the hard cases: identity, half turns, near-half turns."""
+def _hard_rotations():
+    """Random rotations and the hard cases: identity, half turns, near-half turns, tiny turns."""
     from scipy.spatial.transform import Rotation
 
-    rotations = [*Rotation.random(200, random_state=6).as_matrix(), np.eye(3), np.diag([1.0, -1.0, -1.0]),
-                 np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]),
-                 Rotation.from_rotvec([0.0, np.pi - 1e-9, 0.0]).as_matrix(),
-                 Rotation.from_rotvec(np.pi * np.array([0.6, 0.0, 0.8])).as_matrix()]
-    for R in rotations:
+    return np.stack([*Rotation.random(200, random_state=6).as_matrix(), np.eye(3), np.diag([1.0, -1.0, -1.0]),
+                     np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]),
+                     Rotation.from_rotvec([0.0, np.pi - 1e-9, 0.0]).as_matrix(),
+                     Rotation.from_rotvec(np.pi * np.array([0.6, 0.0, 0.8])).as_matrix(),
+                     Rotation.from_rotvec([1e-13, -2e-13, 3e-13]).as_matrix(),
+                     Rotation.from_rotvec([0.0, 0.0, 1e-7]).as_matrix()])
+
+
+def test_matrix_to_quaternion_agrees_with_scipy():
+    """Shepperd's method against scipy's Rotation (an independent implementation), one
+    matrix at a time and as a stack, and back."""
+    from scipy.spatial.transform import Rotation
+
+    rotations = _hard_rotations()
+    stack = matrix_to_quaternion(rotations)
+    assert stack.shape == (len(rotations), 4)
+    for R, q_stacked in zip(rotations, stack):
         q, ref = matrix_to_quaternion(R), Rotation.from_matrix(R).as_quat()
+        assert q.shape == (4,) and np.array_equal(q, q_stacked)
         assert q[3] >= 0 and np.linalg.norm(q) == pytest.approx(1.0, abs=1e-15)
         assert min(np.abs(q - ref).max(), np.abs(q + ref).max()) < 1e-12  # q and -q: the same rotation
         np.testing.assert_allclose(Rotation.from_quat(q).as_matrix(), R, atol=1e-12)
+        np.testing.assert_allclose(quaternion_to_matrix(q), R, atol=1e-12)
+    np.testing.assert_allclose(quaternion_to_matrix(-3.0 * stack), rotations, atol=1e-12)  # any norm, either sign
+
+
+def test_rotation_vectors_euler_and_angles_agree_with_scipy():
+    """``rotvec <-> matrix``, KUKA Z-Y-X Euler angles and the rotation angle against scipy,
+    one at a time and stacked; the angle and the rotation vector stay accurate for tiny
+    angles (where ``arccos((tr R - 1) / 2)`` loses all digits) and half turns."""
+    from scipy.spatial.transform import Rotation
+
+    rotations = _hard_rotations()
+    ref = Rotation.from_matrix(rotations)
+    w = matrix_to_rotvec(rotations)
+    assert w.shape == (len(rotations), 3) and np.array_equal(matrix_to_rotvec(rotations[3]), w[3])
+    angle = np.linalg.norm(w, axis=1)
+    assert np.all(angle <= np.pi + 1e-15)
+    np.testing.assert_allclose(angle, ref.magnitude(), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(rotvec_to_matrix(w), rotations, atol=2e-15)
+    np.testing.assert_allclose(rotvec_to_matrix(ref.as_rotvec()), rotations, atol=2e-15)
+    assert rotvec_to_matrix(ref.as_rotvec()[0]).shape == (3, 3)
+    ok = ref.magnitude() < np.pi - 1e-6  # below a half turn the vector is unique
+    np.testing.assert_allclose(w[ok], ref.as_rotvec()[ok], rtol=1e-9, atol=1e-15)
+    degrees = rotation_angle_deg(rotations)
+    np.testing.assert_allclose(degrees, np.degrees(ref.magnitude()), rtol=1e-9, atol=1e-13)
+    assert isinstance(rotation_angle_deg(rotations[0]), float)
+    assert rotation_angle_deg(rotations[-2]) == pytest.approx(np.degrees(np.sqrt(14) * 1e-13), rel=1e-6)
+    abc = ref.as_euler("ZYX", degrees=True)  # intrinsic Z-Y-X: Rz(a) Ry(b) Rx(c)
+    np.testing.assert_allclose(euler_zyx_to_matrix(abc), rotations, atol=1e-12)
+    np.testing.assert_allclose(euler_zyx_to_matrix(abc[5]), rotations[5], atol=1e-12)
+
+
+def test_rotation_defect():
+    R = _hard_rotations()[:3]
+    bad = np.stack([R[0], -R[1], 1.01 * R[2], np.full((3, 3), np.nan)])
+    d = rotation_defect(bad)
+    assert d[0] < 1e-15 and d[1] == np.inf and 0.019 < d[2] < 0.021 and d[3] == np.inf
 
 
 def test_rotation_convention():
