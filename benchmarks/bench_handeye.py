@@ -55,7 +55,7 @@ def _noisy(base, rng):
 
 def _determined_basis(sc):
     """Directions of t_X the (noise-free) problem determines, from the Fisher information."""
-    from transcalib.handeye.poses import group_sessions
+    from transcalib.handeye.sessions import group_sessions
     g = group_sessions(sc.R)
     obs = offset_observability(sc.K, np.zeros(5), sc.R_X.T, sc.t_X, sc.X, sc.uv_true, sc.T,
                                np.transpose(sc.R, (0, 2, 1)), g.rotations, g.labels)

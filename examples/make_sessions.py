@@ -22,9 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from transcalib.handeye.poses import matrix_to_quaternion
+from transcalib.geometry.rotation import matrix_to_quaternion, rotvec_to_matrix
 from transcalib.handeye.simulate import DEFAULT_R_X, DEFAULT_T_X, flange_rotations_looking
-from transcalib.geometry.rotation import rotvec_to_matrix
 from transcalib.synth import render
 
 K = np.array([[430.0, 0.0, 203.0], [0.0, 425.0, 147.0], [0.0, 0.0, 1.0]])

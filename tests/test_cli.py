@@ -226,6 +226,65 @@ def test_pose_orientations_checked_and_strict_exit_4(tmp_path):
     assert (tmp_path / "s" / "calibration.json").is_file()
 
 
+def _calibrate_with_ids(folder, scene, poses_ids: str, tracks_ids: str, R=None, *extra):
+    """Run ``calibrate`` on ``scene`` with view ids formatted by ``poses_ids`` /
+    ``tracks_ids`` (e.g. ``"{:02d}"``); the saved calibration."""
+    from transcalib.io.calibration_file import load_saved
+
+    folder.mkdir()
+    n = scene.n_views
+    tio.write_tracks_csv(folder / "t.csv", scene.uv, view_ids=[tracks_ids.format(i) for i in range(n)])
+    tio.write_poses_csv(folder / "p.csv", scene.T, [poses_ids.format(i) for i in range(n)], R=R)
+    r = run("calibrate", "--tracks", folder / "t.csv", "--poses", folder / "p.csv", "--out", folder / "o",
+            "--quiet", "--formats", "json", *extra)
+    assert r.returncode == 0, r.stderr
+    assert not (folder / "o" / "hand_eye.json").exists()  # one orientation: the paper's model
+    return load_saved(folder / "o")
+
+
+def test_zero_padded_view_ids_with_one_orientation(tmp_path):
+    """View ids compare as integers through the command: poses "00", "01", ... with tracks
+    "0", "1", ... (or "000", ...) give the calibration of plain ids, with or without a
+    (constant) orientation in the poses (JSON poses too)."""
+    scene = simulate.random_scene(40, 5, noise_px=0.2, rng=4)
+    R = np.tile(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), (5, 1, 1))
+    ref = _calibrate_with_ids(tmp_path / "ref", scene, "{}", "{}")
+    assert np.abs(ref.calibration.K - scene.K).max() < 0.01 * scene.K[0, 0]
+    for k, (poses_ids, tracks_ids, rot) in enumerate([("{:02d}", "{}", None), ("{:02d}", "{:03d}", R),
+                                                       ("{}", "{:02d}", R)]):
+        saved = _calibrate_with_ids(tmp_path / str(k), scene, poses_ids, tracks_ids, rot)
+        np.testing.assert_array_equal(saved.calibration.K, ref.calibration.K)
+        assert saved.inputs["view_ids"] == ["0", "1", "2", "3", "4"]
+        assert saved.calibration.diagnostics == ref.calibration.diagnostics
+    from transcalib.io.calibration_file import load_saved
+
+    js = [{"view": f"{i:02d}", "x": t[0], "y": t[1], "z": t[2], "rx": 0, "ry": 0, "rz": 0.5}
+          for i, t in enumerate(tio.read_poses(tmp_path / "ref" / "p.csv").T.tolist())]
+    (tmp_path / "p.json").write_text(json.dumps(js))
+    r = run("calibrate", "--tracks", tmp_path / "ref" / "t.csv", "--poses", tmp_path / "p.json", "--out",
+            tmp_path / "j", "--quiet", "--formats", "json")
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(load_saved(tmp_path / "j").calibration.K, ref.calibration.K)
+
+
+@pytest.mark.parametrize("poses, extra, words", [
+    ("view,x,y,z,qx,qy,qz\n0,0,0,0,0,0,0\n", [], ["line 1", "qx,qy,qz", "without qw", "--rotation-format"]),
+    ("view,x,y,z,qx,qy,qz,qw,a,b,c\n0,0,0,0,0,0,0,1,0,0,0\n", [], ["two orientations", "--rotation-format"]),
+    ("view,x,y,z\n0,0,0,0\n", ["--rotation-format", "kuka"], ["lacks column(s) a, b, c", "--rotation-format"]),
+    ("view,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,1,0,0,0,0,0,1.1\n", [], ["line 3", "norm 1.1"]),
+    ("view,x,y,z\n01,0,0,0\n1,1,0,0\n", [], ["line 3", "column 'view'", "appears more than once"]),
+])
+def test_pose_file_errors_are_one_line(tmp_path, simulated, poses, extra, words):
+    """Errors of the pose reader through the command: exit 2, one line naming the file,
+    the line and the column and what to do (the option, not the Python keyword)."""
+    (tmp_path / "p.csv").write_text(poses)
+    r = run("calibrate", "--tracks", simulated / "tracks.csv", "--poses", tmp_path / "p.csv", "--out",
+            tmp_path / "o", *extra)
+    assert_clean_error(r, "p.csv", *words)
+    assert "rotation_format" not in r.stderr
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
 # --------------------------------------------------------------------------------------
 # checked before any work
 # --------------------------------------------------------------------------------------

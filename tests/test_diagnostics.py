@@ -63,8 +63,8 @@ def test_diagnose_silent_on_good_data(make, seed):
     cal = _calibrate(scene.uv, scene.T)
     assert diagnose(scene.uv, scene.T, cal) == []
     assert diagnose(scene.uv, scene.T, cal.linear, check_rotation=False) == []
-    q = np.tile([0.1, 0.2, 0.3, 0.9], (scene.n_views, 1))
-    assert diagnose(scene.uv, scene.T, cal, quaternions=q) == []
+    R = np.tile(Rotation.from_quat([0.1, 0.2, 0.3, 0.9]).as_matrix(), (scene.n_views, 1, 1))
+    assert diagnose(scene.uv, scene.T, cal, rotations=R) == []
 
 
 # ------------------------------------------------------------------------ translations
@@ -208,21 +208,23 @@ def test_rotation_test_with_robot_noise_and_distortion():
 
 
 def test_pose_orientations():
+    """Angles from view 0's orientation, accurate for small ones (0.0573 deg = 0.001 rad)."""
     q0 = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
     rots = [q0, q0, Rotation.from_rotvec([0, 0, np.radians(0.5)]) * q0, q0 * Rotation.from_rotvec([0.001, 0, 0])]
-    q = np.array([r.as_quat() for r in rots])  # scipy: x, y, z, w
-    q[1] *= -1  # the same orientation
-    d = check_pose_orientations(q, tol_deg=0.1)
+    R = np.stack([r.as_matrix() for r in rots])
+    d = check_pose_orientations(R, tol_deg=0.1)
     assert _codes(d) == ["pose_orientation"]
     assert "view 2: 0.5 deg" in str(d[0]) and "view 1" not in str(d[0]) and "view 3" not in str(d[0])
-    assert check_pose_orientations(q, tol_deg=1.0) == []
-    assert "view 3: 0.0573 deg" in str(check_pose_orientations(q, tol_deg=0.01)[0])
+    assert check_pose_orientations(R, tol_deg=1.0) == []
+    assert "view 3: 0.0573 deg" in str(check_pose_orientations(R, tol_deg=0.01)[0])
 
 
-@pytest.mark.parametrize("q", [np.zeros((4, 3)), [[0, 0, 0, 0]] * 4, [[np.nan, 0, 0, 1]] * 4, [["a"] * 4]])
-def test_pose_orientations_bad_input(q):
+@pytest.mark.parametrize("R", [np.zeros((4, 3)), np.zeros((4, 3, 3)), np.full((4, 3, 3), np.nan),
+                               1.01 * np.tile(np.eye(3), (4, 1, 1)), np.tile(-np.eye(3), (4, 1, 1)),
+                               [[["a"] * 3] * 3] * 4])
+def test_pose_orientations_bad_input(R):
     with pytest.raises(InputError):
-        check_pose_orientations(q)
+        check_pose_orientations(R)
 
 
 def test_diagnose_silent_after_robust_pipeline():

@@ -1,7 +1,8 @@
-"""Several translation sessions (issue 11): exactness, observability of t_X, SCARA, pose readers.
+"""Several translation sessions (issue 11): exactness, observability of t_X, SCARA, sessions,
+the command with several orientations.
 
-Ground truth comes from :mod:`transcalib.handeye.simulate`; rotations read from files are
-checked against scipy's independent implementation.
+Ground truth comes from :mod:`transcalib.handeye.simulate`; quaternions are checked
+against scipy's independent implementation (the pose reader: ``tests/test_io.py``).
 """
 
 import json
@@ -11,9 +12,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from transcalib import DegenerateError, InputError, calibrate_sessions
-from transcalib.geometry.rotation import matrix_to_rotvec, rotvec_to_matrix
+from transcalib.geometry.rotation import matrix_to_quaternion, matrix_to_rotvec, quaternion_to_matrix, rotvec_to_matrix
 from transcalib.handeye.export import easy_handeye_yaml, hand_eye_json, hand_eye_matrix, hand_eye_tf
-from transcalib.handeye.poses import group_sessions, matrix_to_quaternion, quaternion_to_matrix, read_robot_poses
+from transcalib.handeye.sessions import group_sessions
+from transcalib.io import read_poses
 from transcalib.handeye.simulate import DEFAULT_R_X, flange_rotations_looking, session_scene
 
 EXACT = 1e-9
@@ -108,53 +110,7 @@ def test_bad_rotation_input():
         calibrate_sessions(sc.uv, sc.T, R)
 
 
-# ----------------------------------------------------------------------------- poses
-
-def _write_csv(path, header, rows):
-    path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
-
-
-def test_read_quaternion_rotvec_euler_against_scipy(tmp_path):
-    rng = np.random.default_rng(5)
-    rots = Rotation.random(4, random_state=7)
-    T = rng.uniform(-1, 1, (4, 3))
-    q = rots.as_quat()  # x, y, z, w
-    _write_csv(tmp_path / "q.csv", ["view", "x", "y", "z", "qx", "qy", "qz", "qw"],
-               [[i, *T[i], *q[i]] for i in range(4)])
-    p = read_robot_poses(tmp_path / "q.csv", unit="m", output_unit="mm")
-    assert np.allclose(p.R, rots.as_matrix(), atol=1e-12) and np.allclose(p.T, 1000 * T)
-    rv = rots.as_rotvec()
-    _write_csv(tmp_path / "r.csv", ["view", "x", "y", "z", "rx", "ry", "rz"], [[i, *T[i], *rv[i]] for i in range(4)])
-    assert np.allclose(read_robot_poses(tmp_path / "r.csv", rotation_format="ur").R, rots.as_matrix(), atol=1e-12)
-    abc = rots.as_euler("ZYX", degrees=True)  # intrinsic Z-Y-X: Rz(a) Ry(b) Rx(c)
-    _write_csv(tmp_path / "e.csv", ["view", "x", "y", "z", "a", "b", "c"], [[i, *T[i], *abc[i]] for i in range(4)])
-    assert np.allclose(read_robot_poses(tmp_path / "e.csv", rotation_format="kuka").R, rots.as_matrix(), atol=1e-12)
-    js = tmp_path / "p.json"
-    js.write_text(json.dumps({"poses": [{"view": i, "x": T[i, 0], "y": T[i, 1], "z": T[i, 2], "qx": q[i, 0],
-                                         "qy": q[i, 1], "qz": q[i, 2], "qw": q[i, 3]} for i in range(4)]}, indent=1))
-    assert np.allclose(read_robot_poses(js).R, rots.as_matrix(), atol=1e-12)
-
-
-def test_non_unit_quaternion_names_the_line(tmp_path):
-    _write_csv(tmp_path / "q.csv", ["view", "x", "y", "z", "qx", "qy", "qz", "qw"],
-               [[0, 0, 0, 0, 0, 0, 0, 1], [1, 1, 0, 0, 0, 0, 0.5, 0.5]])
-    with pytest.raises(InputError, match=r"q\.csv.*line 3.*norm 0\.707"):
-        read_robot_poses(tmp_path / "q.csv")
-    js = tmp_path / "q.json"
-    js.write_text('[\n {"view": 0, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1},\n'
-                  ' {"view": 1, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 2}\n]\n')
-    with pytest.raises(InputError, match="line 3"):
-        read_robot_poses(js)
-
-
-def test_missing_columns_and_bad_cells(tmp_path):
-    _write_csv(tmp_path / "a.csv", ["view", "x", "y", "z"], [[0, 0, 0, 0]])
-    with pytest.raises(InputError, match="qx, qy, qz, qw"):
-        read_robot_poses(tmp_path / "a.csv")
-    _write_csv(tmp_path / "b.csv", ["view", "x", "y", "z", "rx", "ry", "rz"], [[0, 0, "abc", 0, 0, 0, 0]])
-    with pytest.raises(InputError, match=r"line 2, column 'y'"):
-        read_robot_poses(tmp_path / "b.csv", rotation_format="rotvec")
-
+# -------------------------------------------------------------------------- sessions
 
 def test_grouping_tolerance_and_override():
     rng = np.random.default_rng(0)
@@ -176,7 +132,7 @@ def test_exports_roundtrip():
     M = hand_eye_matrix(R, t)
     assert np.allclose(M[:3, :3], R) and np.allclose(M[:3, 3], t) and np.allclose(M[3], [0, 0, 0, 1])
     q = matrix_to_quaternion(R)
-    assert np.allclose(quaternion_to_matrix(q)[0], R, atol=1e-12)
+    assert np.allclose(quaternion_to_matrix(q), R, atol=1e-12)
     assert np.allclose(Rotation.from_quat(q).as_matrix(), R, atol=1e-12)
     tf = hand_eye_tf(R, t)
     assert np.isclose(tf["translation"]["z"], 0.08)
@@ -213,7 +169,7 @@ def _ground_truth_tracks(rendered, rng, n_random=400, noise_px=0.3):
 def test_rendered_examples_ground_truth_tracks(n_sessions):
     mod, root = _make_sessions_module()
     folder = root / f"sessions{n_sessions}"
-    poses = read_robot_poses(folder / "poses.csv")  # quaternions, session column
+    poses = read_poses(folder / "poses.csv")  # quaternions, session column
     truth = json.loads((folder / "truth.json").read_text())
     assert all((folder / name).is_file() for name in poses.images)
     rendered = mod.rendered_sessions(n_sessions, with_images=False)
@@ -296,7 +252,7 @@ def test_rendered_images_end_to_end(n_sessions):
     from transcalib import track
     mod, root = _make_sessions_module()
     folder = root / f"sessions{n_sessions}"
-    poses = read_robot_poses(folder / "poses.csv")
+    poses = read_poses(folder / "poses.csv")
     truth = json.loads((folder / "truth.json").read_text())
     rendered = mod.rendered_sessions(n_sessions, with_images=False)
     sess = np.array([int(s) for s in poses.session])
@@ -336,22 +292,22 @@ def test_refinement_uses_each_views_own_rotation():
     assert np.abs(he.t_flange_camera - sc.t_X).max() < 1e-8
 
 
-def test_cli_uses_the_sessions_model_when_orientations_vary(tmp_path):
+@pytest.mark.parametrize("poses_ids, tracks_ids", [("{}", "{}"), ("{:02d}", "{}"), ("{:02d}", "{:03d}")])
+def test_cli_uses_the_sessions_model_when_orientations_vary(tmp_path, poses_ids, tracks_ids):
     """``transcalib calibrate`` with quaternions that differ between groups of views: the
-    hand-eye model, hand_eye.json / hand_eye.yaml, errors against the truth."""
+    hand-eye model, hand_eye.json / hand_eye.yaml, errors against the truth; view ids
+    compare as integers ("00" in the poses is view 0 of the tracks)."""
     import json
     import subprocess
     import sys
 
     from transcalib import io as tio
-    from transcalib.handeye.poses import matrix_to_quaternion
 
     sc = session_scene(4, n_sessions=3, moves="xy", noise_px=0.3, n_points=60)
-    tio.write_tracks_csv(tmp_path / "tracks.csv", sc.uv)
-    q = np.array([matrix_to_quaternion(R) for R in sc.R])
-    rows = ["view,x,y,z,qx,qy,qz,qw"] + [",".join(map(repr, [i, *map(float, sc.T[i]), *map(float, q[i])]))
-                                          for i in range(len(sc.T))]
-    (tmp_path / "poses.csv").write_text("\n".join(rows) + "\n")
+    n = len(sc.T)
+    tio.write_tracks_csv(tmp_path / "tracks.csv", sc.uv, view_ids=[tracks_ids.format(i) for i in range(n)])
+    tio.write_poses_csv(tmp_path / "poses.csv", sc.T, [poses_ids.format(i) for i in range(n)], R=sc.R)
+    assert (tmp_path / "poses.csv").read_text().splitlines()[1].startswith(poses_ids.format(0) + ",")
     truth = {"R_flange_camera": sc.R_X.tolist(), "t_flange_camera": list(map(float, sc.t_X)),
              "K": sc.K.tolist(), "image_size": [640, 480]}
     (tmp_path / "truth.json").write_text(json.dumps(truth))

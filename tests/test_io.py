@@ -53,10 +53,74 @@ def test_header_case_whitespace_and_bom(tmp_path):
 
 
 def test_quaternions_and_images(tmp_path):
-    p = write(tmp_path / "p.csv", "view,x,y,z,qx,qy,qz,qw,image\n0,0,0,0,0,0,0,2,a.png\n")
+    p = write(tmp_path / "p.csv", "view,x,y,z,qx,qy,qz,qw,image\n0,0,0,0,0,0,0,1,a.png\n")
     poses = tio.read_poses(p)
-    np.testing.assert_allclose(poses.quaternions, [[0, 0, 0, 1]])
-    assert poses.images == ["a.png"]
+    np.testing.assert_allclose(poses.R, [np.eye(3)])
+    assert poses.images == ["a.png"] and poses.rotation_format == "quaternion" and poses.session is None
+
+
+def test_no_orientation_is_none(tmp_path, poses):
+    p = tio.read_poses(poses)
+    assert p.R is None and p.rotation_format is None and p.images is None and p.session is None
+    assert p.views == ["0", "1", "2", "3"] and p.lines == (2, 3, 4, 5) and p.path == str(poses) and p.unit is None
+
+
+def _pose_rows(path, header, rows):
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    return path
+
+
+def test_orientation_formats_found_from_columns_against_scipy(tmp_path):
+    """Each orientation format, found from the columns or given (also by a maker's name),
+    gives scipy's rotation matrices (an independent implementation); JSON like CSV."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    rots = Rotation.random(4, random_state=7)
+    T = rng.uniform(-1, 1, (4, 3))
+    cases = {"quaternion": (["qx", "qy", "qz", "qw"], rots.as_quat(), "ros"),
+             "rotvec": (["rx", "ry", "rz"], rots.as_rotvec(), "ur"),
+             "euler_zyx": (["a", "b", "c"], rots.as_euler("ZYX", degrees=True), "kuka")}  # Rz(a) Ry(b) Rx(c)
+    for fmt, (cols, values, alias) in cases.items():
+        path = _pose_rows(tmp_path / f"{fmt}.csv", ["view", "x", "y", "z", *cols],
+                          [[i, *map(repr, T[i].tolist()), *map(repr, values[i].tolist())] for i in range(4)])
+        for given in (None, fmt, alias):
+            p = tio.read_poses(path, rotation_format=given)
+            assert p.rotation_format == fmt and np.abs(p.R - rots.as_matrix()).max() < 1e-12, (fmt, given)
+            np.testing.assert_array_equal(p.T, T)
+    q = rots.as_quat()
+    js = tmp_path / "p.json"
+    js.write_text(json.dumps({"poses": [{"view": i, "X": T[i, 0], "y": T[i, 1], "z": T[i, 2], "qx": q[i, 0],
+                                         "qy": q[i, 1], "qz": q[i, 2], "qw": q[i, 3]} for i in range(4)]}, indent=1))
+    p = tio.read_poses(js)
+    assert np.abs(p.R - rots.as_matrix()).max() < 1e-12 and p.views == ["0", "1", "2", "3"]
+    assert p.lines == (3, 13, 23, 33)  # the line of each object's opening brace
+
+
+def test_units(tmp_path, poses):
+    p = tio.read_poses(poses, unit="m", output_unit="mm")
+    np.testing.assert_array_equal(p.T[1], [10000, 0, 0])
+    assert p.unit == "mm" and tio.read_poses(poses, unit="mm").unit == "mm"
+    with pytest.raises(InputError, match="needs the unit of the file"):
+        tio.read_poses(poses, output_unit="mm")
+    with pytest.raises(InputError, match="unit must be one of mm, m, got 'inch'"):
+        tio.read_poses(poses, unit="inch")
+    with pytest.raises(InputError, match="rotation_format must be one of"):
+        tio.read_poses(poses, rotation_format="matrix")
+
+
+def test_zero_padded_view_ids_are_integers(tmp_path):
+    """View ids compare as integers in poses and tracks alike: "01" is view "1"."""
+    poses = write(tmp_path / "p.csv", "view,x,y,z\n00,0,0,0\n01,1,0,0\n02,0,1,0\n 3.0 ,0,0,1\n")
+    p = tio.read_poses(poses)
+    assert p.views == ["0", "1", "2", "3"]
+    for ids in (["0", "1", "2", "3"], ["000", "01", "2", "03"]):
+        tracks = write(tmp_path / "t.csv", "view,point,u,v\n" + "".join(f"{v},p,{k},0\n" for k, v in enumerate(ids)))
+        uv, _ = tio.tracks_to_uv(tracks, p)
+        np.testing.assert_array_equal(uv[:, 0, 0], [0, 1, 2, 3])
+    with pytest.raises(InputError, match=r"line 3, column 'view': view id '1' appears more than once \(as view "
+                                         r"'1' on line 2"):
+        tio.read_poses(write(tmp_path / "d.csv", "view,x,y,z\n01,0,0,0\n1,1,0,0\n"))
 
 
 @pytest.mark.parametrize(
@@ -64,17 +128,73 @@ def test_quaternions_and_images(tmp_path):
     [
         ("", "is empty"),
         ("view,x,y,z\n", "no data rows"),
-        ("view,x,y\n0,1,2\n", r"lacks column\(s\) z"),
+        ("view,x,y\n0,1,2\n", r"p.csv', line 1: lacks column\(s\) z"),
         ("view,x,y,z\n0,1,two,3\n", r"line 2, column 'y': 'two' is not a finite number"),
         ("view,x,y,z\n0,1,2,nan\n", "not a finite number"),
         ("view,x,y,z\n0,1,2\n", "3 cells, expected 4"),
         ("view,x,y,z\n0,1,2,3\n0,1,2,3\n", "more than once"),
-        ("view,x,y,z,qx\n0,1,2,3,0\n", "qx,qy,qz,qw"),
+        ("view,x,y,z\n0,1,2,3\n ,1,2,3\n", "line 3, column 'view': the view id is empty"),
+        ("view,x,x,y,z\n0,1,1,2,3\n", r"line 1: column\(s\) x appear more than once"),
+        ("view,x,y,z,qx\n0,1,2,3,0\n", r"line 1: column\(s\) qx of the orientation qx,qy,qz,qw "
+                                        r"\(quaternion\) without qy,qz,qw.*rotation_format"),
+        ("view,x,y,z,a,b\n0,1,2,3,0,0\n", r"a,b of the orientation a,b,c \(euler_zyx\) without c"),
+        ("view,x,y,z,qx,qy,qz,qw,rx,ry,rz\n0,1,2,3,0,0,0,1,0,0,0\n",
+         r"line 1: two orientations, qx,qy,qz,qw \(quaternion\) and rx,ry,rz \(rotvec\); choose .*rotation_format"),
+        ("view,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n1,1,2,3,0,0,0.5,0.5\n",
+         r"line 3: quaternion qx,qy,qz,qw has norm 0\.707107, expected 1"),
+        ("view,x,y,z,qx,qy,qz,qw,image\n0,0,0,0,0,0,0,2,a.png\n", "norm 2, expected 1"),
+        ("view,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,0\n", "norm 0, expected 1"),
+        ("view,x,y,z,rx,ry,rz\n0,1,2,3,0,inf,0\n", "line 2, column 'ry': 'inf' is not a finite number"),
+        ("view,x,y,z,a,b,c\n0,1,2,3,0,,0\n", "line 2, column 'b': '' is not a finite number"),
     ],
 )
 def test_bad_poses(tmp_path, text, match):
     with pytest.raises(InputError, match=match):
         tio.read_poses(write(tmp_path / "p.csv", text))
+
+
+@pytest.mark.parametrize("fmt, columns", [("quaternion", "qx,qy,qz,qw"), ("rotvec", "rx,ry,rz"),
+                                          ("kuka", "a,b,c")])
+def test_given_rotation_format_needs_its_columns(tmp_path, poses, fmt, columns):
+    with pytest.raises(InputError, match=f"rotation_format='.*' needs {columns}; it has view,x,y,z"):
+        tio.read_poses(poses, rotation_format=fmt)
+
+
+def test_given_rotation_format_ignores_other_columns(tmp_path):
+    """A given format reads its own columns; another set (even a partial one) is left alone."""
+    p = write(tmp_path / "p.csv", "view,x,y,z,qx,qy,qz,qw,a\n0,1,2,3,0,0,0,1,label\n")
+    with pytest.raises(InputError, match="qx,qy,qz,qw"):
+        tio.read_poses(p)
+    np.testing.assert_array_equal(tio.read_poses(p, rotation_format="quaternion").R, [np.eye(3)])
+
+
+@pytest.mark.parametrize("text, match", [
+    ('[\n {"view": 0, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1},\n'
+     ' {"view": 1, "x": 0, "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 2}\n]\n', r"q\.json', line 3: quaternion"),
+    ('[\n {"view": 0, "x": 0, "y": 0, "z": 0},\n {"view": 1, "x": 0, "y": 0}\n]\n', r"line 3, key 'z': is missing"),
+    ('[\n {"view": 0, "x": 0, "y": 0, "z": true}\n]\n', r"line 2, key 'z': True is not a finite number"),
+    ('[\n {"view": "01", "x": 0, "y": 0, "z": 0},\n {"view": 1, "x": 0, "y": 0, "z": 0}\n]', "more than once"),
+    ('[{"view": 0, "x": 0,\n "y": 0 "z": 0}]', r"line 2, column \d+: not valid JSON"),
+    ('{"poses": []}', "expected a non-empty list of objects"),
+    ('[{"view": 0, "x": 0, "y": 0}]', r"lacks key\(s\) z"),
+])
+def test_bad_json_poses(tmp_path, text, match):
+    with pytest.raises(InputError, match=match):
+        tio.read_poses(write(tmp_path / "q.json", text))
+
+
+def test_poses_written_read_back(tmp_path):
+    """``write_poses_csv`` with orientations and sessions reads back exactly (view ids as
+    given, zero-padded too)."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.random(3, random_state=1).as_matrix()
+    T = np.array([[0.1, 1 / 3, 2.0], [1e-9, 5.0, 6.0], [7.0, 8.0, 9.0]])
+    tio.write_poses_csv(tmp_path / "p.csv", T, ["07", "08", "09"], images=["a", "b", "c"], R=R, session=["s", "s", "t"])
+    p = tio.read_poses(tmp_path / "p.csv")
+    assert p.views == ["7", "8", "9"] and p.session == ["s", "s", "t"] and p.images == ["a", "b", "c"]
+    np.testing.assert_array_equal(p.T, T)
+    assert np.abs(p.R - R).max() < 1e-15
 
 
 @pytest.mark.parametrize(

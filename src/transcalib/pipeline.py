@@ -61,7 +61,7 @@ def calibrate(
     ransac: RansacOptions | None = None,
     refinement: RefineOptions | None = None,
     check_rotation: bool = True,
-    quaternions=None,
+    rotations=None,
     image_size=None,
     unit: str = "units",
     subset_points: int | None = SUBSET_POINTS,
@@ -97,8 +97,9 @@ def calibrate(
         Options of the refinement; the keywords above override their fields.
     check_rotation : bool
         Test for views where the robot rotated (model violation); needs ``refine``.
-    quaternions : (n_views, 4) float, optional
-        Robot orientations ``qx, qy, qz, qw``; checked to be constant.
+    rotations : (n_views, 3, 3) float, optional
+        Flange -> base rotations of the views as read (:attr:`transcalib.io.Poses.R`);
+        checked to be constant (a ``pose_orientation`` warning otherwise).
     image_size : (width, height), optional
         Recorded in the result's camera.
     unit : str
@@ -156,7 +157,7 @@ def calibrate(
                      residuals_px=_all_residuals(uv, cal, inliers), options=opts, diagnostics=())
     t2 = time.perf_counter()
     result = replace(result, stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=ransac_stats))
-    found = diagnose(uv, T, result, linear=linear, quaternions=quaternions,
+    found = diagnose(uv, T, result, linear=linear, rotations=rotations,
                      check_rotation=opts.check_rotation and opts.refine, unit=unit, all_uv=uv,
                      rotation_data=rotation_data)
     if span is not None:  # the coplanar motion was understood: say what it allows instead

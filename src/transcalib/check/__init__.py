@@ -51,7 +51,7 @@ def skipped(check: str, reason) -> Diagnostic:
     return Diagnostic("check_skipped", f"the {check} could not run: {reason}")
 
 
-def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quaternions=None,
+def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, rotations=None,
              check_rotation: bool = True, unit: str = "units", all_uv=None, rotation_data=None) -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
@@ -69,8 +69,9 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
         threshold (``options.ransac.threshold_px``).
     linear : LinearEstimate, optional
         The linear estimate (default ``calibration.linear``) for the null-space check.
-    quaternions : (n_views, 4) float, optional
-        Robot orientations ``qx, qy, qz, qw`` when the poses carry them.
+    rotations : (n_views, 3, 3) float, optional
+        Flange -> base rotations of the views when the poses carry them
+        (:attr:`transcalib.io.Poses.R`): checked to be constant.
     check_rotation : bool
         Run the model-violation (rotation) test (a refined calibration only).
     unit : str
@@ -107,8 +108,8 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, quater
                 out += check_view_rotations(rot_uv, T, rot_cal)
             except DegenerateError as exc:
                 out.append(skipped("rotation test (did the robot rotate between views?)", exc))
-    if quaternions is not None:
-        out += check_pose_orientations(quaternions)
+    if rotations is not None:
+        out += check_pose_orientations(rotations)
     return out
 
 

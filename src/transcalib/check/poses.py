@@ -5,15 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import Diagnostic, InputError
+from ..geometry.rotation import ROTATION_TOL, rotation_angle_deg, rotation_defect
 
-def check_pose_orientations(quaternions, tol_deg: float = 0.1) -> list:
+
+def check_pose_orientations(rotations, tol_deg: float = 0.1) -> list:
     """Warn when the robot's reported orientation is not constant.
+
+    The angle of view ``i`` is that of ``R_0^T R_i`` (:func:`rotation_angle_deg`).
 
     Parameters
     ----------
-    quaternions : (n_views, 4) float
-        Tool orientation per view as ``qx, qy, qz, qw`` (any norm; ``q`` and ``-q`` are
-        the same orientation).
+    rotations : (n_views, 3, 3) float
+        Flange -> base rotations ``R_i`` per view, as read
+        (:attr:`transcalib.io.Poses.R`).
     tol_deg : float
         Largest acceptable rotation angle from view 0's orientation (degrees).
 
@@ -25,24 +29,20 @@ def check_pose_orientations(quaternions, tol_deg: float = 0.1) -> list:
     Raises
     ------
     InputError
-        Wrong shape, non-finite or zero quaternions.
+        Wrong shape, or matrices that are not rotations.
     """
     try:
-        q = np.asarray(quaternions, dtype=float)
+        R = np.asarray(rotations, dtype=float)
     except (TypeError, ValueError):
-        raise InputError("quaternions must be numbers, one row qx, qy, qz, qw per view") from None
-    if q.ndim != 2 or q.shape[1] != 4:
-        raise InputError(f"quaternions must have shape (n_views, 4) as qx, qy, qz, qw; got shape {q.shape}")
-    if not np.isfinite(q).all():
-        raise InputError("quaternions contain NaN or inf; give the orientation of every pose (or none at all)")
-    norm = np.linalg.norm(q, axis=1)
-    if np.any(norm < 1e-12):
-        raise InputError(f"quaternions of views {np.flatnonzero(norm < 1e-12).tolist()} are zero; "
-                         "each must be a rotation qx, qy, qz, qw")
-    q = q / norm[:, None]
-    c = np.clip(np.abs(q @ q[0]), 0.0, 1.0)
-    s = np.linalg.norm(np.cross(q[:, :3], q[0, :3]) + q[0, 3] * q[:, :3] - q[:, 3:4] * q[0, :3], axis=1)
-    angle = np.degrees(2.0 * np.arctan2(s, c))  # accurate for small angles too
+        raise InputError("rotations must be numbers, one 3x3 rotation matrix per view") from None
+    if R.ndim != 3 or R.shape[1:] != (3, 3):
+        raise InputError(f"rotations must have shape (n_views, 3, 3) (flange -> base); got shape {R.shape}")
+    bad = np.flatnonzero(rotation_defect(R) > ROTATION_TOL)
+    if bad.size:
+        raise InputError(f"rotations of views {bad[:10].tolist()} are not rotation matrices (finite, orthonormal, "
+                         "det +1); give the orientation of every pose (or none at all), e.g. as read by "
+                         "transcalib.io.read_poses")
+    angle = rotation_angle_deg(np.swapaxes(R[:1], -1, -2) @ R)
     bad = np.flatnonzero(angle > tol_deg)
     if not len(bad):
         return []

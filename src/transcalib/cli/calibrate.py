@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
 from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, existing_file, image_size, import_in_background,
                      nonnegative_float, positive_float, positive_int, print_json)
@@ -40,12 +41,13 @@ def add_parser(sub) -> None:
     c.add_argument("--poses", required=True,
                    help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]; orientations that "
                         "vary between sessions select the hand-eye (several sessions) model")
-    c.add_argument("--rotation-format", default="quaternion",
+    c.add_argument("--rotation-format", default=None,
                    choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
-                        "or a,b,c (KUKA Z-Y-X Euler, degrees); default quaternion")
-    c.add_argument("--session-tolerance-deg", type=positive_float, default=1.0,
-                   help="views whose orientations differ by less than this form one session (default 1 deg)")
+                        "or a,b,c (KUKA Z-Y-X Euler, degrees); default: found from the columns")
+    c.add_argument("--session-tolerance-deg", type=positive_float, default=SESSION_TOLERANCE_DEG,
+                   help="views whose orientations differ by less than this form one session "
+                        f"(default {SESSION_TOLERANCE_DEG:g} deg)")
     c.add_argument("--out", required=True, help="output folder (created if missing)")
     c.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
     c.add_argument("--image-size", type=image_size, metavar="WxH",
@@ -177,10 +179,9 @@ def check_all(args) -> dict:
     plan["truth"] = read_truth(args.truth) if args.truth else None
     if args.tracks:
         plan["tracks"] = existing_file("--tracks", args.tracks)
-    poses_path = existing_file("--poses", args.poses)
-    plan["sessions"] = _sessions(args, poses_path)
-    poses = read_poses(poses_path) if plan["sessions"] is None else plan["sessions"].as_poses()
+    poses = read_poses(existing_file("--poses", args.poses), rotation_format=args.rotation_format)
     plan["poses"] = poses
+    plan["sessions"] = _sessions(poses, args.session_tolerance_deg)
     size = args.image_size
     if args.images:
         images = [existing_file("--images", p) for p in args.images]
@@ -196,33 +197,16 @@ def check_all(args) -> dict:
     return plan
 
 
-def _sessions(args, path: Path):
-    """The robot poses with orientation when they vary between sessions (the hand-eye
-    model), else None."""
-    from ..handeye.poses import read_robot_poses
-
-    header = path.read_text(encoding="utf-8-sig").split("\n", 1)[0].lower() if path.suffix != ".json" else ""
-    columns = {"quaternion": "qw", "rotvec": "rx", "ur": "rx", "euler_zyx": "a", "kuka": "a"}[args.rotation_format]
-    if path.suffix != ".json" and columns not in [c.strip() for c in header.split(",")]:
+def _sessions(poses, tolerance_deg: float):
+    """The views grouped into sessions by orientation (or the ``session`` column) when
+    there is more than one session: the hand-eye model; else None (one orientation, or
+    none given: the paper's model)."""
+    if poses.R is None:
         return None
-    unit = args.unit if args.unit in ("mm", "m") else "mm"
-    poses = read_robot_poses(path, rotation_format=args.rotation_format, unit=unit)
-    return _SessionPoses(poses, args.session_tolerance_deg) if poses.varying_orientation(
-        args.session_tolerance_deg) else None
+    from ..handeye.sessions import group_sessions
 
-
-class _SessionPoses:
-    """Poses of several sessions: the robot poses and their grouping."""
-
-    def __init__(self, poses, tolerance_deg: float):
-        self.poses, self.tolerance_deg = poses, tolerance_deg
-        self.grouping = poses.sessions(tolerance_deg)
-
-    def as_poses(self):
-        from ..io.tables import Poses
-
-        p = self.poses
-        return Poses(views=list(p.views), T=p.T, quaternions=None, images=p.images)
+    grouping = group_sessions(poses.R, tolerance_deg, poses.session)
+    return grouping if grouping.n_sessions > 1 else None
 
 
 def _image_size_of(path: Path) -> tuple[int, int]:
@@ -257,7 +241,7 @@ def track_images(images, target, progress: Progress, T=None, sessions=None):
     if sessions is not None:
         from ..images import track_sessions
 
-        return track_sessions([str(p) for p in images], sessions.grouping.session_of_view, T=T)
+        return track_sessions([str(p) for p in images], sessions.session_of_view, T=T)
     if target == "squares":
         from ..images import track_squares
 
@@ -326,7 +310,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
         cal = hand_eye.calibration
     else:
         cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
-                        refinement=opts.refinement if opts.refine else None, quaternions=plan["poses"].quaternions,
+                        refinement=opts.refinement if opts.refine else None, rotations=plan["poses"].R,
                         image_size=plan["image_size"], unit=args.unit, subset_points=opts.subset_points,
                         rng=args.seed, progress=progress)
     t_write = time.perf_counter()

@@ -46,6 +46,7 @@ OPTION_NAMES = {
     "robot_noise": "--robot-noise",
     "n_points": "--points",
     "n_views": "--views",
+    "rotation_format": "--rotation-format",
 }
 
 

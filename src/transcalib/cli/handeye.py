@@ -11,14 +11,13 @@ def calibrate_hand_eye(uv, plan, opts, args, progress):
     """:func:`transcalib.handeye.calibrate_sessions` with the command's options."""
     from ..handeye.calibrate import calibrate_sessions
 
-    sessions, r = plan["sessions"], opts.refinement
-    progress.log(f"{sessions.grouping.n_sessions} sessions (orientations) in {len(sessions.poses.views)} views: "
-                 "hand-eye model")
-    he = calibrate_sessions(uv, sessions.poses.T, sessions.poses.R, session_of_view=sessions.grouping.session_of_view,
-                            tolerance_deg=sessions.tolerance_deg, distortion=r.distortion, fix=dict(r.fix),
+    poses, grouping, r = plan["poses"], plan["sessions"], opts.refinement
+    progress.log(f"{grouping.n_sessions} sessions (orientations) in {poses.n_views} views: hand-eye model")
+    he = calibrate_sessions(uv, poses.T, poses.R, session_of_view=grouping.session_of_view,
+                            tolerance_deg=grouping.tolerance_deg, distortion=r.distortion, fix=dict(r.fix),
                             square_pixels=r.square_pixels, estimate_skew=r.estimate_skew, sigma_T=r.sigma_T,
                             robust=opts.robust is not False, ransac=opts.ransac, rng=args.seed)
-    progress.stage("hand-eye", {"sessions": sessions.grouping.n_sessions, "rms_px": he.calibration.rms_px})
+    progress.stage("hand-eye", {"sessions": grouping.n_sessions, "rms_px": he.calibration.rms_px})
     return he
 
 

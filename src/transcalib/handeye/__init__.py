@@ -6,7 +6,7 @@ camera in the flange ``(R_X, t_X)``::
 
     x_ij ~ K (R_i R_X)^T (X_j - T_i - R_i t_X)
 
-Modules: :mod:`.poses` (robot poses with orientation, sessions), :mod:`.linear` (the
+Modules: :mod:`.sessions` (views grouped by orientation), :mod:`.linear` (the
 multi-session linear start), :mod:`.observability` (which parts of ``t_X`` the data
 determine; the CRLB), :mod:`.calibrate` (:func:`calibrate_sessions`), :mod:`.export`
 (4x4, ROS tf, easy_handeye YAML, JSON), :mod:`.simulate` (scenes for tests and benchmarks).
@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import importlib
 
-_LAZY = {"calibrate_sessions": ".calibrate", "HandEyeCalibration": ".calibrate", "read_robot_poses": ".poses",
-         "RobotPoses": ".poses", "group_sessions": ".poses"}
+_LAZY = {"calibrate_sessions": ".calibrate", "HandEyeCalibration": ".calibrate", "group_sessions": ".sessions",
+         "SessionGrouping": ".sessions"}
 
 __all__ = list(_LAZY)
 

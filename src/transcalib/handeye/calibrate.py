@@ -1,6 +1,6 @@
 """``calibrate_sessions``: K, the hand-eye transform and the points from several sessions.
 
-Stages: group the views into sessions (:mod:`.poses`), the linear start (:mod:`.linear`),
+Stages: group the views into sessions (:mod:`.sessions`), the linear start (:mod:`.linear`),
 the observability of ``t_X`` from the Fisher information (:mod:`.observability`), then the
 project's one bundle adjuster (:func:`transcalib.estimate.refine.fit_refine` with a
 :class:`~transcalib.estimate.refine.FlangeModel`) on the model ::
@@ -20,11 +20,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimate.refine import FlangeModel, fit_refine
+from ..geometry.rotation import ROTATION_TOL, rotation_defect
 from ..types import Calibration, RansacOptions, RefineOptions
 from ..validate import as_uv_T
 from .linear import SessionsLinear, sessions_linear
 from .observability import Observability, offset_observability
-from .poses import SESSION_TOLERANCE_DEG, SessionGrouping, group_sessions
+from .sessions import SESSION_TOLERANCE_DEG, SessionGrouping, group_sessions
 
 __all__ = ["HandEyeCalibration", "calibrate_sessions"]
 
@@ -92,11 +93,10 @@ def _check_rotations(R, n_views: int) -> np.ndarray:
         raise InputError(f"flange_rotations must be an array of numbers ({exc})") from None
     if R.shape != (n_views, 3, 3):
         raise InputError(f"flange_rotations must have shape (n_views, 3, 3) = ({n_views}, 3, 3), got {R.shape}")
-    err = np.abs(R @ np.transpose(R, (0, 2, 1)) - np.eye(3)).max(axis=(1, 2))
-    bad = np.flatnonzero(~np.isfinite(err) | (err > 1e-6) | (np.linalg.det(R) < 0))
+    bad = np.flatnonzero(rotation_defect(R) > ROTATION_TOL)
     if bad.size:
         raise InputError(f"flange_rotations of views {bad[:10].tolist()} are not rotation matrices (orthonormal, "
-                         "det +1); convert the controller's orientation with transcalib.handeye.poses")
+                         "det +1); read the controller's orientations with transcalib.io.read_poses")
     return R
 
 
@@ -115,7 +115,7 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None, toleran
         Flange positions in the robot base frame (robot units; every length out is in them).
     flange_rotations : (n_views, 3, 3) float
         Flange -> base rotations ``R_i`` (read them with
-        :func:`transcalib.handeye.poses.read_robot_poses`).
+        :func:`transcalib.io.read_poses`: ``Poses.R``).
     session_of_view : (n_views,) sequence, optional
         Session labels; default: grouping by orientation within ``tolerance_deg``.
     tolerance_deg : float

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError
-from .poses import UNITS, matrix_to_quaternion
+from ..geometry.rotation import matrix_to_quaternion
+from ..geometry.units import length_scale
 
 __all__ = ["hand_eye_matrix", "hand_eye_tf", "easy_handeye_yaml", "hand_eye_json"]
 
@@ -26,17 +26,10 @@ def hand_eye_matrix(R_X: np.ndarray, t_X: np.ndarray) -> np.ndarray:
     return M
 
 
-def _scale(unit: str, to: str) -> float:
-    for u in (unit, to):
-        if u not in UNITS:
-            raise InputError(f"unit must be one of {', '.join(UNITS)}, got {u!r}")
-    return UNITS[unit] / UNITS[to]
-
-
 def hand_eye_tf(R_X, t_X, *, unit: str = "mm", to_unit: str = "m") -> dict:
     """ROS ``tf`` translation + rotation: ``{"translation": {x, y, z}, "rotation": {x, y, z, w}}``
     (translation converted from ``unit`` to ``to_unit``, metres by default as in ROS)."""
-    t = np.asarray(t_X, float) * _scale(unit, to_unit)
+    t = np.asarray(t_X, float) * length_scale(unit, to_unit)
     q = matrix_to_quaternion(R_X)
     return {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))}
 

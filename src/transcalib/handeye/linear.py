@@ -38,7 +38,7 @@ from ..estimate.linear import fit_linear
 from ..estimate.robust import fit_robust
 from ..types import LinearEstimate, RansacOptions
 from ..validate import SPAN_TOL
-from .poses import SessionGrouping
+from .sessions import SessionGrouping
 
 __all__ = ["SessionsLinear", "sessions_linear", "check_flange_span", "solve_offset"]
 
@@ -212,7 +212,7 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
     T : (n_views, 3) float
         Flange positions in the base frame.
     grouping : SessionGrouping
-        Sessions and their flange rotations (:func:`transcalib.handeye.poses.group_sessions`).
+        Sessions and their flange rotations (:func:`transcalib.handeye.sessions.group_sessions`).
     method : {"fast", "dense"}
         TLS solver (:func:`transcalib.estimate.linear.fit_linear`).
     ransac : RansacOptions, optional

@@ -7,13 +7,30 @@ a plain non-negative decimal (ASCII digits, no leading zero, within int64), else
 ``str``. An id such as ``007``, ``-3`` or ``1e3`` stays text, and so does every id of a
 file that has one such id. Writers, the calibration file, the report and the
 summary take either kind and never loop over ids in Python.
+
+View ids follow another rule (:func:`canonical_id`): a view id that is a number names
+that number, so ``03``, ``3`` and ``3.0`` are one view, in tracks and pose files alike.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["point_id_array", "integer_ids", "truth_index"]
+__all__ = ["canonical_id", "point_id_array", "integer_ids", "truth_index"]
+
+
+def canonical_id(text: str) -> str:
+    """A view id in its canonical form: stripped, and an integer written plainly
+    (``"03"``, ``"3.0"`` and ``" 3"`` are ``"3"``); any other text is kept as it is.
+
+    Every reader of view ids (tracks, poses) compares them by this form.
+    """
+    text = text.strip()
+    try:
+        value = float(text)
+    except ValueError:
+        return text
+    return str(int(value)) if value.is_integer() else text
 
 
 def integer_ids(text):

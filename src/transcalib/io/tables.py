@@ -1,4 +1,4 @@
-"""Tables: tracks and poses in, points and tracks out (CSV, and binary tracks).
+"""Tables: tracks in, points and tracks out (CSV, and binary tracks).
 
 File formats (see ``docs/formats.md``):
 
@@ -7,9 +7,10 @@ File formats (see ``docs/formats.md``):
                 again carefully to name its line and column. ``.npz`` (dense ``uv``,
                 ``view_ids``, ``point_ids``) and ``.parquet`` (the CSV's columns) are the
                 binary alternatives, chosen by extension.
-``poses.csv``   header ``view,x,y,z`` with optional ``qx,qy,qz,qw`` (robot orientation,
-                checked to be constant) and ``image`` (file name of the view's image).
-                The row order of ``poses.csv`` is the view order.
+
+Pose files are read by :mod:`transcalib.io.poses`; the tracks are put in the view order
+of its :class:`~transcalib.io.poses.Poses` (view ids compare by
+:func:`~transcalib.io.ids.canonical_id`, ``03`` = ``3``).
 
 Outputs are written atomically: to a temporary file in the same folder, then renamed, so
 an interrupted run never leaves a partial file. Inputs are never modified. Text files
@@ -29,12 +30,10 @@ import numpy as np
 from ..errors import InputError
 from . import text
 from .files import atomic_write
-from .ids import integer_ids, point_id_array
+from .ids import canonical_id, integer_ids, point_id_array
 
 __all__ = [
-    "Poses",
     "TrackTable",
-    "read_poses",
     "read_tracks",
     "read_track_table",
     "read_parquet_tracks",
@@ -42,36 +41,7 @@ __all__ = [
     "write_tracks",
     "write_tracks_csv",
     "write_points_csv",
-    "write_poses_csv",
 ]
-
-
-@dataclass(frozen=True, eq=False)
-class Poses:
-    """Contents of ``poses.csv``.
-
-    Attributes
-    ----------
-    views : list of str          view ids, in file order (the view order)
-    T : (n_views, 3) float       robot translations
-    quaternions : (n_views, 4) float or None   ``qx, qy, qz, qw`` when given
-    images : list of str or None image file names when given
-    """
-
-    views: list
-    T: np.ndarray
-    quaternions: np.ndarray | None = None
-    images: list | None = None
-
-
-def _canonical_id(text: str) -> str:
-    """View ids compare as integers when they are integers ("03" == "3")."""
-    text = text.strip()
-    try:
-        value = float(text)
-    except ValueError:
-        return text
-    return str(int(value)) if value.is_integer() else text
 
 
 def _read_table(path, required: list[str], what: str) -> tuple[list[str], list[list[str]]]:
@@ -122,32 +92,6 @@ def _numbers(path, rows, header, columns: list[str], what: str) -> np.ndarray:
                         f"{what} file {str(path)!r}, line {k}, column {c!r}: {cell!r} is not a finite number"
                     )
     return values.reshape(len(rows), len(columns))
-
-
-def read_poses(path) -> Poses:
-    """Read ``poses.csv``: ``view,x,y,z[,qx,qy,qz,qw][,image]``.
-
-    Raises :class:`InputError` on a missing file, missing columns, empty file,
-    non-numeric cells or duplicate view ids.
-    """
-    header, rows = _read_table(path, ["view", "x", "y", "z"], "poses")
-    views = [_canonical_id(row[header.index("view")]) for row in rows]
-    dup = sorted({v for v in views if views.count(v) > 1}) if len(set(views)) != len(views) else []
-    if dup:
-        raise InputError(f"poses file {str(path)!r}: view id(s) {dup} appear more than once; give one pose per view")
-    T = _numbers(path, rows, header, ["x", "y", "z"], "poses")
-    quat_cols = ["qx", "qy", "qz", "qw"]
-    present = [c in header for c in quat_cols]
-    if any(present) and not all(present):
-        raise InputError(f"poses file {str(path)!r}: orientation needs all of qx,qy,qz,qw; found only some")
-    quats = _numbers(path, rows, header, quat_cols, "poses") if all(present) else None
-    if quats is not None:
-        norms = np.linalg.norm(quats, axis=1)
-        if np.any(norms < 1e-9):
-            raise InputError(f"poses file {str(path)!r}: a quaternion qx,qy,qz,qw is zero; give unit quaternions")
-        quats = quats / norms[:, None]
-    images = [row[header.index("image")].strip() for row in rows] if "image" in header else None
-    return Poses(views=views, T=T, quaternions=quats, images=images)
 
 
 @dataclass(frozen=True, eq=False)
@@ -250,7 +194,7 @@ def _view_codes(column) -> tuple[list[str], np.ndarray]:
     import pyarrow.compute as pc
 
     enc = pc.dictionary_encode(column).combine_chunks()
-    view_ids, remap = _codes([_canonical_id(v) for v in enc.dictionary.to_pylist()])  # a few views
+    view_ids, remap = _codes([canonical_id(v) for v in enc.dictionary.to_pylist()])  # a few views
     return view_ids, remap[enc.indices.to_numpy()]
 
 
@@ -299,7 +243,7 @@ def read_track_table(path) -> TrackTable:
     header, rows = _read_table(path, ["view", "point", "u", "v"], "tracks")  # careful: locates errors
     iv, ip = header.index("view"), header.index("point")
     uv = _numbers(path, rows, header, ["u", "v"], "tracks")
-    view_ids, view_index = _codes([_canonical_id(row[iv]) for row in rows])
+    view_ids, view_index = _codes([canonical_id(row[iv]) for row in rows])
     point_ids, point_index = _codes([row[ip].strip() for row in rows])
     return TrackTable(view_ids, view_index, point_id_array(point_ids), point_index, uv)
 
@@ -318,9 +262,9 @@ def read_tracks(path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
     return np.asarray(t.view_ids, dtype=object)[t.view_index].tolist(), t.point_ids, t.point_index, t.uv
 
 
-def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
+def tracks_to_uv(path_tracks, poses) -> tuple[np.ndarray, np.ndarray]:
     """Observations of a tracks file as ``uv (n_views, n_points, 2)`` in the view order of
-    ``poses``, and the point ids ``(n_points,)`` (int64 when every id is an integer, else
+    ``poses`` (a :class:`~transcalib.io.poses.Poses`: its canonical ``views``), and the point ids ``(n_points,)`` (int64 when every id is an integer, else
     str: :func:`~transcalib.io.ids.point_id_array`); the format follows the extension:
     ``.csv``, ``.npz`` or ``.parquet``.
 
@@ -361,7 +305,7 @@ def tracks_to_uv(path_tracks, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------
 
 
-def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
+def _npz_to_uv(path, poses) -> tuple[np.ndarray, np.ndarray]:
     """``.npz`` tracks: ``uv (n_views, n_points, 2)``, ``view_ids (n_views,)``,
     ``point_ids (n_points,)`` (integers or text)."""
     path = Path(path)
@@ -376,7 +320,7 @@ def _npz_to_uv(path, poses: Poses) -> tuple[np.ndarray, np.ndarray]:
     if uv.ndim != 3 or uv.shape[2] != 2 or uv.shape[:2] != (len(view_ids), len(point_ids)):
         raise InputError(f"tracks file {str(path)!r}: uv has shape {uv.shape}, expected (n_views, n_points, 2) = "
                          f"({len(view_ids)}, {len(point_ids)}, 2)")
-    views = [_canonical_id(str(v)) for v in view_ids]
+    views = [canonical_id(str(v)) for v in view_ids]
     view_pos = {v: k for k, v in enumerate(poses.views)}
     unknown = [v for v in views if v not in view_pos]
     if unknown:
@@ -513,13 +457,3 @@ def write_tracks_csv(path, uv: np.ndarray, point_ids=None, view_ids=None) -> Non
     """Write ``view,point,u,v`` for every finite observation of ``uv (n_views, n_points, 2)``,
     grouped by point (so that the points read back in the same order)."""
     write_tracks(Path(path), uv, point_ids, view_ids)
-
-
-def write_poses_csv(path, T: np.ndarray, view_ids=None, images=None) -> None:
-    """Write ``view,x,y,z[,image]``."""
-    view_ids = list(range(len(T))) if view_ids is None else list(view_ids)
-    with atomic_write(path, newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(["view", "x", "y", "z"] + (["image"] if images is not None else []))
-        for i, t in enumerate(T):
-            w.writerow([view_ids[i]] + [repr(float(x)) for x in t] + ([images[i]] if images is not None else []))
