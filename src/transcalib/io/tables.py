@@ -264,8 +264,9 @@ def read_tracks(path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
 
 def tracks_to_uv(path_tracks, poses) -> tuple[np.ndarray, np.ndarray]:
     """Observations of a tracks file as ``uv (n_views, n_points, 2)`` in the view order of
-    ``poses`` (a :class:`~transcalib.io.poses.Poses`: its canonical ``views``), and the point ids ``(n_points,)`` (int64 when every id is an integer, else
-    str: :func:`~transcalib.io.ids.point_id_array`); the format follows the extension:
+    ``poses`` (a :class:`~transcalib.io.poses.Poses`: its canonical ``views``), and the
+    point ids ``(n_points,)`` (int64 when every id is an integer, else str:
+    :func:`~transcalib.io.ids.point_id_array`); the format follows the extension:
     ``.csv``, ``.npz`` or ``.parquet``.
 
     Raises :class:`InputError` for views in the tracks that have no pose and for
