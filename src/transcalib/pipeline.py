@@ -29,7 +29,7 @@ from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold,
 from .geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from .geometry.triangulate import triangulate
 from .types import INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
-from .validate import as_uv_T
+from .validate import COPLANAR_RTOL as COPLANAR_TOL, as_uv_T
 
 __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
 
@@ -42,9 +42,6 @@ REJUDGE_FRACTION = 0.005
 TRACK_BLOCK = 32768
 #: Gauss-Newton steps with every track after the fit of a subset (see _extend_to_all_tracks).
 GAUSS_NEWTON_STEPS = 2
-#: Relative singular value of the translations below which they count as coplanar (a
-#: table whose measured height jitters is a 2-axis stage).
-COPLANAR_TOL = 1e-3
 
 
 def calibrate(

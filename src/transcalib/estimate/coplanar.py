@@ -53,7 +53,7 @@ import numpy as np
 from ..errors import DegenerateError, InputError
 from ..geometry.triangulate import triangulate
 from ..types import LinearEstimate
-from ..validate import SPAN_TOL, as_uv_T
+from ..validate import SPAN_RTOL, as_uv_T
 from .degeneracy import explain_span, translation_basis, translation_rank
 from .distributions import chi2_ppf
 from .minimal import Problem, forms, normalise
@@ -210,7 +210,7 @@ def _oriented(K, Ap, P, uv, T, seen):
 
 
 def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                 used: np.ndarray | None = None, tol: float = SPAN_TOL) -> LinearEstimate:
+                 used: np.ndarray | None = None, tol: float = SPAN_RTOL) -> LinearEstimate:
     """Linear calibration from coplanar translations and a known principal point or K.
 
     Parameters
@@ -290,7 +290,7 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
 
 def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
                         threshold_px: float | None = None, false_rejection: float = 0.01, max_trials: int = 500,
-                        rng=None, tol: float = SPAN_TOL):
+                        rng=None, tol: float = SPAN_RTOL):
     """RANSAC over pairs of points for coplanar translations, then :func:`fit_coplanar`
     on the inliers, with the noise-adaptive inlier rule of :mod:`.scoring`.
 

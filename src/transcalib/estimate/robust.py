@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import DegenerateError, MirroredError
 from ..types import LinearEstimate, RansacOptions
-from ..validate import as_uv_T, check_translations_span
+from ..validate import SPAN_RTOL, as_uv_T, check_translations_span
 from ..geometry.rotation import rq_decompose
 from ..geometry.triangulate import triangulate
 from .distributions import chi2_ppf
@@ -43,8 +43,6 @@ __all__ = ["RobustEstimate", "estimate_robust", "fit_robust", "solve_minimal", "
 SCORE_POINTS = 4096
 #: Fewest inliers (sampled pair included) that count as a consensus.
 MIN_CONSENSUS = 4
-#: Relative singular value below which a set of translations counts as not spanning 3-D.
-_SPAN_TOL = 1e-6
 #: The inliers have settled when at most this fraction of them change between refits (none
 #: for fewer than 1000 tracks; in large problems borderline tracks trading places do not
 #: count).
@@ -114,7 +112,7 @@ def _spans(T: np.ndarray, masks: np.ndarray) -> np.ndarray:
             continue
         t = T[m] - T[m][0]
         s = np.linalg.svd(t, compute_uv=False)
-        good[k] = s[0] > 0 and s[2] > _SPAN_TOL * s[0]
+        good[k] = s[0] > 0 and s[2] > SPAN_RTOL * s[0]
     return good[np.ravel(inv)]
 
 
