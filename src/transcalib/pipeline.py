@@ -25,7 +25,7 @@ from .estimate.degeneracy import explain_span
 from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
-from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
+from .estimate.noise import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
 from .geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from .geometry.triangulate import triangulate
 from .types import INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions
@@ -286,9 +286,8 @@ def _initial_estimate(uv, T, opts: CalibrateOptions, rng, notify, coplanar: bool
     if coplanar:
         r = replace(opts.refinement, fix=_coplanar_start_fix(uv, opts.refinement.fix, image_size))
         if robust:
-            linear, inliers, sigma = fit_coplanar_robust(
-                uv, T, fix=r.fix, square_pixels=r.square_pixels, threshold_px=opts.ransac.threshold_px,
-                false_rejection=opts.ransac.false_rejection, rng=rng, tol=COPLANAR_TOL)
+            linear, inliers, sigma = fit_coplanar_robust(uv, T, fix=r.fix, square_pixels=r.square_pixels,
+                                                         options=opts.ransac, rng=rng, tol=COPLANAR_TOL)
             notify("robust (coplanar)", {"inliers": int(inliers.sum()), "sigma_px": sigma})
             return linear, inliers, ["robust"], None
         linear = fit_coplanar(uv, T, fix=r.fix, square_pixels=r.square_pixels, tol=COPLANAR_TOL)

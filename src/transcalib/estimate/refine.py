@@ -28,7 +28,7 @@ from .bundle import Layout, State, build_data, dist_indices, gauss_newton, intri
 from .covariance import _rot_views, covariance, linearise, profile_step
 from .degeneracy import identifiability_hint
 from .distributions import f_sf
-from .scoring import SIGMA_FLOOR_PX
+from .noise import LOSS_SCALE as _LOSS_FACTOR, OBS_QUANTILE as _OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
 
@@ -405,19 +405,10 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     return _Fit(state, last, idx, mask, data, sigma_T_mode, inliers)
 
 
-#: Scale of a robust loss per unit of pixel noise (95 % efficiency under Gaussian noise).
-_LOSS_FACTOR = {"huber": 1.345, "cauchy": 2.385, "linear": 1.0}
-#: An inlier observation's residual norm stays below this many sigmas with probability 0.999.
-_OBS_QUANTILE = float(np.sqrt(-2.0 * np.log(1e-3)))
-
-
 def _robust_sigma(pb: _Problem, state: State) -> float:
-    """Pixel noise per coordinate from the median absolute residual coordinate, scaled to
-    the residual degrees of freedom (outliers barely move a median)."""
+    """Pixel noise per coordinate: :func:`.noise.mad_sigma` of the residuals at ``state``."""
     res = bundle.all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
-    r = np.abs(res[np.isfinite(res)])
-    dof = max(r.size - pb.lay.n_global_no_T - 3 * len(pb.used_idx), 1)
-    return max(float(1.4826 * np.median(r) * np.sqrt(r.size / dof)), SIGMA_FLOOR_PX)
+    return mad_sigma(res, pb.lay.n_global_no_T + 3 * len(pb.used_idx))
 
 
 def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
