@@ -331,7 +331,7 @@ class _PlaneProblem:
 
 
 def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                        options: RansacOptions | None = None, rng=None, tol: float = SPAN_RTOL):
+                        options: RansacOptions | None = None, rng=None, tol: float = SPAN_RTOL, progress=None):
     """LO-RANSAC over pairs of points for coplanar translations, then :func:`fit_coplanar`
     on the inliers, with the noise-adaptive inlier rule of :mod:`.noise`.
 
@@ -346,6 +346,8 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
         the probability that the rule rejects a good track; ``confidence`` and
         ``max_trials``, the adaptive number of pairs drawn and its bound.
     rng : seed or Generator
+    progress : callable, optional
+        Called after every batch of pairs with ``{trials, trials_needed, best_inliers}``.
 
     Returns
     -------
@@ -370,7 +372,7 @@ def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bo
         raise DegenerateError("fewer than 2 points are seen in 3 or more views: a pair cannot determine A'")
     fixed = None if opts.threshold_px is None else sigma_from_threshold(opts.threshold_px, opts.false_rejection)
     best = lo_ransac(problem, confidence=opts.confidence, max_trials=opts.max_trials,
-                     false_rejection=opts.false_rejection, sigma=fixed, rng=rng)
+                     false_rejection=opts.false_rejection, sigma=fixed, rng=rng, progress=progress)
     if best.hypothesis is None:
         raise DegenerateError(f"no pair of points among {best.trials} drawn determines A' = K R [p1 p2]: track more "
                               "points, spread over the image and over depth")

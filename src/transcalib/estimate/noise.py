@@ -32,7 +32,7 @@ import numpy as np
 
 from .distributions import chi2_cdf, chi2_ppf, chi2_ppf_table
 
-__all__ = ["SIGMA_FLOOR_PX", "LOSS_SCALE", "OBS_FALSE_REJECTION", "OBS_QUANTILE", "track_dof", "chi2_quantiles",
+__all__ = ["SIGMA_FLOOR_PX", "LOSS_SCALE", "OBS_QUANTILE", "track_dof", "chi2_quantiles",
            "chi2_inliers", "inlier_rule", "median_sigma", "truncated_sigma", "truncation_factor",
            "observation_quantile", "sigma_from_threshold", "mad_sigma"]
 

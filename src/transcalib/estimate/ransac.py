@@ -41,8 +41,7 @@ import numpy as np
 
 from .noise import chi2_inliers, chi2_quantiles, median_sigma, truncated_sigma
 
-__all__ = ["RansacProblem", "RansacResult", "lo_ransac", "trials_needed", "FIRST_BATCH", "MAX_BATCH",
-           "MAX_LO_STEPS"]
+__all__ = ["RansacProblem", "RansacResult", "lo_ransac", "trials_needed"]
 
 #: Samples of the first batch; each further batch doubles, up to :data:`MAX_BATCH`.
 FIRST_BATCH = 16

@@ -19,7 +19,7 @@ import numpy as np
 from ..geometry.triangulate import triangulate
 from .minimal import Problem
 
-__all__ = ["Scorer", "point_errors", "SCORE_BLOCK"]
+__all__ = ["Scorer", "point_errors"]
 
 #: Largest number of (hypothesis x view x point) entries scored at once (memory bound).
 SCORE_BLOCK = 2_000_000
