@@ -12,10 +12,12 @@ from transcalib.errors import DegenerateError, Diagnostic, InputError
 from transcalib.estimate.coplanar import fit_coplanar, fit_coplanar_robust
 from transcalib.estimate.covariance import crlb
 from transcalib.estimate.degeneracy import explain_span, identifiability_hint, translation_basis, translation_rank
+from transcalib.estimate.noise import sigma_from_threshold
 from transcalib.estimate.refine import fit_refine
 from transcalib.geometry.camera import project
 from transcalib.synth.simulate import observe, random_scene
-from transcalib.types import RefineOptions
+from transcalib.pipeline import calibrate
+from transcalib.types import RansacOptions, RefineOptions
 
 
 def coplanar_scene(seed, *, n_views=6, n_points=60, noise_px=0.0, square=False, normal=None, R_rel=None,
@@ -312,9 +314,50 @@ def test_robust_finds_planted_outliers():
     bad = rng.choice(80, 20, replace=False)
     uv = scene.uv.copy()
     uv[:, bad] += rng.uniform(-40, 40, (uv.shape[0], 20, 2))
-    est, inl, sigma = fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0)
+    est, inl, stats = fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0)
     truth = np.ones(80, bool)
     truth[bad] = False
-    assert np.array_equal(inl, truth) and abs(sigma / 0.3 - 1) < 0.2
+    assert np.array_equal(inl, truth) and abs(stats.sigma_px / 0.3 - 1) < 0.2 and stats.n_inliers == 60
     assert abs(est.K[0, 0] - scene.K[0, 0]) < 0.02 * scene.K[0, 0]
     np.testing.assert_allclose(est.R, scene.R, atol=0.01)
+
+
+def _corrupted_plane(seed=20, n_points=80, fraction=0.4):
+    scene = coplanar_scene(seed, n_points=n_points, noise_px=0.3)
+    rng = np.random.default_rng(seed + 1)
+    bad = rng.random(n_points) < fraction
+    uv = scene.uv.copy()
+    uv[:, bad] += rng.uniform(-40, 40, (uv.shape[0], int(bad.sum()), 2))
+    return scene, uv, bad
+
+
+def test_robust_honours_every_ransac_option():
+    """threshold_px and false_rejection set the rule's sigma; confidence and max_trials the
+    number of pairs drawn (the loop of :mod:`transcalib.estimate.ransac`)."""
+    scene, uv, bad = _corrupted_plane()
+    for alpha in (0.01, 0.05):
+        _, inl, stats = fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0,
+                                            options=RansacOptions(threshold_px=1.5, false_rejection=alpha))
+        assert stats.sigma_px == sigma_from_threshold(1.5, alpha) and np.array_equal(inl, ~bad)
+    trials = {}
+    for confidence in (0.5, 0.999999):
+        calls = []
+        fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0, options=RansacOptions(confidence=confidence),
+                            progress=calls.append)
+        trials[confidence] = calls[-1].done
+        assert calls[-1].done >= calls[-1].info["trials_needed"]
+    assert trials[0.5] < trials[0.999999]
+    calls = []
+    fit_coplanar_robust(uv, scene.T, fix=pp(scene), rng=0, progress=calls.append,
+                        options=RansacOptions(confidence=0.999999, max_trials=5))
+    assert calls[-1].done == 5 < calls[-1].info["trials_needed"]
+
+
+def test_calibrate_passes_the_ransac_options_to_the_coplanar_start():
+    scene, uv, bad = _corrupted_plane()
+    seen = {}
+    cal = calibrate(uv, scene.T, fix=pp(scene), rng=0, ransac=RansacOptions(threshold_px=1.5, false_rejection=0.05),
+                    progress=lambda e: seen.setdefault(e.stage, e.info) if e.finished else None)
+    assert seen["robust (coplanar)"]["sigma_px"] == sigma_from_threshold(1.5, 0.05)
+    assert cal.stats.ransac.rule_sigma_px == sigma_from_threshold(1.5, 0.05)
+    assert cal.linear.method == "coplanar" and np.array_equal(cal.inliers, ~bad)

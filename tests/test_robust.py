@@ -119,7 +119,8 @@ def test_seeded_runs_are_reproducible_and_progress_is_called():
     r2 = estimate_robust(uv, scene.T, rng=3)
     np.testing.assert_array_equal(r1.inliers, r2.inliers)
     np.testing.assert_array_equal(r1.linear.K, r2.linear.K)
-    assert calls and {"trials", "trials_needed", "best_inliers"} <= set(calls[-1])
+    assert calls and calls[-1].stage == "robust" and calls[-1].done == r1.trials
+    assert {"trials_needed", "best_inliers"} <= set(calls[-1].info)
 
 
 def test_point_errors_match_definition():

@@ -25,12 +25,12 @@ from .estimate.degeneracy import explain_span
 from .estimate.linear import fit_linear
 from .estimate.refine import climb_distortion, fit_refine
 from .estimate.robust import fit_robust
-from .estimate.scoring import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
+from .estimate.noise import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
 from .geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from .geometry.triangulate import triangulate
 from .types import (INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibration, CalibrationStats, LinearEstimate,
-                    RansacOptions, RansacStats, RefineOptions, report)
-from .validate import as_uv_T
+                    RansacOptions, RefineOptions, report)
+from .validate import COPLANAR_RTOL, as_uv_T
 
 __all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
 
@@ -43,9 +43,6 @@ REJUDGE_FRACTION = 0.005
 TRACK_BLOCK = 32768
 #: Gauss-Newton steps with every track after the fit of a subset (see _extend_to_all_tracks).
 GAUSS_NEWTON_STEPS = 2
-#: Relative singular value of the translations below which they count as coplanar (a
-#: table whose measured height jitters is a 2-axis stage).
-COPLANAR_TOL = 1e-3
 
 
 def calibrate(
@@ -263,7 +260,7 @@ def _explain_span(T, opts: CalibrateOptions):
     r = opts.refinement
     model = "none" if r.distortion == "auto" else r.distortion
     return explain_span(T, r.fix, r.square_pixels, opts.unit, estimate_skew=r.estimate_skew, distortion=model,
-                        tol=COPLANAR_TOL)
+                        tol=COPLANAR_RTOL)
 
 
 def _coplanar_start_fix(uv, fix, image_size) -> dict:
@@ -290,20 +287,17 @@ def _initial_estimate(uv, T, opts: CalibrateOptions, rng, progress, coplanar: bo
     if coplanar:
         r = replace(opts.refinement, fix=_coplanar_start_fix(uv, opts.refinement.fix, image_size))
         if robust:
-            linear, inliers, sigma = fit_coplanar_robust(
-                uv, T, fix=r.fix, square_pixels=r.square_pixels, threshold_px=opts.ransac.threshold_px,
-                false_rejection=opts.ransac.false_rejection, rng=rng, tol=COPLANAR_TOL)
-            report(progress, "robust (coplanar)", inliers=int(inliers.sum()), sigma_px=sigma)
-            return linear, inliers, ["robust"], None
-        linear = fit_coplanar(uv, T, fix=r.fix, square_pixels=r.square_pixels, tol=COPLANAR_TOL)
+            linear, inliers, stats = fit_coplanar_robust(uv, T, fix=r.fix, square_pixels=r.square_pixels,
+                                                         options=opts.ransac, rng=rng, tol=COPLANAR_RTOL)
+            report(progress, "robust (coplanar)", inliers=stats.n_inliers, trials=stats.trials, sigma_px=stats.sigma_px)
+            return linear, inliers, ["robust"], stats
+        linear = fit_coplanar(uv, T, fix=r.fix, square_pixels=r.square_pixels, tol=COPLANAR_RTOL)
         report(progress, "linear (coplanar)", points=linear.n_used_points)
         return linear, None, ["linear"], None
     if robust:
         rob = fit_robust(uv, T, opts.ransac, rng=rng)
         report(progress, "robust", inliers=rob.n_inliers, trials=rob.trials, sigma_px=rob.sigma_px)
-        stats = RansacStats(trials=rob.trials, trials_needed=rob.info["trials_needed"], n_inliers=rob.n_inliers,
-                            sigma_px=rob.sigma_px, rule_sigma_px=rob.rule_sigma_px, time_s=rob.info["time_s"])
-        return rob.linear, rob.inliers, ["robust"], stats
+        return rob.linear, rob.inliers, ["robust"], rob.stats
     linear = fit_linear(uv, T)
     report(progress, "linear", points=linear.n_used_points)
     return linear, None, ["linear"], None

@@ -10,12 +10,30 @@ import numpy as np
 
 from .types import DegenerateError, InputError
 
-__all__ = ["as_uv_T", "translation_singular_values", "check_translations_span", "MIN_VIEWS"]
+__all__ = ["as_uv_T", "translation_singular_values", "check_translations_span", "MIN_VIEWS", "SPAN_RTOL",
+           "COPLANAR_RTOL", "WEAK_SPAN_RATIO"]
 
 #: Three independent translations need four views.
 MIN_VIEWS = 4
-#: Relative singular value below which translations count as not spanning 3-D.
-SPAN_TOL = 1e-6
+
+# Tolerances on the singular values ``s_1 >= s_2 >= s_3`` of the translations, one per
+# concept; every module imports them from here.
+
+#: Numerical rank of the translations (what the solvers can use): ``s_k <= SPAN_RTOL s_1``
+#: counts as zero. Exactly coplanar (or collinear) translations leave ``s_3 / s_1`` at
+#: rounding level (~1e-16), far below; the solvers use any larger motion.
+SPAN_RTOL = 1e-6
+#: Measured translations that count as a plane (or a line): out-of-plane motion below
+#: ``COPLANAR_RTOL s_1`` is robot jitter (an XY table whose measured height wanders by
+#: 0.01 mm over moves of 10 mm and more), not a third direction that could determine K.
+#: Used where the data decide how to calibrate (the coplanar start, the tracker).
+COPLANAR_RTOL = 1e-3
+#: Weak geometry (a warning, not an error): ``s_3 / s_1`` of the centred translations
+#: below this leaves K and R poorly determined (little motion along the weakest
+#: direction). The diagnostics (``translations_coplanar``) and the planner
+#: (``coplanar_moves``) warn at the same ratio, so that a design the planner accepts does
+#: not draw the warning after calibration.
+WEAK_SPAN_RATIO = 0.2
 
 
 def _as_float_array(name: str, value) -> np.ndarray:
@@ -101,7 +119,7 @@ def check_translations_span(T: np.ndarray) -> np.ndarray:
         Singular values of ``T_i - T_0``, descending.
     """
     s = translation_singular_values(T)
-    if s[0] == 0 or s[2] <= SPAN_TOL * s[0]:
+    if s[0] == 0 or s[2] <= SPAN_RTOL * s[0]:
         raise DegenerateError(
             "the robot translations do not span 3-D (singular values of T_i - T_0: "
             + ", ".join(f"{v:.3g}" for v in s)

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..errors import Diagnostic
 from ..estimate.distributions import f_sf
+from ..estimate.noise import median_sigma
 from .common import depths, fmt_list, squared_norms
 
 MIN_VIEW_POINTS = 6
@@ -132,8 +133,9 @@ def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, min_px: flo
         Points that count (e.g. the inliers).
     k_sigma : float
         An observation is gross when its residual norm exceeds ``k_sigma`` times the
-        robust noise per coordinate ``sigma = sqrt(median(|r|^2) / (2 ln 2))`` (the median
-        of a chi-square with 2 degrees of freedom is ``2 ln 2``; Gaussian: probability
+        robust noise per coordinate ``sigma = sqrt(median(|r|^2) / (2 ln 2))``
+        (:func:`transcalib.estimate.noise.median_sigma`: the median of a chi-square with 2
+        degrees of freedom is ``2 ln 2``; Gaussian: probability
         ``exp(-k^2 / 2)``, 4e-6 for k = 5) ...
     min_px : float
         ... and ``min_px`` pixels: with very precise tracks (0.02 px) small tracking errors
@@ -153,7 +155,7 @@ def check_outliers(residuals_px, *, used=None, k_sigma: float = 5.0, min_px: flo
     n_obs = int(ok.sum())
     if n_obs < 10:
         return []
-    sigma = float(np.sqrt(np.median(e2[ok]) / (2.0 * np.log(2.0))))
+    sigma = median_sigma(e2[ok], 2, floor=0.0)
     if not sigma > 0:
         return []
     limit = max(k_sigma * sigma, min_px)

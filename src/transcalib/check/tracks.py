@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import Diagnostic
-from ..estimate.distributions import chi2_ppf, chi2_sf
+from ..estimate.distributions import chi2_sf
 from ..estimate.linear import reference_motion
+from ..estimate.noise import observation_quantile
 from .common import fmt_list
 
 __all__ = ["check_parallax", "check_inliers", "check_threshold", "check_intrinsics", "track_motion_px",
@@ -92,7 +93,7 @@ def check_threshold(sigma_px: float, rule_sigma_px: float, threshold_px, alpha: 
     the rule then rejects good tracks far more often than ``alpha``."""
     if threshold_px is None or not sigma_px > 1.2 * rule_sigma_px:
         return []
-    q = chi2_ppf(1 - alpha, 2)
+    q = observation_quantile(alpha) ** 2  # chi2_2(1 - alpha)
     rejected = float(chi2_sf(q * (rule_sigma_px / sigma_px) ** 2, 2))
     return [Diagnostic(
         "threshold_small",

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import Diagnostic
+from ..validate import WEAK_SPAN_RATIO
 from .common import fmt_vec
 
-COPLANAR_RATIO = 0.2
 MIN_PARALLAX_PX = 20.0
 
 def check_translations(T, *, focal_px: float | None = None, distance: float | None = None,
-                       coplanar_ratio: float = COPLANAR_RATIO, min_parallax_px: float = MIN_PARALLAX_PX,
+                       coplanar_ratio: float = WEAK_SPAN_RATIO, min_parallax_px: float = MIN_PARALLAX_PX,
                        unit: str = "units") -> list:
     """Warn when the translations are nearly coplanar or tiny for the scene distance.
 
@@ -26,7 +26,8 @@ def check_translations(T, *, focal_px: float | None = None, distance: float | No
         Typical distance of the scene from the camera (median depth, units of ``T``).
     coplanar_ratio : float
         Warn when ``s3 / s1 < coplanar_ratio``, ``s_k`` the singular values of the
-        centred translations ``T_i - mean(T)``.
+        centred translations ``T_i - mean(T)`` (default
+        :data:`transcalib.validate.WEAK_SPAN_RATIO`, as the planner).
     min_parallax_px : float
         Warn when the image motion produced by the translations along their weakest
         direction ``v3``, ``focal_px * extent(T . v3) / distance``, is below this.

@@ -34,30 +34,35 @@ Identifiability (checked with the Fisher information, ``covariance.crlb(scene, f
 ``tests/test_coplanar.py``): with zero skew, ``fx, fy, R`` and the points are determined
 once ``cx, cy`` are known and singular (2 directions) with them free (so are ``cx, cy``
 once ``fx, fy`` are known: start this estimator at the image centre and let the
-refinement free them); with ``fx, fy`` free the system above is singular when the camera is tilted about one of its image axes,
-and even ``f`` (square pixels) is lost when the camera looks along the plane normal.
+refinement free them); with ``fx, fy`` free the system above is singular when the camera
+is tilted about one of its image axes, and even ``f`` (square pixels) is lost when the
+camera looks along the plane normal.
 Coplanar data cannot reveal a mirrored robot frame (``r_3``'s sign is chosen for
 ``det R = +1``; a left-handed frame mirrors the points through the plane).
 
-:func:`fit_coplanar_robust` draws pairs of points (a point in ``k`` views gives ``2k - 3``
-constraints on the 5 degrees of freedom of ``A'``), scores ``A = A' P^T`` with
-:class:`transcalib.estimate.scoring.Scorer`, refits ``A'`` on the inliers until they settle
-(judged by the unconstrained ``A'``: imposing K and R first would reject good points when
-the geometry is weak) and ends with :func:`fit_coplanar` on them.
+:func:`fit_coplanar_robust` runs the generic LO-RANSAC (:func:`transcalib.estimate.ransac.lo_ransac`)
+on pairs of points (a point in ``k`` views gives ``2k - 3`` constraints on the 5 degrees of
+freedom of ``A'``), scores ``A = A' P^T`` with :class:`transcalib.estimate.scoring.Scorer`
+and refits ``A'`` on the inliers (local optimisation, judged by the unconstrained ``A'``:
+imposing K and R first would reject good points when the geometry is weak), then ends
+with :func:`fit_coplanar` on them.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
 from ..errors import DegenerateError, InputError
 from ..geometry.triangulate import triangulate
-from ..types import LinearEstimate
-from ..validate import SPAN_TOL, as_uv_T
+from ..types import LinearEstimate, RansacOptions, RansacStats
+from ..validate import SPAN_RTOL, as_uv_T
 from .degeneracy import explain_span, translation_basis, translation_rank
-from .distributions import chi2_ppf
 from .minimal import Problem, forms, normalise
-from .scoring import Scorer, inlier_rule, median_sigma, sigma_from_threshold, track_dof, truncated_sigma
+from .noise import sigma_from_threshold, track_dof
+from .ransac import lo_ransac
+from .scoring import Scorer
 
 __all__ = ["fit_coplanar", "fit_coplanar_robust", "solve_plane_affine", "intrinsics_from_plane"]
 
@@ -210,7 +215,7 @@ def _oriented(K, Ap, P, uv, T, seen):
 
 
 def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                 used: np.ndarray | None = None, tol: float = SPAN_TOL) -> LinearEstimate:
+                 used: np.ndarray | None = None, tol: float = SPAN_RTOL) -> LinearEstimate:
     """Linear calibration from coplanar translations and a known principal point or K.
 
     Parameters
@@ -288,66 +293,96 @@ def fit_coplanar(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = Fa
                           n_used_points=int(used.sum()), used=used, method="coplanar")
 
 
+class _PlaneProblem:
+    """Coplanar translations as a :class:`transcalib.estimate.ransac.RansacProblem`: pairs
+    of moving points seen in 3+ views as samples, normalised ``vec(A')`` (6,) as
+    hypotheses, the track errors of ``A = A' P2^T`` (px^2) as errors."""
+
+    sample_size = 2
+
+    def __init__(self, uv: np.ndarray, T: np.ndarray, P: np.ndarray):
+        k = np.isfinite(uv[..., 0]).sum(axis=0)
+        self.P = P
+        self.pb = normalise(uv, T)
+        self.scorer = Scorer(self.pb)
+        self.dof = track_dof(k)
+        self.scorable = self.scorer.ok
+        # a pair gives 2 (2k - 3) >= 6 > 5 constraints for k >= 3
+        self.samplable = (k >= 3) & _moving(uv) & self.scorer.ok
+        self.pool = np.flatnonzero(self.samplable)
+
+    def sample(self, rng, size: int) -> np.ndarray:
+        first = rng.integers(0, len(self.pool), size)
+        second = (first + rng.integers(1, len(self.pool), size)) % len(self.pool)
+        return self.pool[np.column_stack([first, second])]
+
+    def _solve(self, idx):
+        a, w = solve_plane_affine(self.pb, idx, self.P[:, :2])
+        # the null space must be one-dimensional (as in fit_coplanar)
+        return a, np.isfinite(w).all(axis=-1) & (w[..., 1] > 1e-12 * np.maximum(w[..., -1], 1e-300))
+
+    def solve(self, pairs: np.ndarray):
+        return self._solve(pairs)
+
+    def errors(self, a: np.ndarray) -> np.ndarray:
+        return self.scorer.sse(_plane_to_full(a, self.P))
+
+    def refit(self, inliers: np.ndarray):
+        a, ok = self._solve(np.flatnonzero(inliers))
+        return a[None], np.atleast_1d(ok)
+
+
 def fit_coplanar_robust(uv: np.ndarray, T: np.ndarray, *, fix, square_pixels: bool = False,
-                        threshold_px: float | None = None, false_rejection: float = 0.01, max_trials: int = 500,
-                        rng=None, tol: float = SPAN_TOL):
-    """RANSAC over pairs of points for coplanar translations, then :func:`fit_coplanar`
-    on the inliers, with the noise-adaptive inlier rule of :mod:`.scoring`.
+                        options: RansacOptions | None = None, rng=None, tol: float = SPAN_RTOL, progress=None):
+    """LO-RANSAC over pairs of points for coplanar translations, then :func:`fit_coplanar`
+    on the inliers, with the noise-adaptive inlier rule of :mod:`.noise`.
 
     Parameters
     ----------
     uv, T, fix, square_pixels, tol
         As :func:`fit_coplanar`.
-    threshold_px : float, optional
-        None: the pixel noise is estimated from the data (least median of squares, then
-        the truncated chi-square estimator); a number fixes it as in
-        :class:`transcalib.RansacOptions`.
-    false_rejection : float
-        Probability that the rule rejects a good track.
-    max_trials : int
-        Number of pairs drawn (all scored in batches).
+    options : RansacOptions, optional
+        As for :func:`transcalib.estimate.robust.estimate_robust`: ``threshold_px`` None
+        (the pixel noise is estimated from the data: least median of squares, then the
+        truncated chi-square estimator) or a number that fixes it; ``false_rejection``,
+        the probability that the rule rejects a good track; ``confidence`` and
+        ``max_trials``, the adaptive number of pairs drawn and its bound.
     rng : seed or Generator
+    progress : callable, optional
+        Called after every batch of pairs with a :class:`~transcalib.types.ProgressEvent`
+        (stage ``"robust (coplanar)"``, ``done`` the pairs drawn so far).
 
     Returns
     -------
     estimate : LinearEstimate
         :func:`fit_coplanar` on the inliers (``used``).
     inliers : (n_points,) bool
-        Tracks that pass the chi-square rule under the refit ``A' P^T`` (the unconstrained
-        plane affine, before K and R are imposed).
-    sigma_px : float
-        The pixel noise of the rule.
+        Tracks that pass the chi-square rule under the best ``A' P^T`` of the loop (the
+        unconstrained plane affine, refitted on its inliers, before K and R are imposed).
+    stats : RansacStats
+        Pairs drawn and needed, inliers, the pixel noise of the rule (estimated, or the
+        one ``threshold_px`` implies) and the time.
+
+    Raises
+    ------
+    DegenerateError
+        Fewer than 2 points seen in 3+ views, or no pair determines ``A'``; and as
+        :func:`fit_coplanar`.
     """
     uv, T = as_uv_T(uv, T, min_views=3)
-    rng = np.random.default_rng(rng)
-    seen = np.isfinite(uv[..., 0])
-    k = seen.sum(axis=0)
-    cand = np.flatnonzero((k >= 3) & _moving(uv))  # a pair gives 2 (2k - 3) >= 5 for k >= 3
-    if len(cand) < 2:
+    opts = options or RansacOptions()
+    problem = _PlaneProblem(uv, T, translation_basis(T)[0])
+    if len(problem.pool) < 2:
         raise DegenerateError("fewer than 2 points are seen in 3 or more views: a pair cannot determine A'")
-    P = translation_basis(T)[0]
-    pb = normalise(uv, T)
-    first = rng.integers(0, len(cand), max_trials)
-    second = (first + rng.integers(1, len(cand), max_trials)) % len(cand)
-    a, _ = solve_plane_affine(pb, cand[np.column_stack([first, second])], P[:, :2])
-    scorer = Scorer(pb)
-    sse = scorer.sse(_plane_to_full(a, P))
-    fixed = None if threshold_px is None else sigma_from_threshold(threshold_px, false_rejection)
-    m = chi2_ppf(0.5, track_dof(k))
-    if fixed is None:
-        best = sse[int(np.argmin(np.median(np.where(scorer.ok, sse / m, np.inf), axis=1)))]
-    else:
-        q = fixed**2 * chi2_ppf(1 - false_rejection, track_dof(k))
-        best = sse[int(np.argmin(np.sum(np.minimum(np.nan_to_num(sse, nan=0.0), q), axis=1)))]
-    sigma = fixed or truncated_sigma(best, k, median_sigma(best, k), false_rejection)
-    inl = inlier_rule(best, k, sigma, false_rejection)
-    for _ in range(10):  # local optimisation: refit A' on the inliers until they settle
-        a, _ = solve_plane_affine(pb, np.flatnonzero(inl), P[:, :2])
-        sse = scorer.sse(_plane_to_full(a[None], P))[0]
-        sigma = fixed or truncated_sigma(sse, k, sigma, false_rejection)
-        new = inlier_rule(sse, k, sigma, false_rejection)
-        if np.array_equal(new, inl) or new.sum() < 2:
-            break
-        inl = new
-    est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=inl, tol=tol)
-    return est, inl, float(sigma)
+    fixed = None if opts.threshold_px is None else sigma_from_threshold(opts.threshold_px, opts.false_rejection)
+    t0 = time.perf_counter()
+    best = lo_ransac(problem, confidence=opts.confidence, max_trials=opts.max_trials,
+                     false_rejection=opts.false_rejection, sigma=fixed, rng=rng, progress=progress,
+                     stage="robust (coplanar)")
+    if best.hypothesis is None:
+        raise DegenerateError(f"no pair of points among {best.trials} drawn determines A' = K R [p1 p2]: track more "
+                              "points, spread over the image and over depth")
+    est = fit_coplanar(uv, T, fix=fix, square_pixels=square_pixels, used=best.inliers, tol=tol)
+    stats = RansacStats(trials=best.trials, trials_needed=float(best.trials_needed), n_inliers=int(best.inliers.sum()),
+                        sigma_px=float(best.sigma), rule_sigma_px=float(best.sigma), time_s=time.perf_counter() - t0)
+    return est, best.inliers, stats

@@ -35,7 +35,7 @@ from ..errors import DegenerateError, Diagnostic, InputError
 from ..geometry.camera import project
 from ..geometry.rotation import rotvec_to_matrix
 from ..types import INTRINSIC_NAMES, RefineOptions
-from ..validate import SPAN_TOL, translation_singular_values
+from ..validate import SPAN_RTOL, translation_singular_values
 from .covariance import check_identifiable, reduced_information
 from .layout import Layout, State
 from .observations import build_data
@@ -50,7 +50,7 @@ _PP_HOW = ("fix the principal point: fix={'cx': ..., 'cy': ...} (command line: -
            "--fix principal-point=centre)")
 
 
-def translation_rank(T, tol: float = SPAN_TOL) -> int:
+def translation_rank(T, tol: float = SPAN_RTOL) -> int:
     """Dimension (0-3) of the span of the relative translations ``T_i - T_0``.
 
     Parameters
@@ -99,7 +99,7 @@ def format_direction(v: np.ndarray) -> str:
 
 
 def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", *,
-                 estimate_skew: bool = False, distortion: str = "none", tol: float = SPAN_TOL) -> Diagnostic | None:
+                 estimate_skew: bool = False, distortion: str = "none", tol: float = SPAN_RTOL) -> Diagnostic | None:
     """Say, before any estimation, what the span of the translations allows.
 
     Parameters
@@ -119,8 +119,9 @@ def explain_span(T, fix=None, square_pixels: bool = False, unit: str = "units", 
         Distortion model whose free coefficients count as unknowns.
     tol : float
         Relative singular value below which a direction counts as missing
-        (:func:`translation_rank`); e.g. ``1e-3`` treats an XY table whose measured z
-        jitters by robot noise as coplanar.
+        (:func:`translation_rank`); :data:`transcalib.validate.COPLANAR_RTOL` (what
+        ``calibrate`` uses) treats an XY table whose measured z jitters by robot noise as
+        coplanar.
 
     Returns
     -------

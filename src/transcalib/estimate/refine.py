@@ -29,9 +29,9 @@ from .covariance import covariance, linearise, profile_step
 from .degeneracy import identifiability_hint
 from .distributions import f_sf
 from .layout import Layout, State, dist_indices, robot_sigma
+from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
 from .solvers import gauss_newton, levenberg_marquardt
-from .scoring import SIGMA_FLOOR_PX
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
 
@@ -299,11 +299,11 @@ class _Fitter:
         sigma``, Cauchy ``2.385 sigma``: 95 % efficiency under Gaussian noise; threshold
         ``sqrt(chi2_2(0.999)) sigma = 3.72 sigma``)."""
         o = self.pb.opts
-        self.c = float(o.loss_scale_px) if o.loss_scale_px is not None else _LOSS_FACTOR[o.loss] * sigma
+        self.c = float(o.loss_scale_px) if o.loss_scale_px is not None else LOSS_SCALE[o.loss] * sigma
         if o.inlier_threshold_px is not None:
             self.thr = float(o.inlier_threshold_px)
         else:
-            self.thr = 3.0 * self.c if o.loss_scale_px is not None else _OBS_QUANTILE * sigma
+            self.thr = 3.0 * self.c if o.loss_scale_px is not None else OBS_QUANTILE * sigma
 
     def _lm(self, state, lay, data, loss):
         """Levenberg-Marquardt, or Gauss-Newton steps near the solution (then the last
@@ -382,7 +382,7 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
         return _Fit(state, state, pb.used_idx, pb.seen, data, sigma_T_mode, None)
     if pb.opts.loss_scale_px is None:
         sigma = _robust_sigma(pb, state)
-        if abs(sigma * _LOSS_FACTOR[pb.opts.loss] / fit.c - 1) > 0.1:  # the start's residuals misled the scale
+        if abs(sigma * LOSS_SCALE[pb.opts.loss] / fit.c - 1) > 0.1:  # the start's residuals misled the scale
             fit.set_scale(sigma)
             state, fit.cost, fit.reason, data, sigma_T_mode = fit(state, pb.used_idx, pb.seen, pb.opts.loss)
     last, idx, mask, previous = state, pb.used_idx, pb.seen, None
@@ -404,19 +404,10 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     return _Fit(state, last, idx, mask, data, sigma_T_mode, inliers)
 
 
-#: Scale of a robust loss per unit of pixel noise (95 % efficiency under Gaussian noise).
-_LOSS_FACTOR = {"huber": 1.345, "cauchy": 2.385, "linear": 1.0}
-#: An inlier observation's residual norm stays below this many sigmas with probability 0.999.
-_OBS_QUANTILE = float(np.sqrt(-2.0 * np.log(1e-3)))
-
-
 def _robust_sigma(pb: _Problem, state: State) -> float:
-    """Pixel noise per coordinate from the median absolute residual coordinate, scaled to
-    the residual degrees of freedom (outliers barely move a median)."""
+    """Pixel noise per coordinate: :func:`.noise.mad_sigma` of the residuals at ``state``."""
     res = all_residuals(state, pb.lay, pb.uv, pb.seen, pb.used_idx, pb.T)
-    r = np.abs(res[np.isfinite(res)])
-    dof = max(pb.lay.residual_dof(r.size // 2, len(pb.used_idx)), 1)
-    return max(float(1.4826 * np.median(r) * np.sqrt(r.size / dof)), SIGMA_FLOOR_PX)
+    return mad_sigma(res, pb.lay.n_global_no_T + 3 * len(pb.used_idx))
 
 
 def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:

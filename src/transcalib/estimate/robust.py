@@ -1,41 +1,40 @@
-"""Robust estimation: the two-point minimal solver (:mod:`.minimal`) inside an LO-RANSAC
-loop, hypotheses scored by :mod:`.scoring`, with no noise knob to turn.
+"""Robust estimation: the two-point minimal solver (:mod:`.minimal`) inside the generic
+LO-RANSAC loop (:func:`.ransac.lo_ransac`), hypotheses scored by :mod:`.scoring`, with no
+noise knob to turn.
 
-The pixel noise is unknown, so hypotheses are first ranked by the **median** of their
-normalised track errors ``e_j^2 / median(chi2(2 k_j - 3))`` (least median of squares:
-no threshold needed, correct up to 50 % of bad tracks). For each new best hypothesis
-the noise ``sigma`` is estimated from its track errors (:func:`.scoring.truncated_sigma`),
-its inliers follow from the chi-square rule with false-rejection rate ``alpha``
-(:func:`.scoring.inlier_rule`), and local optimisation refits ``A`` on them while the
-median drops. The number of trials adapts: ``log(1 - confidence) / log(1 - p)`` with
-``p`` the probability of drawing two inliers at the best inlier ratio so far. A user
-threshold (``RansacOptions.threshold_px``) replaces the estimated ``sigma`` by
-``threshold_px / sqrt(chi2_2(1 - alpha))`` and ranks hypotheses by the MSAC cost
-``sum_j min(e_j^2, sigma^2 q_j)`` instead.
+The data are the tracks; a track seen in ``k`` views has an error ``e_j^2`` (px^2) with
+``2 k - 3`` degrees of freedom (:func:`.noise.track_dof`). The pixel noise is unknown, so
+the loop ranks hypotheses by the **median** of the normalised track errors (least median
+of squares), estimates ``sigma`` for each new best (:func:`.noise.truncated_sigma`), takes
+its inliers by the chi-square rule with false-rejection rate ``alpha``
+(:func:`.noise.inlier_rule`) and refits ``A`` on them (local optimisation) while the median
+drops; the number of trials adapts to the inlier ratio. A user threshold
+(``RansacOptions.threshold_px``) fixes ``sigma = threshold_px / sqrt(chi2_2(1 - alpha))``
+(:func:`.noise.sigma_from_threshold`) and the loop ranks by the MSAC cost instead.
 
 Problems with more than ``SCORE_POINTS`` points draw and score hypotheses on a random
 subset of that many points; every track is then classified. The final model is the
-linear TLS (depth-weighted, :func:`.linear.fit_linear`) on the inliers, with ``sigma`` and the inliers re-estimated from it until
-they settle.
+linear TLS (depth-weighted, :func:`.linear.fit_linear`) on the inliers, with ``sigma`` and
+the inliers re-estimated from it until they settle.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import DegenerateError, MirroredError
-from ..types import LinearEstimate, RansacOptions
-from ..validate import as_uv_T, check_translations_span
+from ..types import LinearEstimate, RansacOptions, RansacStats
+from ..validate import SPAN_RTOL, as_uv_T, check_translations_span
 from ..geometry.rotation import rq_decompose
 from ..geometry.triangulate import triangulate
-from .distributions import chi2_ppf
 from .linear import fit_linear
 from .minimal import forms, forms_sum, normalise, null_vectors, solve_minimal, to_pixels
-from .scoring import Scorer, inlier_rule, median_sigma, point_errors, sigma_from_threshold, truncated_sigma
+from .noise import inlier_rule, median_sigma, sigma_from_threshold, track_dof, truncated_sigma
+from .ransac import RansacResult, lo_ransac
+from .scoring import Scorer, point_errors
 
 __all__ = ["RobustEstimate", "estimate_robust", "fit_robust", "solve_minimal", "point_errors"]
 
@@ -43,8 +42,6 @@ __all__ = ["RobustEstimate", "estimate_robust", "fit_robust", "solve_minimal", "
 SCORE_POINTS = 4096
 #: Fewest inliers (sampled pair included) that count as a consensus.
 MIN_CONSENSUS = 4
-#: Relative singular value below which a set of translations counts as not spanning 3-D.
-_SPAN_TOL = 1e-6
 #: The inliers have settled when at most this fraction of them change between refits (none
 #: for fewer than 1000 tracks; in large problems borderline tracks trading places do not
 #: count).
@@ -79,9 +76,19 @@ class RobustEstimate:
     inlier_ratio : float
         ``inliers.sum() / n_points``.
     options : RansacOptions
-    info : dict
-        ``trials_needed``, ``lo_steps``, ``refits``, ``time_s``, ``n_candidates``
-        (points eligible for sampling), ``n_scored`` (points hypotheses were scored on).
+    trials_needed : float
+        The adaptive number of trials when the loop stopped
+        (:func:`.ransac.trials_needed`).
+    lo_steps : int
+        Local-optimisation refits in the loop.
+    refits : int
+        Linear refits on the inliers after the loop.
+    n_candidates : int
+        Points eligible for sampling (seen in 3+ views, triangulable).
+    n_scored : int
+        Points hypotheses were scored on (at most ``SCORE_POINTS``).
+    time_s : float
+        Wall-clock time of the whole estimate (s).
     """
 
     linear: LinearEstimate
@@ -93,7 +100,18 @@ class RobustEstimate:
     trials: int
     inlier_ratio: float
     options: RansacOptions
-    info: dict
+    trials_needed: float
+    lo_steps: int
+    refits: int
+    n_candidates: int
+    n_scored: int
+    time_s: float
+
+    @property
+    def stats(self) -> RansacStats:
+        """The record a calibration keeps of this stage (:attr:`Calibration.stats.ransac`)."""
+        return RansacStats(trials=self.trials, trials_needed=self.trials_needed, n_inliers=self.n_inliers,
+                           sigma_px=self.sigma_px, rule_sigma_px=self.rule_sigma_px, time_s=self.time_s)
 
     @property
     def n_inliers(self) -> int:
@@ -101,7 +119,7 @@ class RobustEstimate:
 
 
 # ----------------------------------------------------------------------------------------
-# Sampling
+# The two-point problem
 # ----------------------------------------------------------------------------------------
 
 
@@ -114,7 +132,7 @@ def _spans(T: np.ndarray, masks: np.ndarray) -> np.ndarray:
             continue
         t = T[m] - T[m][0]
         s = np.linalg.svd(t, compute_uv=False)
-        good[k] = s[0] > 0 and s[2] > _SPAN_TOL * s[0]
+        good[k] = s[0] > 0 and s[2] > SPAN_RTOL * s[0]
     return good[np.ravel(inv)]
 
 
@@ -144,18 +162,50 @@ def _draw_pairs(rng, pool: np.ndarray, k_views: np.ndarray, seen: np.ndarray, T:
     return pairs
 
 
-def _trials_needed(n_in: int, m: int, confidence: float) -> float:
-    """``log(1 - confidence) / log(1 - p)``, ``p = n_in (n_in - 1) / (m (m - 1))``."""
-    if m < 2 or n_in < 2:
-        return math.inf
-    p = min(1.0, n_in * (n_in - 1) / (m * (m - 1)))
-    if p >= 1.0:
-        return 1.0
-    return math.log(1.0 - confidence) / math.log1p(-p)
+class _PairProblem:
+    """The calibration as a :class:`.ransac.RansacProblem`: the tracks of a scored subset
+    (``subset``, Hartley-normalised ``pb``), pairs of points seen in 3+ views as samples,
+    ``a = vec(A)`` (normalised units) as hypotheses, track errors (px^2) as errors."""
+
+    sample_size = 2
+
+    def __init__(self, uv: np.ndarray, T: np.ndarray, rng: np.random.Generator):
+        n_points = uv.shape[1]
+        pb_all = normalise(uv, T)
+        # hypotheses are drawn and scored on a random subset of at most SCORE_POINTS points;
+        # the final classification and refit use every point
+        scorable = np.flatnonzero(pb_all.seen.sum(axis=1) >= 2)
+        self.subset = (np.sort(rng.choice(scorable, SCORE_POINTS, replace=False)) if len(scorable) > SCORE_POINTS
+                       else np.arange(n_points))
+        self.pb = replace(pb_all, x=pb_all.x[self.subset], seen=pb_all.seen[self.subset])
+        self.scorer = Scorer(self.pb)
+        self.T = T
+        self.k = self.pb.seen.sum(axis=1)
+        self.dof = track_dof(self.k)
+        self.scorable = self.scorer.ok
+        self.samplable = (self.k >= 3) & self.scorer.ok
+        self.pool = np.flatnonzero(self.samplable)
+        if len(self.pool) < 2:
+            raise DegenerateError(
+                f"robust estimation needs points seen in at least 3 views (pairs together in 8, e.g. two points "
+                f"in 4 views); only {len(self.pool)} such point(s) among {n_points}. Track the points through "
+                "more views.")
+
+    def sample(self, rng, size: int) -> np.ndarray:
+        return _draw_pairs(rng, self.pool, self.k, self.pb.seen, self.T, size)
+
+    def solve(self, pairs: np.ndarray):
+        return null_vectors(forms(self.pb, pairs.ravel()).reshape(-1, 2, 9, 9).sum(axis=1))
+
+    def errors(self, a: np.ndarray) -> np.ndarray:
+        return self.scorer.sse(a.reshape(-1, 3, 3))
+
+    def refit(self, inliers: np.ndarray):
+        return null_vectors(forms_sum(self.pb, np.flatnonzero(inliers))[None])
 
 
 # ----------------------------------------------------------------------------------------
-# The loop
+# The estimate
 # ----------------------------------------------------------------------------------------
 
 
@@ -173,8 +223,9 @@ def estimate_robust(uv, T, *, options: RansacOptions | None = None, rng=None, pr
     rng : seed or numpy Generator
         Randomness of the sampling.
     progress : callable, optional
-        Called after every batch of hypotheses with a dict
-        ``{trials, trials_needed, best_inliers}``.
+        Called after every batch of hypotheses with a
+        :class:`~transcalib.types.ProgressEvent` (stage ``"robust"``, ``done`` the
+        hypotheses drawn so far; ``info`` ``trials_needed``, ``best_inliers``).
 
     Returns
     -------
@@ -199,126 +250,43 @@ def fit_robust(uv: np.ndarray, T: np.ndarray, opts: RansacOptions, *, rng=None, 
     t0 = time.perf_counter()
     check_translations_span(T)
     rng = np.random.default_rng(rng)
-    search = _Search(uv, T, opts, rng)
-    search.run(progress)
-    lin, sse, res, sigma, rule_sigma, refits = _final_refit(uv, T, search, opts)
+    problem = _PairProblem(uv, T, rng)
+    fixed = None if opts.threshold_px is None else sigma_from_threshold(opts.threshold_px, opts.false_rejection)
+    best = lo_ransac(problem, confidence=opts.confidence, max_trials=opts.max_trials,
+                     false_rejection=opts.false_rejection, sigma=fixed, rng=rng, progress=progress, stage="robust")
+    if best.hypothesis is None or best.n_inliers < MIN_CONSENSUS:
+        raise DegenerateError(
+            f"no consensus: after {best.trials} hypotheses the best one agrees with only {best.n_inliers} track(s) "
+            f"(at least {MIN_CONSENSUS} needed). The tracks are mostly wrong, or the motion was not a pure "
+            "translation (the robot rotated).")
+    lin, sse, res, sigma, rule_sigma, refits = _final_refit(uv, T, problem, best, fixed, opts)
     return RobustEstimate(
         linear=lin, inliers=lin.used.copy(), sse_px2=sse, residuals_px=res, sigma_px=sigma, rule_sigma_px=rule_sigma,
-        trials=int(search.trials), inlier_ratio=float(lin.used.sum() / uv.shape[1]), options=opts,
-        info={"trials_needed": float(search.needed), "lo_steps": search.lo_steps, "refits": refits,
-              "n_candidates": int(len(search.pool)), "n_scored": int(len(search.subset)),
-              "time_s": time.perf_counter() - t0})
+        trials=int(best.trials), inlier_ratio=float(lin.used.sum() / uv.shape[1]), options=opts,
+        trials_needed=float(best.trials_needed), lo_steps=int(best.lo_steps), refits=refits,
+        n_candidates=int(len(problem.pool)), n_scored=int(len(problem.subset)), time_s=time.perf_counter() - t0)
 
 
-class _Search:
-    """The LO-RANSAC loop on a scored subset of the points: the best hypothesis so far
-    (``a``, its track errors ``sse``, ranking ``score``, noise ``sigma``, inliers
-    ``n_in``), trials and LO steps."""
-
-    def __init__(self, uv, T, opts: RansacOptions, rng):
-        self.T, self.opts, self.rng = T, opts, rng
-        n_points = uv.shape[1]
-        pb_all = normalise(uv, T)
-        # hypotheses are drawn and scored on a random subset of at most SCORE_POINTS points;
-        # the final classification and refit use every point
-        scorable = np.flatnonzero(pb_all.seen.sum(axis=1) >= 2)
-        self.subset = (np.sort(rng.choice(scorable, SCORE_POINTS, replace=False)) if len(scorable) > SCORE_POINTS
-                       else np.arange(n_points))
-        self.pb = replace(pb_all, x=pb_all.x[self.subset], seen=pb_all.seen[self.subset])
-        self.scorer = Scorer(self.pb)
-        self.k = self.pb.seen.sum(axis=1)
-        self.pool = np.flatnonzero((self.k >= 3) & self.scorer.ok)
-        if len(self.pool) < 2:
-            raise DegenerateError(
-                f"robust estimation needs points seen in at least 3 views (pairs together in 8, e.g. two points "
-                f"in 4 views); only {len(self.pool)} such point(s) among {n_points}. Track the points through "
-                "more views.")
-        ok = self.scorer.ok
-        self.median_chi2 = np.where(ok, chi2_ppf(0.5, np.maximum(2 * self.k - 3, 1)), 1.0)
-        self.fixed_sigma = (None if opts.threshold_px is None
-                            else sigma_from_threshold(opts.threshold_px, opts.false_rejection))
-        self.score, self.a, self.sse, self.sigma, self.n_in = np.inf, None, None, np.nan, 0
-        self.trials = self.lo_steps = 0
-        self.needed = math.inf
-
-    def _rank(self, sse: np.ndarray) -> np.ndarray:
-        """Score of hypotheses (H,) from their track errors (H, n): lower is better."""
-        ok = self.scorer.ok
-        if self.fixed_sigma is None:  # least median of normalised squares
-            return np.median(sse[:, ok] / self.median_chi2[ok], axis=1)
-        q = self.fixed_sigma**2 * chi2_ppf(1.0 - self.opts.false_rejection, np.maximum(2 * self.k - 3, 1))
-        return np.sum(np.minimum(np.nan_to_num(sse[:, ok], nan=0.0), q[ok]), axis=1)  # MSAC
-
-    def consider(self, a: np.ndarray) -> bool:
-        """Score hypotheses ``a (H, 9)``; keep the best; True if it improved."""
-        sse = self.scorer.sse(a.reshape(-1, 3, 3))
-        score = self._rank(sse)
-        h = int(np.argmin(score))
-        if not score[h] < self.score:
-            return False
-        self.score, self.a, self.sse = float(score[h]), a[h], sse[h]
-        self.sigma = self.fixed_sigma or truncated_sigma(sse[h], self.k, median_sigma(sse[h], self.k),
-                                                         self.opts.false_rejection)
-        self.n_in = int(self.inliers().sum())
-        return True
-
-    def inliers(self) -> np.ndarray:
-        return inlier_rule(self.sse, self.k, self.sigma, self.opts.false_rejection)
-
-    def local_optimisation(self) -> None:
-        """Refit on the inliers of the best hypothesis while that improves its score."""
-        for _ in range(5):
-            inl = np.flatnonzero(self.inliers())
-            if len(inl) < 2:
-                return
-            a, ok = null_vectors(forms_sum(self.pb, inl)[None])
-            self.lo_steps += 1
-            if not ok[0] or not self.consider(a):
-                return
-
-    def run(self, progress) -> None:
-        """Draw batches of pairs until the adaptive number of trials is reached."""
-        batch, opts = 16, self.opts
-        while self.trials < min(self.needed, opts.max_trials):
-            left = max(1, math.ceil(self.needed - self.trials)) if math.isfinite(self.needed) else batch
-            B = int(min(batch, opts.max_trials - self.trials, left))
-            pairs = _draw_pairs(self.rng, self.pool, self.k, self.pb.seen, self.T, B)
-            self.trials += B
-            if len(pairs):
-                a, ok = null_vectors(forms(self.pb, pairs.ravel()).reshape(-1, 2, 9, 9).sum(axis=1))
-                if ok.any() and self.consider(a[ok]):
-                    self.local_optimisation()
-                    n_in_pool = int(self.inliers()[self.pool].sum())
-                    self.needed = _trials_needed(n_in_pool, len(self.pool), opts.confidence)
-            batch = min(2 * batch, 256)
-            if progress is not None:
-                progress({"trials": self.trials, "trials_needed": self.needed, "best_inliers": self.n_in})
-        if self.a is None or self.n_in < MIN_CONSENSUS:
-            raise DegenerateError(
-                f"no consensus: after {self.trials} hypotheses the best one agrees with only {self.n_in} track(s) "
-                f"(at least {MIN_CONSENSUS} needed). The tracks are mostly wrong, or the motion was not a pure "
-                "translation (the robot rotated).")
-
-
-def _final_refit(uv, T, search: _Search, opts: RansacOptions):
+def _final_refit(uv, T, problem: _PairProblem, best: RansacResult, fixed: float | None, opts: RansacOptions):
     """The linear TLS on the inliers, with sigma and the inliers (all tracks) re-estimated
     until they settle: ``(linear, sse, residuals, sigma, rule_sigma, refits)``. Where the
     TLS on the inliers explains them worse than the best hypothesis (a few bad tracks left
-    among them can even mirror it), the hypothesis is kept."""
+    among them can even mirror it), the hypothesis is kept. ``fixed``: the rule's sigma a
+    user threshold implies."""
     k = np.isfinite(uv[..., 0]).sum(axis=0)
-    A_best = to_pixels(search.pb, search.a)[0]
-    sse = search.sse if len(search.subset) == uv.shape[1] else point_errors(A_best, uv, T)[0]
-    sigma = search.sigma if search.fixed_sigma is None else truncated_sigma(
-        sse, k, median_sigma(sse, k), opts.false_rejection)
-    rule_sigma = search.fixed_sigma or sigma
+    dof = track_dof(k)
+    A_best = to_pixels(problem.pb, best.hypothesis)[0]
+    sse = best.errors if len(problem.subset) == uv.shape[1] else point_errors(A_best, uv, T)[0]
+    sigma = best.sigma if fixed is None else truncated_sigma(sse, dof, median_sigma(sse, dof), opts.false_rejection)
+    rule_sigma = fixed or sigma
     inliers = inlier_rule(sse, k, rule_sigma, opts.false_rejection)
     refits = 0
     for _ in range(5):
         masked = np.where(inliers[None, :, None], uv, np.nan)
         lin, sse, res = _best_linear(masked, uv, T, A_best if refits == 0 else None, inliers)
         refits += 1
-        sigma = truncated_sigma(sse, k, sigma, opts.false_rejection)
-        rule_sigma = search.fixed_sigma or sigma
+        sigma = truncated_sigma(sse, dof, sigma, opts.false_rejection)
+        rule_sigma = fixed or sigma
         new = inlier_rule(sse, k, rule_sigma, opts.false_rejection)
         # settled; in large problems a few borderline tracks trading places do not count
         if np.sum(new != inliers) <= SETTLED_FRACTION * inliers.sum() or new.sum() < MIN_CONSENSUS:

@@ -1,4 +1,4 @@
-"""Scoring of robust hypotheses, and the noise-adaptive inlier rule.
+"""Scoring of robust hypotheses: every track triangulated with a hypothesised ``A``.
 
 With ``A`` known the linear triangulation of point ``j`` (paper eq. 2 divided out, as in
 :mod:`transcalib.geometry.triangulate`) is ``Y_j = G_j^-1 sum_i P_ij A T_i`` with
@@ -9,97 +9,20 @@ hypotheses and points.
 
 The **error of a track** seen in ``k`` views is the sum of its squared reprojection
 errors ``e_j^2 = sum_i |r_ij|^2`` (pixels^2; infinite when it lies behind the camera in
-some view). For an inlier with Gaussian pixel noise ``sigma`` per coordinate, a
-triangulated track leaves ``nu_j = 2 k - 3`` degrees of freedom::
-
-    e_j^2 / sigma^2 ~ chi2(nu_j),    inlier  <=>  e_j^2 < sigma^2 chi2_{nu_j}(1 - alpha)
-
-so a good track is rejected with probability ``alpha`` (the false-rejection rate) whatever
-its length. ``sigma`` comes from the data: :func:`truncated_sigma` is the fixed point of
-the mean of the inliers' ``e^2`` corrected for the truncation at the threshold,
-``E[X | X < q] = nu F_{nu+2}(q) / F_nu(q)`` for ``X ~ chi2(nu)``.
+some view), with ``2 k - 3`` degrees of freedom: the inlier rule and the noise estimators
+that judge it are in :mod:`.noise`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from ..geometry.triangulate import triangulate
-from .distributions import chi2_cdf, chi2_ppf, chi2_ppf_table
 from .minimal import Problem
 
-__all__ = ["Scorer", "point_errors", "track_dof", "inlier_rule", "truncated_sigma", "median_sigma",
-           "sigma_from_threshold", "truncation_factor", "SCORE_BLOCK", "SIGMA_FLOOR_PX"]
+__all__ = ["Scorer", "point_errors"]
 
 #: Largest number of (hypothesis x view x point) entries scored at once (memory bound).
 SCORE_BLOCK = 2_000_000
-#: Smallest pixel noise the rule assumes: exact (simulated) data have rounding errors of
-#: ~1e-10 px, which are not Gaussian; no real tracker is below a thousandth of a pixel.
-SIGMA_FLOOR_PX = 1e-6
-
-
-def track_dof(k: np.ndarray) -> np.ndarray:
-    """Residual degrees of freedom ``2 k - 3`` of tracks seen in ``k`` views (at least 1)."""
-    return np.maximum(2 * np.asarray(k, dtype=np.intp) - 3, 1)
-
-
-def inlier_rule(sse: np.ndarray, k: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
-    """Inlier tracks: ``sse < sigma^2 chi2_{2k-3}(1 - alpha)`` (module docstring); NaN
-    (unscorable) and inf (behind the camera) are outliers."""
-    q = chi2_ppf_table(1.0 - alpha, track_dof(k))
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(sse) & (sse < sigma * sigma * q)
-
-
-def truncated_sigma(sse: np.ndarray, k: np.ndarray, sigma0: float, alpha: float, iterations: int = 50) -> float:
-    """Pixel noise per coordinate from track errors containing outliers (module docstring).
-
-    Starting from ``sigma0`` (an over-estimate is fine, e.g. a median-based one), iterate
-    ``sigma^2 = sum_inliers e_j^2 / sum_inliers nu_j F_{nu_j+2}(q_j) / F_{nu_j}(q_j)``
-    with ``q_j = chi2_{nu_j}(1 - alpha)``, the inliers those of :func:`inlier_rule`.
-    """
-    nu = track_dof(k)
-    q = chi2_ppf_table(1.0 - alpha, nu)
-    values = np.arange(1, int(nu.max()) + 1) if nu.size else np.ones(1)
-    qv = chi2_ppf(1.0 - alpha, values)
-    factor = (values * chi2_cdf(qv, values + 2) / chi2_cdf(qv, values))[nu - 1]
-    sigma = max(float(sigma0), SIGMA_FLOOR_PX)
-    finite = np.isfinite(sse)
-    for _ in range(iterations):
-        inl = finite & (np.where(finite, sse, np.inf) < sigma * sigma * q)
-        if inl.sum() < 2:
-            return sigma
-        new = max(float(np.sqrt(np.sum(sse[inl]) / np.sum(factor[inl]))), SIGMA_FLOOR_PX)
-        if abs(new - sigma) <= 1e-6 * sigma:
-            return new
-        sigma = new
-    return sigma
-
-
-def truncation_factor(k: np.ndarray, alpha: float) -> float:
-    """``E[e^2 | inlier] / E[e^2]`` averaged over tracks seen in ``k`` views: the factor by
-    which selecting inliers with the chi-square rule shrinks the residual sum of squares
-    (about 0.98 at ``alpha = 0.01``). Dividing a variance estimated on the inliers by it
-    undoes the bias."""
-    nu = track_dof(k)
-    values = np.arange(1, int(nu.max()) + 1)
-    qv = chi2_ppf(1.0 - alpha, values)
-    count = np.bincount(nu, minlength=values.size + 1)[1:]
-    return float(np.sum(count * values * chi2_cdf(qv, values + 2)) / np.sum(count * values * chi2_cdf(qv, values)))
-
-
-def median_sigma(sse: np.ndarray, k: np.ndarray) -> float:
-    """A robust first guess of sigma: ``sqrt(median(e_j^2 / median(chi2(nu_j))))``."""
-    finite = np.isfinite(sse)
-    if not finite.any():
-        return float("nan")
-    s = sse[finite] / chi2_ppf_table(0.5, track_dof(k[finite]))
-    return max(float(np.sqrt(np.median(s))), SIGMA_FLOOR_PX)
-
-
-def sigma_from_threshold(threshold_px: float, alpha: float) -> float:
-    """The noise a user threshold implies: the norm of one observation's residual is below
-    ``threshold_px`` with probability ``1 - alpha``: ``threshold / sqrt(chi2_2(1 - alpha))``."""
-    return float(threshold_px / np.sqrt(chi2_ppf(1.0 - alpha, 2)))
 
 
 class Scorer:

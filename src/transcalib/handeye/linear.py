@@ -37,7 +37,7 @@ from ..errors import DegenerateError
 from ..estimate.linear import fit_linear
 from ..estimate.robust import fit_robust
 from ..types import LinearEstimate, RansacOptions
-from ..validate import SPAN_TOL
+from ..validate import SPAN_RTOL
 from .sessions import SessionGrouping
 
 __all__ = ["SessionsLinear", "sessions_linear", "check_flange_span", "solve_offset"]
@@ -114,10 +114,10 @@ def check_flange_span(T: np.ndarray, grouping: SessionGrouping) -> np.ndarray:
     Tf, _ = _flange_moves(T, grouping)
     _, s, Vt = np.linalg.svd(Tf, full_matrices=False)
     s = np.concatenate([s, np.zeros(3 - s.size)])[:3]
-    if s[0] > 0 and s[2] > SPAN_TOL * s[0]:
+    if s[0] > 0 and s[2] > SPAN_RTOL * s[0]:
         return s
     n_s = grouping.n_sessions
-    if s[0] == 0 or s[1] <= SPAN_TOL * s[0]:
+    if s[0] == 0 or s[1] <= SPAN_RTOL * s[0]:
         raise DegenerateError("the robot moves inside the sessions are (nearly) all along one line of the flange "
                               f"frame (singular values {', '.join(f'{v:.3g}' for v in s)}): K and R_X are not "
                               "determined. Move along two or three axes in each session.")

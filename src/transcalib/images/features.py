@@ -51,6 +51,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..types import DegenerateError, InputError
+from ..validate import COPLANAR_RTOL
 from .frames import Tracks, _progress_fn, load_images
 
 __all__ = ["track_features", "epipole_ransac", "RotatedViewsError"]
@@ -776,7 +777,7 @@ def _keep_tracks(uv, min_views, max_tracks, w, h):
 
 
 # --------------------------------------------------------------------------- known translations
-def _span_basis(T, tol=1e-3):
+def _span_basis(T, tol=COPLANAR_RTOL):
     """Orthonormal basis ``(3, k)`` of the span of the relative translations ``T - T_0``."""
     D = np.asarray(T, float) - np.asarray(T, float)[0]
     if len(D) < 2 or not np.any(D):

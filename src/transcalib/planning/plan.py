@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import DegenerateError, Diagnostic, InputError
+from ..validate import WEAK_SPAN_RATIO
 from .fisher import predict
 from .model import CRITERIA, PlanOptions, check_box, options_from, scene_points, visible
 from .optimise import optimise
@@ -24,8 +25,6 @@ from .patterns import PATTERNS, pattern_variants
 __all__ = ["Plan", "Evaluation", "plan", "evaluate_plan", "MIN_VIEWS", "MAX_VIEWS"]
 
 MIN_VIEWS, MAX_VIEWS = 4, 50
-#: Warn when the moves' weakest principal direction is below this fraction of the strongest.
-COPLANAR_RATIO = 0.1
 #: Warn when the typical image motion of the largest move is below this many noise sigmas.
 SMALL_MOTION_SIGMAS = 20.0
 #: Warn when the predicted std of fx exceeds this fraction of the focal length.
@@ -153,7 +152,7 @@ def _warnings(options: PlanOptions, X, T, p, box) -> list:
                                              "each doubling of the views divides the std by about 1.4"))
     sv = np.linalg.svd(T - T.mean(axis=0), compute_uv=False) if m >= 2 else np.zeros(3)
     sv = np.pad(sv, (0, 3 - len(sv)))
-    if sv[0] == 0 or sv[2] < COPLANAR_RATIO * sv[0]:
+    if sv[0] == 0 or sv[2] < WEAK_SPAN_RATIO * sv[0]:
         w.append(Diagnostic("coplanar_moves", f"the moves are nearly coplanar (spread {sv[2]:.3g} across the plane "
                                               f"vs {sv[0]:.3g} along it): move out of the plane too, the focal "
                                               "length and the principal point need 3-D moves"))
