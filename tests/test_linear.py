@@ -81,9 +81,9 @@ def test_fast_equals_dense(seed, n_views, missing, noise):
 def test_fast_equals_dense_across_chunks(monkeypatch):
     """Chunks of 7 points, every reference view and visibility pattern mixed, unused
     points in between: still the dense SVD's solution."""
-    from transcalib.estimate import linear
+    from transcalib.estimate import arrowhead
 
-    monkeypatch.setattr(linear, "_CHUNK", 7)
+    monkeypatch.setattr(arrowhead, "_CHUNK", 7)
     scene = simulate.random_scene(60, 6, noise_px=1.0, missing=0.45, rng=12)
     used = np.isfinite(scene.uv[..., 0]).sum(axis=0) >= 2
     used[::5] = False
