@@ -9,9 +9,10 @@ one small arrowhead block ``D_j`` per point (its depths), ``E`` (9 x 9) belongs 
 
 (``f`` is concave and decreasing there), ``vec(A)`` is the null vector of ``S(mu)`` and
 the depths follow as ``lam_j = -(D_j - mu I)^-1 B_j vec(A)``. One O(n) pass evaluates
-``S`` and ``dS/dmu`` at a given ``mu`` with closed-form arrowhead inverses; Newton on that
-local model needs two passes from ``mu = 0`` and one from a good start (the depth-weighted
-estimate's second solve starts from the first one's ``mu``); one more pass gives the depths.
+``S`` and ``dS/dmu`` at a given ``mu`` with closed-form arrowhead inverses. Newton on that
+local model, started from the root of a pilot problem (every ``step``-th point), lands on
+the root in one pass; the depth pass then checks ``S(mu) a = 0`` with the exact ``S``
+(:meth:`Arrowhead.solve`). A solve reads the data twice.
 
 Internally ``vec(A)`` is column-major (``vec(A^T)``: index ``3 b + a`` for ``A[a, b]``), so
 that a point's head row is one matrix product over its views; :meth:`Arrowhead.solve`
@@ -107,7 +108,8 @@ class Points:
 
     The reference view most points share is read in place: chunks of ``uv`` (views, no
     copy), its other points (unused, or with another reference view) masked out. The points
-    of other reference views are gathered, in chunks, after it.
+    of other reference views are gathered, in chunks, after it (so a pass that writes a
+    chunk's results by point writes every gathered point after its masked-out slot).
 
     Parameters
     ----------
@@ -204,7 +206,7 @@ def _add_taylor_terms(G: np.ndarray, c: _Chunk, q: np.ndarray, inv_s: np.ndarray
     """Add a chunk's terms of :meth:`Arrowhead.taylor` to ``G`` (2, 9, 9). Every sum over
     points is a matrix product over the chunk (column-major ``vec``: ``B_k = sw kron(t_k,
     z_k)``, so a sum ``sum_k kron(t_k, y_k)`` over the tail is ``t^T y``)."""
-    K, m = c.Z.shape[0], c.Z.shape[2]
+    K, _, m = c.Z.shape
     # w = sw (kron(tt_0, z_0) - sum_k q_k kron(t_k, z_k))
     w = (c.t.T @ (q[:, None] * c.Z).reshape(K, -1)).reshape(3, 3, m)
     w -= c.tt_head[:, None] * c.z0
@@ -220,13 +222,12 @@ def _add_taylor_terms(G: np.ndarray, c: _Chunk, q: np.ndarray, inv_s: np.ndarray
     X = np.einsum("kb,kaq->baq", c.t, P[18:].reshape(K, 3, 9)).reshape(9, 9)
     G[1] -= X + X.T
     # sum_k kron(t_k t_k^T, sum_j sw^2 / delta_k^o z_k z_k^T), o = 1, 2
-    d = inv_delta * (c.sw * c.sw)
-    coef = np.stack([d, d * inv_delta], axis=1)  # (K, 2, m)
-    zz = np.empty((2, K, 3, 3))
-    for k in range(K):
-        zz[:, k] = ((c.Z[k] * coef[k][:, None]).reshape(6, m) @ c.Z[k].T).reshape(2, 3, 3)
-    G[0] += _kron_sum(c.t, zz[0])
-    G[1] += _kron_sum(c.t, zz[1])
+    Zd = np.empty((K, 2, 3, m))
+    np.multiply(c.Z, (inv_delta * (c.sw * c.sw))[:, None], out=Zd[:, 0])
+    np.multiply(Zd[:, 0], inv_delta[:, None], out=Zd[:, 1])
+    zz = np.matmul(Zd.reshape(K, 6, m), c.Z.transpose(0, 2, 1)).reshape(K, 2, 3, 3)
+    G[0] += _kron_sum(c.t, zz[:, 0])
+    G[1] += _kron_sum(c.t, zz[:, 1])
 
 
 class Arrowhead:
@@ -332,31 +333,31 @@ class Arrowhead:
         y0 = (np.einsum("am,am->m", c.z0, A @ c.tt_head) - np.einsum("km,km->m", q, b)) * inv_s
         tail = (c.D0k * y0 - b) * inv_delta  # the weights cancel: sw_j lam_j solves sw_j-scaled rows
         head = -y0
-        # B^T y = sum_j sw_j^2 (kron(tt_0, lam_0 z_0) + sum_k kron(t_k, lam_k z_k))
+        # B^T y = sum_j sw_j^2 (kron(tt_0, lam_0 z_0) + sum_k kron(t_k, lam_k z_k)),
+        # tt_0 = -sum_k t_k over the seen tail
         sw2 = c.sw * c.sw
-        Bty = c.t.T @ np.einsum("kam,km->ka", c.Z, tail * sw2)
-        Bty += c.tt_head @ (c.z0 * (head * sw2)).T if c.tt_head.shape[1] > 1 else \
-            np.outer(c.tt_head, c.z0 @ (head * sw2))
+        Bty = c.t.T @ (np.einsum("kam,km->ka", c.Z, tail * sw2) - c.Z[:, 2] @ (c.z0 * (head * sw2)).T)
         if not c.full:
-            tail[~c.seen] = np.nan
+            np.copyto(tail, np.nan, where=~c.seen)
             if c.active is not None:
-                head[~c.active] = np.nan
+                np.copyto(head, np.nan, where=~c.active)
         return head, tail, Bty
 
     def solve(self, make_sink, mu_start: float = 0.0):
         """The smallest eigenvalue ``mu`` of ``M``, its ``vec(A)`` and one depth pass.
 
-        Newton on the local model ``S(nu) ~ S(mu0) - (nu - mu0)(I + G_2)``: one O(n) pass
-        gives ``S`` and ``dS/dmu`` exactly at ``mu0``, and the model's root (a 9 x 9
-        problem) bounds the smallest root from above (``F`` is convex below the poles).
-        Newton starts from the root of a pilot problem (every ``step``-th point, about
-        one chunk): ``mu`` is a mean over the points and hardly depends on their number
-        (10^6 points x 4 views: the pilot's ``mu`` within 3e-3), so the first model's root
-        is already the root to rounding. The depth pass confirms it with the exact ``S``:
-        every ``D_j - mu I`` positive definite and ``|S(mu) a| <= 1e-13 |E|`` (measured:
-        ~1e-14; rounding ~5e-16). One pass and the depth pass, then; otherwise (a poor
-        start, or ``mu`` near the pole of a near-static track) Newton goes on, a pass a
-        step, until the step from an exact model is below the truncation tolerance.
+        Newton on the local model ``S(nu) ~ S(mu0) - (nu - mu0)(I + G_2)``, exact at
+        ``mu0``: one O(n) pass a step, the model's root (a 9 x 9 problem) the next ``mu``
+        (it bounds the smallest root from above: ``F`` is convex below the poles). Newton
+        starts from the root of a pilot problem (every ``step``-th point, about one chunk,
+        one pass over them): ``mu`` is a mean over the points and hardly depends on their
+        number (the pilot's within ~1e-2), so that the first model's root is the root to
+        rounding, or the second's is. That root is taken once the model's truncation
+        estimate there is below 5e-14 ``|E|``, and the depth pass confirms it with the
+        exact ``S``: every ``D_j - mu I`` positive definite and ``|S(mu) a| <= 1e-13 |E|``
+        (rounding: ~5e-16). One or two passes and the depth pass, then; should that fail
+        (``mu`` near the pole of a track with almost no parallax), Newton goes on until the
+        step from a validated ``mu`` is below ``1e-15 |E|`` by the truncation estimate.
 
         Parameters
         ----------
@@ -379,12 +380,10 @@ class Arrowhead:
         """
         model = self._model_at(self._pilot(mu_start))
         tol = 1e-15 * np.linalg.norm(self.E, 2)
-        mu = model.root(0.0, np.inf)
-        if model.truncation(mu) <= 100 * tol:
-            found = self._depth_pass(mu, model, make_sink, residual_tol=100 * tol)
-            if found is not None:
-                return found
-        mu, model = self._newton(model, mu, tol)
+        found, model = self._confirmed_steps(model, make_sink, tol)
+        if found is not None:
+            return found
+        mu, model = self._newton(model, model.root(0.0, np.inf), tol)
         # the depth pass checks mu against the poles; if the last Newton step crossed one,
         # the last exact model's own mu it is
         for mu in (mu, model.mu0):
@@ -392,6 +391,22 @@ class Arrowhead:
             if found is not None:
                 return found
         raise AssertionError("unreachable: the model's own mu0 is below every pole")
+
+    def _confirmed_steps(self, model: "_TaylorModel", make_sink, tol: float, steps: int = 2):
+        """Newton steps, a pass each, until the model's truncation estimate at its root is
+        below ``50 tol`` and the depth pass confirms the root (``|S a| <= 100 tol``; it is
+        1-10 times the estimate):
+        ``(found, model)``, ``found`` None if not (the last ``model`` is exact at its
+        ``mu0``)."""
+        for _ in range(steps):
+            mu = model.root(0.0, np.inf)
+            if model.truncation(mu) <= 50 * tol:
+                return self._depth_pass(mu, model, make_sink, residual_tol=100 * tol), model
+            G = self.taylor(mu)
+            if G is None:
+                break
+            model = _TaylorModel(self.E, mu, G)
+        return None, model
 
     def _depth_pass(self, mu: float, model: "_TaylorModel", make_sink, residual_tol: float = np.inf):
         """``(mu, A', eig S(mu), sink)`` after a pass of :meth:`lam` at ``mu``, or None if

@@ -100,8 +100,8 @@ class _Solution:
 
 
 class _DepthSink:
-    """Collects the depth pass into ``depth (V, n)`` (camera z with ``A`` scaled by
-    ``scale``), and the sign of their median."""
+    """Collects a depth pass into ``depth (V, n)`` (camera z: ``lam`` times ``scale``, the
+    unit factor of the pixel ``A``) and the sign of their median."""
 
     def __init__(self, shape: tuple[int, int], scale: float):
         self.depth, self.scale, self.sign = np.full(shape, np.nan), scale, MedianSign()
@@ -120,9 +120,9 @@ class _DepthSink:
         return np.negative(self.depth, out=self.depth) if self.sign.negative else self.depth
 
 
-class _PointDepthSink(_DepthSink):
-    """Reduces the depth pass to each point's median positive depth (n,) -- for either
-    sign of the solution -- instead of keeping every depth."""
+class _PointDepthSink:
+    """Reduces a depth pass to each point's median positive depth (n,), for both signs of
+    the solution (the sign is known at the end of the pass), instead of every depth."""
 
     def __init__(self, shape: tuple[int, int], scale: float):
         self.pos, self.neg = np.full(shape[1], np.nan), np.full(shape[1], np.nan)
@@ -293,6 +293,8 @@ def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast", weighting: s
 
 
 def _fit_linear(uv: np.ndarray, T: np.ndarray, method: str, weighting: str) -> LinearEstimate:
+    """:func:`fit_linear`'s work: the tracks in one pass, checks, the normalisation, one or
+    two solves (the first keeps one depth per point), the triangulation."""
     tracks = _tracks(uv, T)
     used, motion = tracks.used, tracks.motion
     n_used = int(np.count_nonzero(used))
@@ -315,7 +317,7 @@ def _fit_linear(uv: np.ndarray, T: np.ndarray, method: str, weighting: str) -> L
         first = _solve(uv, used, norm, _relative(motion, used), points, per_point=True)
         weights = _relative(1.0 / _point_depth(first.depth, motion), used)
         sol = _solve(uv, used, norm, weights, points, mu_start=first.mu)
-        del first, weights
+        del first, weights  # before X is allocated: the peak is the result's
     else:
         sol = _solve(uv, used, norm, None, points)
     K, R = rq_decompose(sol.A)
@@ -372,7 +374,7 @@ def reference_motion(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _motion_from_reference(x: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``|x_i - x_r|`` (V, m) of pixels ``x (V, m, 2)`` from the first seen view ``r (m,)``."""
     ref = np.argmax(seen, axis=0)
-    x_ref = x[ref, np.arange(x.shape[1])]  # (m, 2)
+    x_ref = x[ref, np.arange(x.shape[1])] if ref.any() else x[0]  # (m, 2)
     du, dv = x[..., 0] - x_ref[:, 0], x[..., 1] - x_ref[:, 1]
     return np.sqrt(du * du + dv * dv), ref
 
