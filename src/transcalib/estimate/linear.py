@@ -26,6 +26,7 @@ only reduced to one depth per point.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -223,7 +224,7 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, met
         for c in chunks(uv.shape[1]):
             ref[c] = np.argmax(np.isfinite(uv[:, c, 0]), axis=0)
         points = Points(uv, used, ref)
-    with one_blas_thread():
+    with one_blas_thread() if method == "fast" else contextlib.nullcontext():
         sol = _solve(uv, used, hartley(uv, T, used), weights, points)
     return sol.A, sol.depth, sol.singular_values
 
@@ -286,9 +287,9 @@ def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast", weighting: s
     ``weighting="none"`` is the paper's TLS as published.
 
     The O(n) passes sum small matrix products over chunks of points: they run with BLAS
-    on one thread, whose other threads would only spin.
+    on one thread, whose other threads would only spin (the dense reference keeps them).
     """
-    with one_blas_thread():
+    with one_blas_thread() if method == "fast" else contextlib.nullcontext():
         return _fit_linear(uv, T, method, weighting)
 
 
