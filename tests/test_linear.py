@@ -1,5 +1,7 @@
 """The linear estimator against ground truth, and the O(n) path against the dense SVD."""
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
@@ -10,7 +12,7 @@ from transcalib.geometry.camera import project
 from transcalib.geometry.rotation import (euler_zyx_to_matrix, matrix_to_quaternion, matrix_to_rotvec,
                                          quaternion_to_matrix, rotation_angle_deg, rotation_defect, rotvec_to_matrix,
                                          rq_decompose)
-from transcalib.estimate.linear import estimate_linear, solve_tls
+from transcalib.estimate.linear import estimate_linear, reference_motion, solve_tls
 from transcalib.types import DegenerateError, InputError, MirroredError
 
 
@@ -83,9 +85,9 @@ def test_fast_equals_dense(seed, n_views, missing, noise):
 def test_fast_equals_dense_across_chunks(monkeypatch):
     """Chunks of 7 points, every reference view and visibility pattern mixed, unused
     points in between: still the dense SVD's solution."""
-    from transcalib.estimate import linear
+    from transcalib.estimate import arrowhead
 
-    monkeypatch.setattr(linear, "_CHUNK", 7)
+    monkeypatch.setattr(arrowhead, "_CHUNK", 7)
     scene = simulate.random_scene(60, 6, noise_px=1.0, missing=0.45, rng=12)
     used = np.isfinite(scene.uv[..., 0]).sum(axis=0) >= 2
     used[::5] = False
@@ -377,3 +379,103 @@ def test_repeated_robot_positions():
     assert abs(lin.K[0, 0] / base.K[0, 0] - 1) < 0.02
     cal = calibrate(scene.uv, scene.T, rng=0, check_rotation=False)
     assert abs(cal.K[0, 0] - base.K[0, 0]) < 4 * cal.std["fx"]
+
+
+# ------------------------------------------------------------------------- the O(n) path
+
+
+def test_hartley_normalisation_written_once(monkeypatch):
+    """The used observations to zero mean and mean distance sqrt(2), translations centred
+    to unit mean norm; in any chunking; the minimal solver's normalisation is the same."""
+    from transcalib.estimate import minimal, normalisation
+
+    scene = simulate.random_scene(50, 6, noise_px=0.5, missing=0.3, rng=5)
+    used = np.random.default_rng(1).random(scene.n_points) < 0.7
+    norm = normalisation.hartley(scene.uv, scene.T, used)
+    x = scene.uv[:, used][np.isfinite(scene.uv[:, used, 0])] * norm.scale + norm.H[:2, 2]
+    assert np.abs(x.mean(axis=0)).max() < 1e-12
+    assert np.hypot(*x.T).mean() == pytest.approx(np.sqrt(2.0), rel=1e-12)
+    assert np.abs(norm.T.mean(axis=0)).max() < 1e-12
+    assert np.linalg.norm(norm.T, axis=1).mean() == pytest.approx(1.0, rel=1e-12)
+    monkeypatch.setattr(normalisation, "CHUNK", 7)
+    np.testing.assert_allclose(normalisation.hartley(scene.uv, scene.T, used).H, norm.H, rtol=1e-13)
+    every = normalisation.hartley(scene.uv, scene.T)
+    pb = minimal.normalise(scene.uv, scene.T)
+    np.testing.assert_array_equal(pb.H, every.H)
+    np.testing.assert_array_equal(pb.T, every.T)
+    seen = np.isfinite(scene.uv[..., 0]).T
+    np.testing.assert_allclose(pb.x[seen], scene.uv.transpose(1, 0, 2)[seen] * every.scale + every.H[:2, 2])
+
+
+def test_median_helpers_are_numpys():
+    """Column medians (sorting network or np.sort) and the sign of a streamed median equal
+    numpy's nanmedian, with NaN, zeros, ties and every row count."""
+    from transcalib.estimate.arrowhead import MedianSign, column_median, signed_medians
+
+    rng = np.random.default_rng(0)
+    for k in (1, 2, 3, 4, 5, 8, 9, 12):
+        a = rng.choice([-2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, np.nan], size=(k, 3000))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
+            ref = np.nanmedian(a, axis=0)
+            pos = np.nanmedian(np.where(a > 0, a, np.nan), axis=0)
+            neg = np.nanmedian(np.where(a < 0, -a, np.nan), axis=0)
+        np.testing.assert_array_equal(column_median(a), ref)
+        p, n = signed_medians(a)
+        np.testing.assert_array_equal(p, pos)
+        np.testing.assert_array_equal(n, neg)
+    for _ in range(3000):
+        x = rng.choice([-2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, np.nan], size=rng.integers(1, 9))
+        sign = MedianSign()
+        for part in np.array_split(x, 3):
+            sign.add(part)
+        assert sign.negative == bool(np.isfinite(x).any() and np.nanmedian(x) < 0)
+
+
+def test_reference_motion():
+    scene = simulate.random_scene(300, 6, noise_px=0.5, missing=0.4, rng=8)
+    d, ref = reference_motion(scene.uv)
+    first = np.argmax(np.isfinite(scene.uv[..., 0]), axis=0)
+    np.testing.assert_array_equal(ref, first)
+    expected = np.linalg.norm(scene.uv - scene.uv[first, np.arange(300)][None], axis=2)
+    np.testing.assert_allclose(d, expected, rtol=1e-15, atol=1e-12)
+    assert np.array_equal(np.isnan(d), ~np.isfinite(scene.uv[..., 0]))
+
+
+def test_newton_from_the_pilot_is_newtons_root(monkeypatch):
+    """10^5 points: Newton started from the pilot's root and confirmed by the depth pass
+    reads the data fewer times than Newton from mu = 0, and finds the same root to
+    rounding, for both weightings."""
+    from transcalib.estimate import arrowhead
+
+    scene = simulate.random_scene(100_000, 5, noise_px=1.0, missing=0.2, rng=5)
+    full_passes = []
+    taylor = arrowhead.Arrowhead.taylor
+    monkeypatch.setattr(arrowhead.Arrowhead, "taylor", lambda self, mu: (
+        full_passes.append(mu) if self.points.n_used > 50_000 else None) or taylor(self, mu))
+    fast = {w: estimate_linear(scene.uv, scene.T, weighting=w) for w in ("depth", "none")}
+    n_fast, full_passes[:] = len(full_passes), []
+    assert n_fast <= 2 * 3  # three solves: two with the depth weighting, one without
+    # Newton on the linear model from mu = 0, as before the pilot
+    monkeypatch.setattr(arrowhead.Arrowhead, "_pilot", lambda self, mu_start: 0.0)
+    monkeypatch.setattr(arrowhead.Arrowhead, "_confirmed_steps", lambda self, model, *args: (None, model))
+    for w, est in fast.items():
+        newton = estimate_linear(scene.uv, scene.T, weighting=w)
+        assert rel_err_K(est.K, newton.K) < 1e-11
+        np.testing.assert_allclose(est.depth, newton.depth, rtol=1e-10)
+    assert len(full_passes) >= n_fast + 3
+
+
+def test_memory_is_the_results():
+    """The call's own allocations beyond its result (X, depth, used, static) stay a few
+    chunks' worth (the dense reference's C would be 400 GB; the per-view arrays 26 MiB)."""
+    import tracemalloc
+
+    scene = simulate.random_scene(200_000, 4, noise_px=0.5, rng=1)
+    estimate_linear(scene.uv, scene.T)
+    tracemalloc.start()
+    est = estimate_linear(scene.uv, scene.T)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    result = est.X.nbytes + est.depth.nbytes + est.used.nbytes + est.static.nbytes
+    assert peak < result + 12 * 2**20

@@ -8,7 +8,7 @@ For point ``j`` with reference view ``r`` (its first visible view) and every oth
 
 with ``u = [u, v, 1]``. The unknowns are ``b = (all lam, vec(A))``; ``b`` is the right
 singular vector of ``C`` for its smallest singular value (paper §2.2), computed after
-Hartley normalisation of the pixels and translations.
+Hartley normalisation (:mod:`.normalisation`) of the pixels and translations.
 
 Two ways to compute it, equal to rounding error:
 
@@ -16,21 +16,17 @@ Two ways to compute it, equal to rounding error:
     Builds ``C`` (``3 sum(k_j - 1)`` rows, ``sum(k_j) + 9`` columns) and takes its SVD:
     O(n^3) time, O(n^2) memory; the reference.
 ``method="fast"`` (default)
-    ``M = C^T C = [[D, B], [B^T, E]]`` is an arrowhead matrix: ``D`` is block diagonal
-    with one small arrowhead block ``D_j`` per point (its depths), ``E`` (9 x 9) belongs
-    to ``vec(A)``. Eliminating the depths, the smallest eigenvalue ``mu`` of ``M`` is the
-    root in ``[0, min eig D)`` of ::
+    The arrowhead structure of ``C^T C`` (:mod:`.arrowhead`): O(n) time, chunked passes
+    whose temporaries are O(chunk).
 
-        f(mu) = lambda_min(S(mu)),   S(mu) = E - mu I - sum_j B_j^T (D_j - mu I)^-1 B_j
-
-    (``f`` is concave and decreasing there), ``vec(A)`` is the null vector of
-    ``S(mu)`` and the depths follow as ``lam_j = -(D_j - mu I)^-1 B_j vec(A)``. Each
-    evaluation of ``S`` costs O(n) with closed-form arrowhead inverses; Newton's method
-    needs a handful.
+The depth weighting (:func:`fit_linear`) solves twice with different row weights; the
+second solve starts Newton from the first one's root, and the first one's depths are
+only reduced to one depth per point.
 """
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +35,9 @@ from ..geometry.rotation import rq_decompose
 from ..geometry.triangulate import triangulate
 from ..types import DegenerateError, InputError, LinearEstimate
 from ..validate import as_uv_T, check_translations_span
+from .arrowhead import Arrowhead, MedianSign, Points, chunks, column_median, signed_medians
+from .normalisation import Normalisation, hartley
+from .schur import one_blas_thread
 
 __all__ = ["estimate_linear", "fit_linear", "solve_tls", "reference_motion", "DENSE_MAX_POINTS"]
 
@@ -46,295 +45,12 @@ __all__ = ["estimate_linear", "fit_linear", "solve_tls", "reference_motion", "DE
 DENSE_MAX_POINTS = 3000
 
 
-#: Points per chunk in the O(n) passes: every temporary stays small (a few MB), so that
-#: memory is reused rather than freshly mapped, which costs more than the arithmetic.
-_CHUNK = 16384
-
-
-@dataclass(frozen=True)
-class _Normalisation:
-    """Hartley normalisation: ``u' = H u`` and ``T' = (T - T_mean) / t_scale``."""
-
-    H: np.ndarray  # (3, 3) pixel similarity
-    T: np.ndarray  # (V, 3) normalised translations
-    t_scale: float
-
-
-def _chunks(n: int):
-    for lo in range(0, n, _CHUNK):
-        yield slice(lo, min(lo + _CHUNK, n))
-
-
-def _normalisation(uv: np.ndarray, used: np.ndarray, T: np.ndarray) -> _Normalisation:
-    """Pixels of the used points to zero mean and mean distance sqrt(2) (two chunked
-    passes); translations centred and scaled to unit mean norm."""
-    total, count = np.zeros(2), 0
-    for c in _chunks(uv.shape[1]):
-        x = uv[:, c]
-        ok = np.isfinite(x[..., 0]) & used[c]
-        total += [np.sum(x[..., 0], where=ok), np.sum(x[..., 1], where=ok)]
-        count += np.count_nonzero(ok)
-    centre = total / count
-    spread = 0.0
-    for c in _chunks(uv.shape[1]):
-        x = uv[:, c]
-        ok = np.isfinite(x[..., 0]) & used[c]
-        spread += np.sum(np.hypot(x[..., 0] - centre[0], x[..., 1] - centre[1]), where=ok)
-    spread /= count
-    scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
-    H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
-    T_mean = T.mean(axis=0)
-    t_scale = float(np.linalg.norm(T - T_mean, axis=1).mean())
-    return _Normalisation(H=H, T=(T - T_mean) / t_scale, t_scale=t_scale)
-
-
-@dataclass(frozen=True)
-class _Chunk:
-    """Used points of one chunk that share their reference view, component-major, with
-    a slot for every view (zero where the point is not seen).
-
-    A point's first seen view is its reference ``r`` (the head), its other seen views
-    the tail. With ``z_i`` the normalised homogeneous pixels in view ``i`` and ``t_k =
-    T_k - T_r`` (the same for every point of the chunk), the blocks of ``M = C^T C`` are::
-
-        D[r, r] = (V_j - 1) |z_r|^2,   D[k, k] = |z_k|^2,   D[r, k] = -z_r . z_k
-        B[i] = kron(z_i, tt_i)   with tt_r = -sum_k t_k (per point), tt_k = t_k
-
-    Which views see a point only masks the tail: every visibility pattern is handled by
-    the same array operations.
-    """
-
-    points: np.ndarray  # (m,) point index
-    ref: int  # the reference view r
-    tail: np.ndarray  # (V, m) bool: seen, not the reference
-    Z: np.ndarray  # (V, 3, m), zero where unseen
-    t: np.ndarray  # (V, 3): T_k - T_r, zero in row r
-    tt_head: np.ndarray  # (3, m): -sum_k t_k over the point's tail
-    D00: np.ndarray  # (m,)
-    D0k: np.ndarray  # (V, m), zero off the tail
-    Dkk: np.ndarray  # (V, m), zero off the tail
-    s: np.ndarray  # (m,) translation scale of each point (its row weight, see fit_linear)
-
-
-def _kron_sum(P: np.ndarray, t: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """``sum_k kron(P_k, t_k u_k^T)`` (9, 9) for ``P (V, 3, 3)``, ``t, u (V, 3)``."""
-    return np.einsum("kac,kb,kd->abcd", P, t, u).reshape(9, 9)
-
-
-class _Arrowhead:
-    """``M = C^T C = [[D, B], [B^T, E]]`` of the normalised system, streamed in chunks.
-
-    ``D`` is block diagonal, one small arrowhead block ``D_j`` per point; ``B_j``'s rows
-    are Kronecker products ``kron(z_i, tt_i)`` whose tail ``tt`` depends only on the
-    point's reference view. Sums over points of ``B_j^T W_j B_j`` are therefore
-    ``sum_k kron(sum_j ... z z^T, t_k t_k^T)`` plus a 9-vector per point: per-point work
-    on 3-vectors, sums as matrix products, nothing of size O(n) kept between passes.
-
-    ``(D_j - mu I)^-1`` is applied in closed form: with ``delta_k = D_kk - mu``,
-    ``q_k = D_0k / delta_k`` and the head's Schur scalar ``s = D_00 - mu - sum_k D_0k q_k``::
-
-        y_0 = (b_0 - sum_k q_k b_k) / s,    y_k = (b_k - D_0k y_0) / delta_k
-    """
-
-    def __init__(self, uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights: np.ndarray | None = None):
-        self.uv, self.norm = uv, norm
-        self.weights = np.ones(uv.shape[1]) if weights is None else weights
-        # the used points by reference view (their first seen view), in index order
-        used = np.flatnonzero(used)
-        ref = np.empty(used.size, dtype=np.intp)
-        for c in _chunks(used.size):
-            ref[c] = np.argmax(np.isfinite(uv[:, used[c], 0]), axis=0)
-        groups = np.split(used[np.argsort(ref, kind="stable")], np.cumsum(np.bincount(ref, minlength=uv.shape[0]))[:-1])
-        self.by_ref = [(r, members) for r, members in enumerate(groups) if members.size]
-        self.E = None  # kron(I_3, sum t t^T), accumulated by the first taylor() pass
-
-    def chunks(self):
-        """Yield the used points as :class:`_Chunk` s (by reference view, then chunk)."""
-        for r, members in self.by_ref:
-            for c in _chunks(members.size):
-                points = members[c]
-                if points[-1] - points[0] + 1 == points.size:  # contiguous: a view of uv, no copy
-                    x = self.uv[:, points[0]:points[-1] + 1]
-                else:
-                    x = self.uv[:, points]
-                yield self._chunk(points, r, x, np.isfinite(x[..., 0]))
-
-    def _chunk(self, points, r: int, x: np.ndarray, seen: np.ndarray) -> _Chunk:
-        """The :class:`_Chunk` of ``points``, all with reference view ``r``; ``x`` their
-        pixels ``(V, m, 2)``, ``seen`` ``(V, m)``."""
-        H = self.norm.H
-        tail = seen.copy()
-        tail[r] = False
-        Z = np.empty((seen.shape[0], 3, points.size))  # normalised homogeneous pixels
-        np.multiply(x[..., 0], H[0, 0], out=Z[:, 0])
-        np.multiply(x[..., 1], H[1, 1], out=Z[:, 1])
-        Z[:, 0] += H[0, 2]
-        Z[:, 1] += H[1, 2]
-        Z[:, 2] = 1.0
-        if not seen.all():  # unseen pixels are NaN: zero there
-            np.copyto(Z, 0.0, where=~seen[:, None])
-        t = self.norm.T - self.norm.T[r]
-        return _Chunk(points=points, ref=r, tail=tail, Z=Z, t=t, tt_head=-(t.T @ tail), s=self.weights[points],
-                      D00=(seen.sum(axis=0) - 1) * np.einsum("am,am->m", Z[r], Z[r]),
-                      D0k=-np.einsum("iam,am->im", Z, Z[r]) * tail,
-                      Dkk=np.einsum("iam,iam->im", Z, Z) * tail)
-
-    @staticmethod
-    def _inverse(c: _Chunk, mu: float):
-        """Closed-form pieces of ``(D_j - mu I)^-1`` as ``(V, m)`` arrays, zero off the
-        tail: ``(q, 1/s, 1/delta)``, or None if some ``D_j - mu I`` is not positive
-        definite (``mu`` past a pole)."""
-        delta = c.Dkk - mu
-        if np.any((delta <= 0) & c.tail):
-            return None
-        delta[~c.tail] = 1.0
-        inv_delta = c.tail / delta
-        q = c.D0k * inv_delta
-        s = c.D00 - mu - np.einsum("km,km->m", c.D0k, q)
-        if np.any(s <= 0):
-            return None
-        return q, 1.0 / s, inv_delta
-
-    def below_poles(self, mu: float) -> bool:
-        """Is every ``D_j - mu I`` positive definite (``mu`` below the smallest pole)?"""
-        return all(self._inverse(c, mu) is not None for c in self.chunks())
-
-    def taylor(self, mu: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """First two Taylor coefficients of ``F(nu) = sum_j B_j^T (D_j - nu I)^-1 B_j`` at
-        ``mu``: ``G_1 = sum B^T W B`` and ``G_2 = sum B^T W^2 B``, ``W_j = (D_j - mu I)^-1``.
-
-        One O(n) pass; None if ``mu`` is past a pole. ``W = Delta + q^ q^T / s`` with
-        ``Delta = diag(0, 1/delta_k)`` and ``q^ = (1, -q_k)``; with the head row
-        ``w = q^T B`` (9 per point)::
-
-            G_1 = sum_k B_k B_k^T / delta_k + w w^T / s
-            G_2 = sum_k B_k B_k^T / delta_k^2 - sum_k q_k / (s delta_k) (B_k w^T + w B_k^T)
-                  + (1 + |q|^2) w w^T / s^2
-
-        and ``sum_j c_j B_jk B_jk^T = kron(sum_j c_j z_jk z_jk^T, t_k t_k^T)``.
-        """
-        G1, G2, E3 = np.zeros((9, 9)), np.zeros((9, 9)), np.zeros((3, 3))
-        for c in self.chunks():
-            parts = self._inverse(c, mu)
-            if parts is None:
-                return None
-            q, inv_s, inv_delta = parts
-            s2 = c.s * c.s
-            E3 += c.t.T @ (c.t * (c.tail @ s2)[:, None])
-            # w_j = s_j (kron(z_r, tt_head) - sum_k q_k kron(z_k, t_k)), as columns (9, m)
-            w = np.einsum("am,bm->abm", c.Z[c.ref], c.tt_head) - np.einsum("kam,kb->abm", c.Z * q[:, None], c.t)
-            w = w.reshape(9, -1) * c.s
-            G1 += (w * inv_s) @ w.T
-            G2 += (w * ((1.0 + np.einsum("km,km->m", q, q)) * inv_s**2)) @ w.T
-            d1 = inv_delta * s2
-            Zd = c.Z * d1[:, None]
-            G1 += _kron_sum(np.matmul(Zd, c.Z.transpose(0, 2, 1)), c.t, c.t)
-            G2 += _kron_sum(np.matmul(Zd * inv_delta[:, None], c.Z.transpose(0, 2, 1)), c.t, c.t)
-            X = np.matmul(c.Z * (q * inv_delta * (inv_s * c.s))[:, None], w.T)  # (V, 3, 9)
-            cross = np.einsum("kaq,kb->abq", X, c.t).reshape(9, 9)
-            G2 -= cross + cross.T
-        self.E = np.kron(np.eye(3), E3)
-        return G1, G2
-
-    def depths(self, mu: float, a: np.ndarray) -> np.ndarray:
-        """Depths ``lam_j = -(D_j - mu I)^-1 B_j a / s_j`` (V, n_points), NaN where unseen or
-        unused."""
-        A = a.reshape(3, 3)
-        y = np.full(self.uv.shape[:2], np.nan)
-        for c in self.chunks():
-            b = np.einsum("kam,ka->km", c.Z, c.t @ A.T) * c.s  # B_j a = s_j z_i^T A tt_i
-            b_head = np.einsum("am,am->m", c.Z[c.ref], A @ c.tt_head) * c.s
-            q, inv_s, inv_delta = self._inverse(c, mu)
-            y0 = (b_head - np.einsum("km,km->m", q, b)) * inv_s
-            lam = (c.D0k * y0 - b) * inv_delta  # the unknowns are s_j lam_ij: divide the weight out
-            lam[c.ref] = -y0
-            lam[~c.tail & (np.arange(len(lam)) != c.ref)[:, None]] = np.nan
-            y[:, c.points] = lam / c.s
-        return y
-
-
-class _TaylorModel:
-    """``S(nu) = E - nu I - G_1 - (nu - mu0) G_2`` near ``mu0``; exact at ``mu0``."""
-
-    def __init__(self, E: np.ndarray, mu0: float, G: tuple[np.ndarray, np.ndarray]):
-        self.E, self.mu0, (self.G1, self.G2) = E, mu0, G
-
-    def S(self, nu: float) -> np.ndarray:
-        return self.E - nu * np.eye(9) - self.G1 - (nu - self.mu0) * self.G2
-
-    def truncation(self, nu: float) -> float:
-        """Estimated norm of the neglected terms, ``(nu - mu0)^2 |G_3|`` with
-        ``|G_3| ~ |G_2|^2 / |G_1|``."""
-        g1, g2 = np.linalg.norm(self.G1, 2), np.linalg.norm(self.G2, 2)
-        return (nu - self.mu0) ** 2 * g2 * g2 / g1 if g1 > 0 else 0.0
-
-    def root(self, lo: float, hi: float) -> float:
-        """Root of ``lambda_min(S(nu))`` in ``[lo, hi)`` (safeguarded Newton)."""
-        nu = lo
-        dS = -np.eye(9) - self.G2
-        for _ in range(100):
-            w, v = np.linalg.eigh(self.S(nu))
-            f, vec = w[0], v[:, 0]
-            if f > 0:
-                lo = nu
-            else:
-                hi = nu
-            slope = vec @ dS @ vec
-            step = nu - f / slope if slope < 0 else np.nan
-            if not lo <= step <= hi:
-                step = 0.5 * (lo + hi) if np.isfinite(hi) else 2 * lo + 1e-300
-            if abs(step - nu) <= 4 * np.finfo(float).eps * abs(nu) or step == nu:
-                return step
-            nu = step
-        return nu
-
-
-def _tls_fast(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=None):
-    """Smallest right singular vector of ``C`` via the arrowhead structure, O(n).
-
-    Returns ``(a (9,), depths (V, n_points), mu, eigenvalues of S(mu) (9,))``.
-
-    Newton on a local model: one O(n) pass gives ``S`` and ``dS/dmu`` exactly at the
-    current ``mu``; the root of the linear model (a 9 x 9 problem) is the next ``mu``.
-    The smallest eigenvalue lies far below the poles for any sensible data, so two
-    passes from ``mu = 0`` leave a truncation error below rounding (noise-free data
-    need one).
-    """
-    arrow = _Arrowhead(uv, used, norm, weights)
-    G = arrow.taylor(0.0)
-    if G is None:
-        raise DegenerateError(
-            "some points' images do not move between views (zero disparity), so their depths "
-            "are undetermined; remove points at infinity or use larger robot translations"
-        )
-    tol = 1e-15 * np.linalg.norm(arrow.E, 2)
-    good, hi = 0.0, np.inf
-    model = _TaylorModel(arrow.E, 0.0, G)
-    mu = model.root(0.0, hi)
-    for _ in range(60):
-        G = arrow.taylor(mu)  # also checks mu is below every pole (a near-static track's)
-        if G is None:  # past a pole: retreat halfway
-            hi, mu = mu, 0.5 * (good + mu)
-            continue
-        good = mu
-        converged = model.truncation(mu) <= tol
-        model = _TaylorModel(arrow.E, mu, G)  # exact at mu
-        mu = model.root(0.0, hi)
-        if converged:  # the step from a validated mu is below the truncation tolerance
-            break
-    if not arrow.below_poles(mu):  # the last step crossed a pole: the last exact model it is
-        mu = model.mu0
-    w, v = np.linalg.eigh(model.S(mu))
-    a = v[:, 0]
-    return a, arrow.depths(mu, a), mu, w
-
-
 # --------------------------------------------------------------------------------------
 # Dense reference
 # --------------------------------------------------------------------------------------
 
 
-def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=None):
+def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: Normalisation, weights=None):
     """The paper's formulation: build ``C`` and take its SVD (reference, small n); with
     ``weights`` ``s_j`` point j's rows are scaled by ``s_j`` and its depths by ``1 / s_j``
     (the unknowns are ``s_j lam_ij``).
@@ -367,6 +83,104 @@ def _tls_dense(uv: np.ndarray, used: np.ndarray, norm: _Normalisation, weights=N
     M = C.T @ C - mu * np.eye(C.shape[1])
     S = M[n_lam:, n_lam:] - M[n_lam:, :n_lam] @ np.linalg.solve(M[:n_lam, :n_lam], M[:n_lam, n_lam:])
     return b[n_lam:], depths, mu, np.linalg.eigvalsh(S)
+
+
+# --------------------------------------------------------------------------------------
+# One solve: normalised TLS, then A in pixels with its depths
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Solution:
+    """A TLS solution in pixel units: ``||A[2]|| = 1`` and the median depth positive."""
+
+    A: np.ndarray  # (3, 3)
+    depth: np.ndarray  # (V, n_points) NaN where unseen or unused; or (n_points,) per point
+    singular_values: np.ndarray  # (3,)
+    mu: float  # sigma_min^2 of the normalised system: where the next solve may start
+
+
+class _DepthSink:
+    """Collects a depth pass into ``depth (V, n)`` (camera z: ``lam`` times ``scale``, the
+    unit factor of the pixel ``A``) and the sign of their median."""
+
+    def __init__(self, shape: tuple[int, int], scale: float):
+        self.depth, self.scale, self.sign = np.full(shape, np.nan), scale, MedianSign()
+
+    def __call__(self, c, head, tail):
+        r = c.ref
+        head *= self.scale
+        tail *= self.scale
+        self.depth[r, c.points] = head
+        self.depth[:r, c.points] = tail[:r]
+        self.depth[r + 1:, c.points] = tail[r:]
+        self.sign.add(head)
+        self.sign.add(tail)
+
+    def result(self) -> np.ndarray:
+        return np.negative(self.depth, out=self.depth) if self.sign.negative else self.depth
+
+
+class _PointDepthSink:
+    """Reduces a depth pass to each point's median positive depth (n,), for both signs of
+    the solution (the sign is known at the end of the pass), instead of every depth."""
+
+    def __init__(self, shape: tuple[int, int], scale: float):
+        self.pos, self.neg = np.full(shape[1], np.nan), np.full(shape[1], np.nan)
+        self.scale, self.sign = scale, MedianSign()
+
+    def __call__(self, c, head, tail):
+        lam = np.concatenate([head[None], tail]) * self.scale
+        self.sign.add(lam)
+        self.pos[c.points], self.neg[c.points] = signed_medians(lam)
+
+    def result(self) -> np.ndarray:
+        return self.neg if self.sign.negative else self.pos
+
+
+def _solve(uv: np.ndarray, used: np.ndarray, norm: Normalisation, weights=None, points: Points | None = None,
+           mu_start: float = 0.0, per_point: bool = False) -> _Solution:
+    """The (row-weighted) TLS of the normalised system, O(n) through ``points`` or dense
+    without; ``A`` back in pixel and translation units and the sign that makes the median
+    depth positive. ``per_point``: ``depth`` is each point's median positive depth (n,)."""
+    Sink = _PointDepthSink if per_point else _DepthSink
+    if points is None:
+        a, lam, mu, w = _tls_dense(uv, used, norm, weights)
+        A_n = a.reshape(3, 3)
+        sink = Sink(lam.shape, _pixel_scale(A_n, norm))
+        sink(_Whole(), lam[0], lam[1:])
+    else:
+        mu, A_n, w, sink = Arrowhead(points, norm, weights).solve(
+            lambda A_n: Sink(uv.shape[:2], _pixel_scale(A_n, norm)), mu_start)
+    _check_null_space(mu, w)
+    # reduced singular values sqrt(mu + eig_k(S(mu))): sigma_1, then the best residuals
+    # of the second and third alternative A
+    sv = np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
+    c = -sink.scale if sink.sign.negative else sink.scale
+    # undo normalisation: lam' H u = A' (X - T) / t_scale  =>  A ∝ H^-1 A' / t_scale
+    return _Solution(A=np.linalg.solve(norm.H, A_n) / norm.t_scale * c, depth=sink.result(), singular_values=sv,
+                     mu=mu)
+
+
+def _pixel_scale(A_n: np.ndarray, norm: Normalisation) -> float:
+    """``1 / ||A[2]||`` of the pixel ``A = H^-1 A' / t_scale``: the depths' unit factor."""
+    return 1.0 / np.linalg.norm(np.linalg.solve(norm.H, A_n)[2] / norm.t_scale)
+
+
+class _Whole:
+    """The dense reference's depths as one chunk for the sinks (view 0 as the head)."""
+
+    ref, points = 0, slice(None)
+
+
+def _check_null_space(mu: float, w: np.ndarray) -> None:
+    """Raise DegenerateError if ``S(mu)`` has a (numerically) two-dimensional null space."""
+    if mu + w[1] <= 1e-12 * w[-1]:
+        raise DegenerateError(
+            "the data do not determine the camera: the linear system has a (numerically) "
+            f"two-dimensional null space (sigma_2 / sigma_max = {np.sqrt(max(mu + w[1], 0) / w[-1]):.1e}). "
+            "Track more points, over more views, spread over the image and over depth."
+        )
 
 
 # --------------------------------------------------------------------------------------
@@ -404,23 +218,15 @@ def solve_tls(uv: np.ndarray, T: np.ndarray, used: np.ndarray | None = None, met
         alternative. ``sigma_1 / sigma_2`` near 1 means ``A`` is not determined.
     """
     used = np.ones(uv.shape[1], bool) if used is None else used
-    norm = _normalisation(uv, used, T)
-    a, depths, mu, w = (_tls_fast if method == "fast" else _tls_dense)(uv, used, norm, weights)
-    # reduced singular values sqrt(mu + eig_k(S(mu))): sigma_1, then the best residuals
-    # of the second and third alternative A
-    sv = np.sqrt(np.maximum(mu + np.concatenate([[0.0], w[1:3]]), 0.0))
-    if mu + w[1] <= 1e-12 * w[-1]:
-        raise DegenerateError(
-            "the data do not determine the camera: the linear system has a (numerically) "
-            f"two-dimensional null space (sigma_2 / sigma_max = {np.sqrt(max(mu + w[1], 0) / w[-1]):.1e}). "
-            "Track more points, over more views, spread over the image and over depth."
-        )
-    # undo normalisation: lam' H u = A' (X - T) / t_scale  =>  A ∝ H^-1 A' / t_scale
-    A = np.linalg.solve(norm.H, a.reshape(3, 3)) / norm.t_scale
-    c = 1.0 / np.linalg.norm(A[2])
-    if np.nanmedian(depths) < 0:
-        c = -c
-    return A * c, depths * c, sv
+    points = None
+    if method == "fast":
+        ref = np.empty(uv.shape[1], np.intp)
+        for c in chunks(uv.shape[1]):
+            ref[c] = np.argmax(np.isfinite(uv[:, c, 0]), axis=0)
+        points = Points(uv, used, ref)
+    with one_blas_thread() if method == "fast" else contextlib.nullcontext():
+        sol = _solve(uv, used, hartley(uv, T, used), weights, points)
+    return sol.A, sol.depth, sol.singular_values
 
 
 def estimate_linear(uv, T, *, method: str = "fast", weighting: str = "depth") -> LinearEstimate:
@@ -479,69 +285,113 @@ def fit_linear(uv: np.ndarray, T: np.ndarray, method: str = "fast", weighting: s
     free data give the same exact solution. Tracks that do not move at all (a static
     overlay, dust on the lens) determine nothing and are left out (``LinearEstimate.static``).
     ``weighting="none"`` is the paper's TLS as published.
+
+    The O(n) passes sum small matrix products over chunks of points: they run with BLAS
+    on one thread, whose other threads would only spin (the dense reference keeps them).
     """
-    seen = np.isfinite(uv[..., 0])
-    used = seen.sum(axis=0) >= 2
-    motion = _motion_per_length(uv, T)
-    static = used & ~(motion > 1e-9 * max(float(np.nanmedian(motion[used])) if used.any() else 0.0, 1e-300))
-    used &= ~static
-    if used.sum() < 2:
+    with one_blas_thread() if method == "fast" else contextlib.nullcontext():
+        return _fit_linear(uv, T, method, weighting)
+
+
+def _fit_linear(uv: np.ndarray, T: np.ndarray, method: str, weighting: str) -> LinearEstimate:
+    """:func:`fit_linear`'s work: the tracks in one pass, checks, the normalisation, one or
+    two solves (the first keeps one depth per point), the triangulation."""
+    tracks = _tracks(uv, T)
+    used, motion = tracks.used, tracks.motion
+    n_used = int(np.count_nonzero(used))
+    if n_used < 2:
         raise DegenerateError(
-            f"only {int(used.sum())} point(s) are seen in at least 2 views and move between views "
-            f"({int(static.sum())} do not move at all); the linear estimate needs at least 2 points tracked "
+            f"only {n_used} point(s) are seen in at least 2 views and move between views "
+            f"({int(tracks.static.sum())} do not move at all); the linear estimate needs at least 2 points tracked "
             "through the views (more is better)")
-    active_views = np.isfinite(uv[:, used, 0]).any(axis=1)
+    active_views = tracks.view_counts > 0
     if active_views.sum() < 4:
         raise DegenerateError(f"only {int(active_views.sum())} views observe tracked points; at least 4 are needed")
     check_translations_span(T[active_views])
-    if method == "dense" and used.sum() > DENSE_MAX_POINTS:
+    if method == "dense" and n_used > DENSE_MAX_POINTS:
         raise InputError(
             f"method='dense' is a reference for small problems (at most {DENSE_MAX_POINTS} points, "
-            f"got {int(used.sum())}); use method='fast', which gives the same result in O(n)")
+            f"got {n_used}); use method='fast', which gives the same result in O(n)")
+    norm = hartley(uv, T, used)
+    points = Points(uv, used, tracks.ref) if method == "fast" else None
     if weighting == "depth":
-        A, depth, sv = solve_tls(uv, T, used, method, _relative(motion, used))
-        A, depth, sv = solve_tls(uv, T, used, method, _relative(1.0 / _point_depth(depth, motion), used))
+        first = _solve(uv, used, norm, _relative(motion, used), points, per_point=True)
+        weights = _relative(1.0 / _point_depth(first.depth, motion), used)
+        sol = _solve(uv, used, norm, weights, points, mu_start=first.mu)
+        del first, weights  # before X is allocated: the peak is the result's
     else:
-        A, depth, sv = solve_tls(uv, T, used, method)
-    K, R = rq_decompose(A)
-    X = triangulate(A, uv, T, depth, passes=1)  # NaN for unused points (no finite depth)
+        sol = _solve(uv, used, norm, None, points)
+    K, R = rq_decompose(sol.A)
+    X = triangulate(sol.A, uv, T, sol.depth, passes=1)  # NaN for unused points (no finite depth)
     return LinearEstimate(
-        K=K, R=R, A=K @ R, X=X, depth=depth, singular_values=sv,
-        n_used_points=int(used.sum()), used=used, method=method, static=static)
+        K=K, R=R, A=K @ R, X=X, depth=sol.depth, singular_values=sol.singular_values,
+        n_used_points=n_used, used=used, method=method, static=tracks.static)
+
+
+@dataclass(frozen=True)
+class _Tracks:
+    """What one chunked pass over the tracks tells the estimator."""
+
+    used: np.ndarray  # (n,) bool: seen in >= 2 views and moving
+    static: np.ndarray  # (n,) bool: seen in >= 2 views, not moving at all (left out)
+    ref: np.ndarray  # (n,) int: first seen view
+    motion: np.ndarray  # (n,) pixels per unit translation (_motion_per_length), NaN if seen once
+    view_counts: np.ndarray  # (V,) int: observations of used points per view
+
+
+def _tracks(uv: np.ndarray, T: np.ndarray) -> _Tracks:
+    """Reference views, image motion per unit translation and the static tracks, in one
+    chunked pass. A track is static when its motion is at most 1e-9 x the median."""
+    V, n = uv.shape[:2]
+    used, motion = np.empty(n, bool), np.empty(n)
+    ref = np.empty(n, np.min_scalar_type(V - 1))
+    view_counts = np.zeros(V, np.int64)
+    dT = np.linalg.norm(T[:, None] - T[None], axis=2)  # (V, V): |T_i - T_r|
+    for c in chunks(n):
+        x = uv[:, c]
+        seen = np.isfinite(x[..., 0])
+        d, ref[c] = _motion_from_reference(x, seen)
+        motion[c] = _motion_per_length(d, seen, dT[:, ref[c]], ref[c])
+        used[c] = seen.sum(axis=0) >= 2
+        view_counts += np.count_nonzero(seen & used[c], axis=1)
+    median = float(np.nanmedian(motion[used])) if used.any() else 0.0
+    static = used & ~(motion > 1e-9 * max(median, 1e-300))
+    if static.any():
+        view_counts -= np.count_nonzero(np.isfinite(uv[:, static, 0]), axis=1)
+        used &= ~static
+    return _Tracks(used=used, static=static, ref=ref, motion=motion, view_counts=view_counts)
 
 
 def reference_motion(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Image motion of every observation from its track's first (reference) view:
     ``(|uv_i - uv_r| (n_views, n_points) pixels, NaN where unseen; r (n_points,))``."""
-    ref = np.argmax(np.isfinite(uv[..., 0]), axis=0)
-    return np.hypot(*(uv - uv[ref, np.arange(uv.shape[1])][None]).transpose(2, 0, 1)), ref
+    d, ref = np.empty(uv.shape[:2]), np.empty(uv.shape[1], np.intp)
+    for c in chunks(uv.shape[1]):
+        x = uv[:, c]
+        d[:, c], ref[c] = _motion_from_reference(x, np.isfinite(x[..., 0]))
+    return d, ref
 
 
-def _motion_per_length(uv: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """Median over a track's views of ``|uv_i - uv_r| / |T_i - T_r|`` (pixels per unit of
-    translation, ``r`` its first view): proportional to ``1 / depth`` (n_points,); NaN for
-    tracks seen once."""
-    seen = np.isfinite(uv[..., 0])
-    cols = np.arange(uv.shape[1])
-    d, ref = reference_motion(uv)  # (V, n)
-    t = np.linalg.norm(T[:, None, :] - T[ref][None], axis=2)  # (V, n)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.where(seen & (t > 0), d / t, np.nan)
-    ratio[ref, cols] = np.nan
-    out = np.full(uv.shape[1], np.nan)
-    ok = np.isfinite(ratio).any(axis=0)
-    out[ok] = np.nanmedian(ratio[:, ok], axis=0)
-    return out
+def _motion_from_reference(x: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``|x_i - x_r|`` (V, m) of pixels ``x (V, m, 2)`` from the first seen view ``r (m,)``."""
+    ref = np.argmax(seen, axis=0)
+    x_ref = x[ref, np.arange(x.shape[1])] if ref.any() else x[0]  # (m, 2)
+    du, dv = x[..., 0] - x_ref[:, 0], x[..., 1] - x_ref[:, 1]
+    return np.sqrt(du * du + dv * dv), ref
 
 
-def _point_depth(depth: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """Median TLS depth of each point; where it is not positive, the depth the image motion
-    implies (scaled to the TLS depths' units)."""
-    with np.errstate(invalid="ignore"):
-        positive = np.where(depth > 0, depth, np.nan)
-    z = np.full(depth.shape[1], np.nan)
-    has = np.isfinite(positive).any(axis=0)
-    z[has] = np.nanmedian(positive[:, has], axis=0)
+def _motion_per_length(d: np.ndarray, seen: np.ndarray, t: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Median over a track's other views of ``|uv_i - uv_r| / |T_i - T_r|`` (pixels per unit
+    of translation): proportional to ``1 / depth`` (m,); NaN for tracks seen once. ``d``, ``t``
+    (V, m) image motions and translation lengths from the reference views ``ref``."""
+    ok = seen & (t > 0)
+    ok[ref, np.arange(ref.size)] = False
+    return column_median(np.divide(d, t, out=np.full_like(d, np.nan), where=ok))
+
+
+def _point_depth(z: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """Each point's median positive TLS depth ``z``; where it has none, the depth the image
+    motion implies (scaled to the TLS depths' units)."""
     good = np.isfinite(z) & (z > 0) & (motion > 0)
     scale = np.median(z[good] * motion[good]) if good.any() else 1.0
     return np.where(good, z, scale / np.where(motion > 0, motion, np.nan))

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..geometry.triangulate import triangulate
 from ..validate import as_uv_T
+from .normalisation import hartley
 
 __all__ = ["Problem", "normalise", "forms", "forms_sum", "null_vectors", "to_pixels", "solve_minimal"]
 
@@ -53,15 +54,11 @@ class Problem:
 
 
 def normalise(uv: np.ndarray, T: np.ndarray) -> Problem:
+    """Every observation Hartley-normalised (:func:`.normalisation.hartley`)."""
+    norm = hartley(uv, T)
     seen = np.isfinite(uv[..., 0]).T  # (n, V)
-    centre = np.nanmean(uv, axis=(0, 1))
-    spread = np.nanmean(np.hypot(uv[..., 0] - centre[0], uv[..., 1] - centre[1]))
-    scale = float(np.sqrt(2.0) / spread) if spread > 0 else 1.0
-    x = np.where(seen[..., None], (uv.transpose(1, 0, 2) - centre) * scale, 0.0)
-    H = np.array([[scale, 0.0, -scale * centre[0]], [0.0, scale, -scale * centre[1]], [0.0, 0.0, 1.0]])
-    T_mean = T.mean(axis=0)
-    t_scale = float(np.linalg.norm(T - T_mean, axis=1).mean())
-    return Problem(x=x, seen=seen, T=(T - T_mean) / t_scale, scale=scale, H=H, t_scale=t_scale)
+    x = np.where(seen[..., None], uv.transpose(1, 0, 2) * norm.scale + norm.H[:2, 2], 0.0)
+    return Problem(x=x, seen=seen, T=norm.T, scale=norm.scale, H=norm.H, t_scale=norm.t_scale)
 
 
 def forms(pb: Problem, idx: np.ndarray) -> np.ndarray:

@@ -32,8 +32,12 @@ def solve_sym3(M: np.ndarray, b: np.ndarray) -> np.ndarray:
     (n, 3) float
         NaN rows where ``M_n`` is singular (relative determinant below 1e-14).
     """
-    a, bb, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
-    d, e, f = M[:, 1, 1], M[:, 1, 2], M[:, 2, 2]
+    return _solve_sym3(M[:, 0, 0], M[:, 0, 1], M[:, 0, 2], M[:, 1, 1], M[:, 1, 2], M[:, 2, 2], b.T).T
+
+
+def _solve_sym3(a, bb, c, d, e, f, b) -> np.ndarray:
+    """:func:`solve_sym3` from the six distinct entries of ``M`` ``[[a, bb, c], [bb, d, e],
+    [c, e, f]]`` (each (n,)) and ``b`` (3, n); returns ``x`` (3, n)."""
     c00 = d * f - e * e
     c01 = c * e - bb * f
     c02 = bb * e - c * d
@@ -44,10 +48,11 @@ def solve_sym3(M: np.ndarray, b: np.ndarray) -> np.ndarray:
     scale = np.abs(a * d * f) + 1e-300
     with np.errstate(divide="ignore", invalid="ignore"):
         inv_det = np.where(np.abs(det) > 1e-14 * scale, 1.0 / det, np.nan)
-    x0 = (c00 * b[:, 0] + c01 * b[:, 1] + c02 * b[:, 2]) * inv_det
-    x1 = (c01 * b[:, 0] + c11 * b[:, 1] + c12 * b[:, 2]) * inv_det
-    x2 = (c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2]) * inv_det
-    return np.stack([x0, x1, x2], axis=1)
+    x = np.empty((3, a.size))
+    x[0] = (c00 * b[0] + c01 * b[1] + c02 * b[2]) * inv_det
+    x[1] = (c01 * b[0] + c11 * b[1] + c12 * b[2]) * inv_det
+    x[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) * inv_det
+    return x
 
 
 def triangulate(
@@ -112,25 +117,34 @@ _CHUNK = 16384
 
 def _triangulate_chunk(uv, depth, A2, T, basis, per_view, K, dist, passes) -> np.ndarray:
     seen = np.isfinite(uv[..., 0])  # (V, n)
-    pts = np.where(seen[..., None], uv, 0.0)
     if np.asarray(dist).size:
-        rays = pixels_to_rays(K, pts, dist)
-        pts = rays[..., :2] / rays[..., 2:3]
-    u, v = pts[..., 0], pts[..., 1]
-    if depth is None:
-        w = seen.astype(float)
+        rays = pixels_to_rays(K, np.where(seen[..., None], uv, 0.0), dist)
+        u, v = rays[..., 0] / rays[..., 2], rays[..., 1] / rays[..., 2]
     else:
-        ok = seen & np.isfinite(depth) & (depth != 0)
-        w = np.where(ok, 1.0 / np.where(ok, depth, 1.0) ** 2, seen.astype(float))
+        u, v = np.where(seen, uv[..., 0], 0.0), np.where(seen, uv[..., 1], 0.0)
+    w = seen.astype(float)
+    if depth is not None:
+        _inverse_square(depth, seen, out=w)
     V, n = seen.shape
+    coef = np.empty((4, V, n))  # w, w u, w v, w (u^2 + v^2)
+    r2 = u * u + v * v
     X = None
-    for _ in range(max(1, passes)):
-        coef = np.stack([w, w * u, w * v, w * (u * u + v * v)])  # (4, V, n)
-        M = coef.sum(axis=1).T @ basis.reshape(4, 9)  # (n, 9)
-        b = (per_view.T @ coef.reshape(4 * V, n)).T  # (n, 3); this order keeps BLAS on contiguous rows
-        X = solve_sym3(M.reshape(n, 3, 3), b)
-        z = X @ A2 - (T @ A2)[:, None]  # depths (V, n)
-        ok = seen & np.isfinite(z) & (z != 0)
-        w = np.where(ok, 1.0 / np.where(ok, z, 1.0) ** 2, np.where(seen, w, 0.0))
-    X[seen.sum(axis=0) < 2] = np.nan
-    return X
+    for p in range(max(1, passes)):
+        coef[0] = w
+        np.multiply(w, u, out=coef[1])
+        np.multiply(w, v, out=coef[2])
+        np.multiply(w, r2, out=coef[3])
+        M = basis.reshape(4, 9).T @ coef.sum(axis=1)  # (9, n): rows of the 3x3 systems
+        X = _solve_sym3(M[0], M[1], M[2], M[4], M[5], M[8], per_view.T @ coef.reshape(4 * V, n))
+        if p + 1 < passes:  # weights from these depths for the next pass
+            _inverse_square(A2 @ X - (T @ A2)[:, None], seen, out=w)
+    X[:, seen.sum(axis=0) < 2] = np.nan
+    return X.T
+
+
+def _inverse_square(z: np.ndarray, seen: np.ndarray, out: np.ndarray) -> None:
+    """``out = 1 / z^2`` where seen and ``z`` is finite and non-zero; elsewhere ``out`` is
+    kept where seen, 0 where unseen."""
+    ok = seen & np.isfinite(z) & (z != 0)
+    np.divide(1.0, z * z, out=out, where=ok)
+    out *= seen
