@@ -32,7 +32,7 @@ from .types import (INTRINSIC_NAMES, SUBSET_POINTS, CalibrateOptions, Calibratio
                     RansacOptions, RefineOptions, report)
 from .validate import COPLANAR_RTOL, as_uv_T
 
-__all__ = ["calibrate", "from_linear", "ROBUST_MIN_POINTS"]
+__all__ = ["calibrate"]
 
 #: ``robust=None`` turns RANSAC on from this many points (2-point samples need spare points).
 ROBUST_MIN_POINTS = 8

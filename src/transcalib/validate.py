@@ -10,8 +10,8 @@ import numpy as np
 
 from .types import DegenerateError, InputError
 
-__all__ = ["as_uv_T", "translation_singular_values", "check_translations_span", "MIN_VIEWS", "SPAN_RTOL",
-           "COPLANAR_RTOL", "WEAK_SPAN_RATIO"]
+__all__ = ["as_uv_T", "translation_singular_values", "check_translations_span", "SPAN_RTOL", "COPLANAR_RTOL",
+           "WEAK_SPAN_RATIO"]
 
 #: Three independent translations need four views.
 MIN_VIEWS = 4

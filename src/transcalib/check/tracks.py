@@ -17,8 +17,7 @@ from ..estimate.linear import reference_motion
 from ..estimate.noise import observation_quantile
 from .common import fmt_list
 
-__all__ = ["check_parallax", "check_inliers", "check_threshold", "check_intrinsics", "track_motion_px",
-           "LOW_PARALLAX_SIGMAS", "MIN_INLIER_FRACTION"]
+__all__ = ["check_parallax", "check_inliers", "check_threshold", "check_intrinsics"]
 
 #: Tracks moving less than this many noise sigmas are low-parallax.
 LOW_PARALLAX_SIGMAS = 5.0

@@ -64,7 +64,7 @@ from .noise import sigma_from_threshold, track_dof
 from .ransac import lo_ransac
 from .scoring import Scorer
 
-__all__ = ["fit_coplanar", "fit_coplanar_robust", "solve_plane_affine", "intrinsics_from_plane"]
+__all__ = ["fit_coplanar", "fit_coplanar_robust"]
 
 
 def _restriction(P2: np.ndarray) -> np.ndarray:

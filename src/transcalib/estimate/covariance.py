@@ -26,8 +26,7 @@ from .observations import build_data
 from .schur import Reduced
 from .solvers import levenberg_marquardt
 
-__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "bound_std", "linearise", "Linearised", "profile_step",
-           "IDENTIFIABILITY_RTOL"]
+__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "bound_std", "linearise", "profile_step"]
 
 #: Relative eigenvalue of the (Jacobi-scaled) reduced information below which a parameter
 #: combination counts as undetermined.

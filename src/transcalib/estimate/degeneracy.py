@@ -40,7 +40,7 @@ from .covariance import check_identifiable, reduced_information
 from .layout import Layout, State
 from .observations import build_data
 
-__all__ = ["translation_rank", "translation_basis", "explain_span", "identifiability_hint", "format_direction"]
+__all__ = ["translation_rank", "translation_basis", "explain_span", "identifiability_hint"]
 
 #: Generic camera tilt used by :func:`explain_span` (rotation vector, radians): oblique to
 #: the plane and to both image axes, so that no special orientation is hit.

@@ -39,7 +39,7 @@ from .arrowhead import Arrowhead, MedianSign, Points, chunks, column_median, sig
 from .normalisation import Normalisation, hartley
 from .schur import one_blas_thread
 
-__all__ = ["estimate_linear", "fit_linear", "solve_tls", "reference_motion", "DENSE_MAX_POINTS"]
+__all__ = ["estimate_linear", "fit_linear", "reference_motion"]
 
 #: Largest problem the dense reference accepts (its memory grows as n^2).
 DENSE_MAX_POINTS = 3000

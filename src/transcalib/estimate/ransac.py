@@ -42,7 +42,7 @@ import numpy as np
 from ..types import report
 from .noise import chi2_inliers, chi2_quantiles, median_sigma, truncated_sigma
 
-__all__ = ["RansacProblem", "RansacResult", "lo_ransac", "trials_needed"]
+__all__ = ["RansacResult", "lo_ransac"]
 
 #: Samples of the first batch; each further batch doubles, up to :data:`MAX_BATCH`.
 FIRST_BATCH = 16

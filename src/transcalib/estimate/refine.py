@@ -33,7 +33,7 @@ from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
 from .solvers import gauss_newton, levenberg_marquardt
 
-__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "AUTO_CHAIN"]
+__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
 

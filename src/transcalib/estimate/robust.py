@@ -36,7 +36,7 @@ from .noise import inlier_rule, median_sigma, sigma_from_threshold, track_dof, t
 from .ransac import RansacResult, lo_ransac
 from .scoring import Scorer, point_errors
 
-__all__ = ["RobustEstimate", "estimate_robust", "fit_robust", "solve_minimal", "point_errors"]
+__all__ = ["RobustEstimate", "estimate_robust", "fit_robust"]
 
 #: Points on which hypotheses are scored (a random subset of larger problems).
 SCORE_POINTS = 4096

@@ -26,21 +26,8 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = [
-    "camera_frame",
-    "DIST_MODELS",
-    "DIST_NAMES",
-    "dist_size",
-    "pad_dist",
-    "Camera",
-    "Distortion",
-    "distort",
-    "undistort",
-    "project_camera_frame",
-    "project",
-    "pixels_to_rays",
-    "K_from_params",
-]
+__all__ = ["camera_frame", "DIST_MODELS", "DIST_NAMES", "pad_dist", "Camera", "undistort", "project_camera_frame",
+           "project", "pixels_to_rays", "K_from_params"]
 
 #: Distortion models: the OpenCV coefficients each one estimates (the others are 0).
 DIST_MODELS = {"none": (), "radial1": ("k1",), "radial2": ("k1", "k2"), "opencv5": ("k1", "k2", "p1", "p2", "k3")}

@@ -16,7 +16,7 @@ import numpy as np
 
 from .camera import pixels_to_rays
 
-__all__ = ["triangulate", "solve_sym3"]
+__all__ = ["triangulate"]
 
 
 def solve_sym3(M: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ..errors import InputError
 
-__all__ = ["LENGTH_UNITS", "length_scale"]
+__all__ = ["length_scale"]
 
 #: Length units, in millimetres.
 LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}

@@ -15,7 +15,7 @@ import numpy as np
 from ..geometry.rotation import matrix_to_quaternion
 from ..geometry.units import length_scale
 
-__all__ = ["hand_eye_matrix", "hand_eye_tf", "easy_handeye_yaml", "hand_eye_json"]
+__all__ = ["easy_handeye_yaml", "hand_eye_json"]
 
 
 def hand_eye_matrix(R_X: np.ndarray, t_X: np.ndarray) -> np.ndarray:

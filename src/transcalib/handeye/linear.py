@@ -40,7 +40,7 @@ from ..types import LinearEstimate, RansacOptions
 from ..validate import SPAN_RTOL
 from .sessions import SessionGrouping
 
-__all__ = ["SessionsLinear", "sessions_linear", "check_flange_span", "solve_offset"]
+__all__ = ["SessionsLinear", "sessions_linear"]
 
 #: Relative eigenvalue of the offset's normal matrix below which a direction is free.
 OFFSET_RTOL = 1e-9

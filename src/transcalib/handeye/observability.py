@@ -34,7 +34,7 @@ from ..geometry.camera import pad_dist
 from ..geometry.rotation import matrix_to_rotvec
 from ..types import RefineOptions
 
-__all__ = ["Observability", "offset_observability", "sessions_crlb", "relative_axes", "T_RTOL"]
+__all__ = ["Observability", "offset_observability", "sessions_crlb"]
 
 #: Scaled eigenvalue of the offset information below which a direction is undetermined.
 T_RTOL = 1e-9

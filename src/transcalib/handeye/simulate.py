@@ -18,8 +18,7 @@ from ..errors import InputError
 from ..geometry.camera import project
 from ..geometry.rotation import rotvec_to_matrix
 
-__all__ = ["SessionScene", "session_scene", "look_rotation", "flange_rotations_looking", "DEFAULT_K",
-           "DEFAULT_R_X", "DEFAULT_T_X"]
+__all__ = ["session_scene", "flange_rotations_looking", "DEFAULT_R_X", "DEFAULT_T_X"]
 
 DEFAULT_K = np.array([[800.0, 0.0, 322.0], [0.0, 790.0, 238.0], [0.0, 0.0, 1.0]])
 #: Camera in the flange: looking roughly along the flange z axis, mounted off-centre (mm).

@@ -30,7 +30,7 @@ from scipy.optimize import linear_sum_assignment
 from .frames import Tracks, _progress_fn, load_images
 from ..types import DegenerateError, InputError
 
-__all__ = ["detect_squares", "track_squares"]
+__all__ = ["track_squares"]
 
 
 def _side_lines(img, quads, n_samples=24, step=0.2):

@@ -23,7 +23,7 @@ from ..errors import Diagnostic, InputError
 from .files import atomic_write, jsonable
 from .ids import point_id_array
 
-__all__ = ["SCHEMA_VERSION", "Saved", "check_calibration", "save_calibration", "load_calibration", "load_saved", "calibration_paths"]
+__all__ = ["check_calibration", "save_calibration", "load_calibration", "load_saved"]
 
 #: Version of the ``calibration.json`` schema; bumped on any incompatible change. Version 1
 #: kept the statistics and some estimates in one ``info`` dict; it is still read.

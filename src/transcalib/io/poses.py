@@ -37,7 +37,7 @@ from ..geometry.units import length_scale
 from .files import atomic_write
 from .ids import canonical_id
 
-__all__ = ["Poses", "read_poses", "write_poses_csv", "ROTATION_FORMATS"]
+__all__ = ["Poses", "read_poses", "write_poses_csv"]
 
 #: Orientation formats and their columns.
 ROTATION_FORMATS = {"quaternion": ("qx", "qy", "qz", "qw"), "rotvec": ("rx", "ry", "rz"),

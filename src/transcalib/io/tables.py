@@ -32,16 +32,8 @@ from . import text
 from .files import atomic_write
 from .ids import canonical_id, integer_ids, point_id_array
 
-__all__ = [
-    "TrackTable",
-    "read_tracks",
-    "read_track_table",
-    "read_parquet_tracks",
-    "tracks_to_uv",
-    "write_tracks",
-    "write_tracks_csv",
-    "write_points_csv",
-]
+__all__ = ["TrackTable", "read_tracks", "read_track_table", "tracks_to_uv", "write_tracks", "write_tracks_csv",
+           "write_points_csv"]
 
 
 def _read_table(path, required: list[str], what: str) -> tuple[list[str], list[list[str]]]:

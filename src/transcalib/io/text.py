@@ -14,8 +14,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
-__all__ = ["THREADS", "CHUNK", "chunks", "integer_text", "decimal_text", "prefixed", "join", "concatenated",
-           "write_in_order"]
+__all__ = ["CHUNK", "chunks", "integer_text", "decimal_text", "prefixed", "join", "concatenated", "write_in_order"]
 
 #: Threads formatting text (the machines we aim at have two cores).
 THREADS = 2

@@ -29,7 +29,7 @@ from ..geometry.camera import pad_dist
 from ..types import RefineOptions
 from .model import PlanOptions, design_scene
 
-__all__ = ["Prediction", "predict", "view_jacobians"]
+__all__ = ["predict", "view_jacobians"]
 
 
 class Prediction(NamedTuple):

@@ -29,7 +29,7 @@ from ..estimate.schur import inv3_spd
 from .fisher import view_jacobians
 from .model import CRITERIA, PlanOptions
 
-__all__ = ["Pool", "optimise"]
+__all__ = ["optimise"]
 
 _OFFSETS = np.array([o for o in np.ndindex(3, 3, 3) if o != (1, 1, 1)], float) - 1.0  # (26, 3)
 

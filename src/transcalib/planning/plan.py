@@ -22,7 +22,7 @@ from .model import CRITERIA, PlanOptions, check_box, options_from, scene_points,
 from .optimise import optimise
 from .patterns import PATTERNS, pattern_variants
 
-__all__ = ["Plan", "Evaluation", "plan", "evaluate_plan", "MIN_VIEWS", "MAX_VIEWS"]
+__all__ = ["Plan", "Evaluation", "plan", "evaluate_plan"]
 
 MIN_VIEWS, MAX_VIEWS = 4, 50
 #: Warn when the typical image motion of the largest move is below this many noise sigmas.

@@ -25,8 +25,7 @@ import io
 import numpy as np
 
 __all__ = ["residuals_data", "histogram_data", "reconstruction_data", "uncertainty_data", "truth_data",
-           "draw_residuals", "draw_histogram", "draw_reconstruction", "draw_uncertainty", "draw_truth",
-           "DRAW", "png", "projection_std", "observed_pixels", "image_box", "residual_norms", "MAX_ARROWS", "MAX_POINTS", "DPI"]
+           "draw_histogram", "DRAW", "png", "observed_pixels", "image_box", "residual_norms"]
 
 #: Largest number of residual arrows drawn per view (plus the 50 largest), and of
 #: points in the reconstruction.

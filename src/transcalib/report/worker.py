@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-__all__ = ["ReportWorker", "PendingReport", "ReportWorkerError", "warm_up"]
+__all__ = ["ReportWorker"]
 
 
 class ReportWorkerError(RuntimeError):

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Degradations", "REALISTIC", "degrade_view", "draw_view_effects", "ViewEffects"]
+__all__ = ["Degradations", "REALISTIC", "degrade_view", "draw_view_effects"]
 
 
 @dataclass(frozen=True)
