@@ -97,7 +97,8 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
     options : RefineOptions, optional
         Every other option (fixed parameters, loss, skew, known noise, view rotations).
     progress : callable, optional
-        Called after each accepted step with ``{iteration, cost, damping}``.
+        Called after each accepted step with a :class:`~transcalib.types.ProgressEvent`
+        (stage ``"refine: iteration"``, ``done`` the step, ``info`` ``cost`` and ``damping``).
 
     Returns
     -------
