@@ -227,4 +227,4 @@ def rq_decompose(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     signs[signs == 0] = 1.0
     K = K * signs[None, :]  # K D, with D = diag(signs) = D^-1
     R = signs[:, None] * R  # D R
-    return K / K[2, 2], R
+    return np.triu(K / K[2, 2]) + 0.0, R  # exact zeros below the diagonal (+0.0: no signed zeros)
