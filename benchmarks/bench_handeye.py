@@ -107,15 +107,11 @@ def _board():
 
 
 def _park_martin(Rg, tg, Rc, tc):
-    """``X = T_gripper_camera`` from ``T_base_gripper_i X T_camera_target_i = const``."""
-    try:
-        import cv2
-        if hasattr(cv2, "calibrateHandEye"):
-            R, t = cv2.calibrateHandEye(list(Rg), list(tg), list(Rc), list(tc), method=cv2.CALIB_HAND_EYE_PARK)
-            return R, t.ravel()
-    except ImportError:
-        pass
-    alphas, betas, A_rows, b_rows, pairs = [], [], [], [], []
+    """``X = T_gripper_camera`` from ``T_base_gripper_i X T_camera_target_i = const``:
+    ``cv2.calibrateHandEye`` (Park) when available, else Park & Martin here. Both need
+    gripper rotations about two axes at least: data whose relative rotations share one
+    axis are refused here first (OpenCV 5 returns a meaningless transform for them)."""
+    alphas, betas, pairs = [], [], []
     n = len(Rg)
     for i in range(n):
         for j in range(i + 1, n):
@@ -127,14 +123,20 @@ def _park_martin(Rg, tg, Rc, tc):
             if rotation_angle_deg(RA) > 1.0:
                 alphas.append(matrix_to_rotvec(RA))
                 betas.append(matrix_to_rotvec(RB))
-    M = sum(np.outer(b, a) for a, b in zip(alphas, betas))
+    M = sum((np.outer(b, a) for a, b in zip(alphas, betas)), np.zeros((3, 3)))
     w, V = np.linalg.eigh(M.T @ M)
-    if len(alphas) == 0 or w[0] <= 1e-9 * w[-1]:
+    if len(alphas) == 0 or w[1] <= 1e-9 * w[-1]:
         raise DegenerateError("hand-eye AX = XB: the gripper rotations are all about one axis; R_X undetermined")
+    try:
+        import cv2
+        if hasattr(cv2, "calibrateHandEye"):
+            R, t = cv2.calibrateHandEye(list(Rg), list(tg), list(Rc), list(tc), method=cv2.CALIB_HAND_EYE_PARK)
+            return R, t.ravel()
+    except ImportError:
+        pass
     RX = V @ np.diag(w ** -0.5) @ V.T @ M.T
-    for RA, tA, RB, tB in pairs:
-        A_rows.append(RA - np.eye(3))
-        b_rows.append(RX @ tB - tA)
+    A_rows = [RA - np.eye(3) for RA, _, _, _ in pairs]
+    b_rows = [RX @ tB - tA for _, tA, _, tB in pairs]
     tX = np.linalg.lstsq(np.concatenate(A_rows), np.concatenate(b_rows), rcond=None)[0]
     return RX, tX
 
