@@ -11,7 +11,7 @@ of cx, cy (px), rotation error (deg), the distortion model chosen (``cal.dist_mo
 the number of tracks, how many of them do not move (the burnt-in overlay's; should be
 0), how many come within two highlight radii of the specular highlight (scene points
 that the highlight passes over; their errors are in the next columns), how many static
-tracks the tracker dropped (``Tracks.info["n_static_dropped"]``), the median tracking error against the exact projection (px),
+tracks the tracker dropped (``Tracks.info.n_static_dropped``), the median tracking error against the exact projection (px),
 and the time of tracking plus calibration (s). The table is printed and written to
 ``benchmarks/results/realistic.md``.
 """
@@ -104,7 +104,7 @@ def run_case(name: str, *, image_size=(640, 480), n_views: int = 5, rng=0, track
         "R_deg": rotation_angle_deg(cal.R @ rendered.R.T), "dist_model": cal.dist_model,
         "tracks": tracks.n_points, "static_left": static_left(tracks.uv),
         "specular": on_specular(rendered, tracks.uv, 2.0 * opt.specular_sigma_px),
-        "static_dropped": tracks.info.get("n_static_dropped", 0),
+        "static_dropped": tracks.info.n_static_dropped,
         "track_err_px": float(np.median(err)) if len(err) else float("nan"),
         "gross_pct": 100 * float(np.mean(err > 1.0)) if len(err) else float("nan"),
         "seconds": seconds, "cal": cal, "tracks_obj": tracks, "rendered": rendered,

@@ -99,6 +99,6 @@ def test_repetitive_texture_with_known_translations():
     translations the tracker replaces those epipoles by ``A (T_j - T_i)`` (0 %
     measured). Bar: under 0.5 % off by more than 1 px."""
     r = run_case("repetitive", image_size=SIZE, rng=4, track_with_T=True, distortion="radial2")
-    assert r["tracks_obj"].info["pairs_set_by_translations"]
+    assert r["tracks_obj"].info.pairs_set_by_translations
     assert r["gross_pct"] < 0.5 and r["tracks"] >= 1000, (r["gross_pct"], r["tracks"])
     assert abs(r["fx_pct"]) < 0.1 and abs(r["cx_px"]) < 1.0

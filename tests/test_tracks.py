@@ -43,7 +43,7 @@ def test_natural_texture_large_motion_subpixel():
     assert tr.n_points >= 500
     assert np.all(np.isfinite(tr.uv[..., 0]).sum(0) >= 2)
     _check(track_errors(r, tr), 0.1, 0.2)
-    assert set(tr.info["time_s"]) >= {"detect", "match", "verify", "refine"}
+    assert set(tr.info.time_s) >= {"detect", "match", "verify", "chain", "refine"}
 
 
 @pytest.mark.parametrize("seed", [3, 5])
@@ -192,9 +192,9 @@ def test_epipole_at_infinity_and_duplicate_view():
 
 # --------------------------------------------------------------------------- bad input (issue 11 item 2)
 def test_local_fit_with_few_seeds_does_not_crash():
-    """Regression (issue 11): 4-7 seeds made ``_local_rho_linear`` index past its
+    """Regression (issue 11): 4-7 seeds made the local fit (now ``local.local_linear``) index past its
     neighbours (IndexError); a plane's inverse depth is still fitted exactly."""
-    from transcalib.images.features import _local_rho_linear
+    from transcalib.images.local import local_linear
 
     rng = np.random.default_rng(0)
     for m in range(4, 9):
@@ -202,7 +202,7 @@ def test_local_fit_with_few_seeds_does_not_crash():
         rho = 0.01 + 1e-4 * x[:, 0] - 2e-4 * x[:, 1]
         q = rng.uniform(0, 100, (5, 2))
         # exact up to the fit's 1e-6 ridge term: measured <= 2e-5 with 4 seeds (rho ~ 0.01)
-        assert np.allclose(_local_rho_linear(x, rho, q), 0.01 + 1e-4 * q[:, 0] - 2e-4 * q[:, 1], atol=1e-4)
+        assert np.allclose(local_linear(x, rho, q), 0.01 + 1e-4 * q[:, 0] - 2e-4 * q[:, 1], atol=1e-4)
 
 
 def test_views_with_two_orientations_raise_a_clear_error():
@@ -224,7 +224,7 @@ def test_views_with_two_orientations_raise_a_clear_error():
 def test_static_tracks_are_dropped():
     """A track that stays put while the others move 50+ px is dropped; a far point that
     moves 3 px is kept."""
-    from transcalib.images.features import _drop_static
+    from transcalib.images.checks import drop_static as _drop_static
 
     rng = np.random.default_rng(1)
     x0 = rng.uniform(0, 600, (40, 2))
@@ -252,10 +252,10 @@ def test_track_sessions_links_two_orientations():
     a = render.render(r.surfaces, r.K, r.R, r.T[:4], r.image_size, supersample=1, noise_std=1.0, rng=0)
     b = render.render(r.surfaces, r.K, Q @ r.R, r.T[4:], r.image_size, supersample=1, noise_std=1.0, rng=1)
     tr = tracks.track_sessions(np.concatenate([a, b]), ["up"] * 4 + ["turned"] * 4, T=r.T)
-    assert tr.uv.shape[0] == 8 and tr.info["links"]["up-turned"] >= 100
+    assert tr.uv.shape[0] == 8 and tr.info.link("up", "turned").n_links >= 100
     in_a, in_b = (np.isfinite(tr.uv[v, :, 0]).any(0) for v in (slice(0, 4), slice(4, 8)))
     both = in_a & in_b
-    assert tr.info["n_shared_points"] == both.sum() >= 100
+    assert tr.info.n_shared_points == both.sum() >= 100
     Xa, ga = replace(r, T=r.T[:4]).track_truth(tr.uv[:4, both])
     Xb, gb = replace(r, R=Q @ r.R, T=r.T[4:]).track_truth(tr.uv[4:, both])
     d = np.linalg.norm(Xa - Xb, axis=1)[~ga & ~gb]

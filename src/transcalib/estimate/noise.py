@@ -19,7 +19,8 @@ so a good datum is rejected with probability ``alpha`` (the false-rejection rate
 its ``nu``. ``sigma`` comes from the data: the least-median guess :func:`median_sigma`,
 then the truncated estimator :func:`truncated_sigma`; after a robust fit of many
 residuals, :func:`mad_sigma`. A user threshold on one observation's residual norm implies
-a sigma (:func:`sigma_from_threshold`). Robust losses and per-observation thresholds take
+a sigma (:func:`sigma_from_threshold`; a threshold on one signed distance, such as a
+point's distance from its epipolar line, :func:`sigma_from_distance_threshold`). Robust losses and per-observation thresholds take
 their scales from sigma (:data:`LOSS_SCALE`, :data:`OBS_QUANTILE`). No sigma is below
 :data:`SIGMA_FLOOR_PX`.
 """
@@ -34,7 +35,7 @@ from .distributions import chi2_cdf, chi2_ppf, chi2_ppf_table
 
 __all__ = ["SIGMA_FLOOR_PX", "LOSS_SCALE", "OBS_QUANTILE", "track_dof", "chi2_quantiles",
            "chi2_inliers", "inlier_rule", "median_sigma", "truncated_sigma", "truncation_factor",
-           "observation_quantile", "sigma_from_threshold", "mad_sigma"]
+           "observation_quantile", "sigma_from_threshold", "sigma_from_distance_threshold", "mad_sigma"]
 
 #: Smallest pixel noise any rule assumes: exact (simulated) data have rounding errors of
 #: ~1e-10 px, which are not Gaussian; no real tracker is below a thousandth of a pixel.
@@ -194,6 +195,16 @@ def sigma_from_threshold(threshold_px: float, alpha: float) -> float:
         sigma = threshold_px / sqrt(chi2_2(1 - alpha))      (:func:`observation_quantile`)
     """
     return float(threshold_px / observation_quantile(alpha))
+
+
+def sigma_from_distance_threshold(threshold_px: float, alpha: float) -> float:
+    """The noise a threshold on one residual coordinate implies (a signed distance, e.g. of
+    a point from its epipolar line, ``nu = 1``): ``|r| < threshold_px`` with probability
+    ``1 - alpha``::
+
+        sigma = threshold_px / sqrt(chi2_1(1 - alpha))      (= threshold_px / z_{1 - alpha/2})
+    """
+    return float(threshold_px / math.sqrt(float(chi2_ppf(1.0 - alpha, 1))))
 
 
 def mad_sigma(residuals: np.ndarray, n_params: int, floor: float = SIGMA_FLOOR_PX) -> float:

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .frames import Tracks, _progress_fn, load_images
+from .frames import TrackInfo, Tracks, load_images, progress_fn
 from ..types import DegenerateError, InputError
 
 __all__ = ["track_squares"]
@@ -305,7 +305,7 @@ def track_squares(images, *, min_side_px: float = 8.0, min_squares: int = 2, pro
     """
     grey, rgb, names = load_images(images)
     n = len(grey)
-    step = _progress_fn(progress)
+    step = progress_fn(progress)
     per_view = []
     for i, g in enumerate(grey):
         per_view.append(detect_squares(g, min_side_px=min_side_px))
@@ -345,7 +345,7 @@ def track_squares(images, *, min_side_px: float = 8.0, min_squares: int = 2, pro
         raise DegenerateError(f"target mode: squares could be matched in fewer than 2 views (per view: {counts}); "
                               "keep the board in view in every image")
     return Tracks(uv=uv, ids=ids, colors=None, view_names=names,
-                  info={"squares_per_view": counts, "reference_view": r, "n_squares": n_sq})
+                  info=TrackInfo(method="squares", squares_per_view=tuple(counts)))
 
 
 def _assign(cref, c, size):

@@ -12,12 +12,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..geometry.camera import K_from_params
-from .surfaces import Surface, box, checker_board, paper_board, plane
+from .surfaces import Surface, box, checker_board, paper_board, plane, sphere
 from .textures import Checker, Constant, Noise, Tiled
 
 __all__ = ["SCENE_KINDS", "robot_translations", "default_camera", "preset_scene"]
 
-SCENE_KINDS = ("checker", "natural", "board", "mixed", "repetitive")
+SCENE_KINDS = ("checker", "natural", "board", "mixed", "repetitive", "floor")
 
 
 def robot_translations(n_views: int, length: float, rng) -> np.ndarray:
@@ -50,8 +50,9 @@ def _camera0_to_world(surfaces_c, corners_c, R, T0):
     """Move surfaces and corners built in the camera-0 frame to the world:
     ``X_w = R^T X_c + T_0`` (axes rotate likewise)."""
     Rt = R.T
-    surfaces = [Surface(Rt @ sf.origin + T0, Rt @ sf.axis_s, Rt @ sf.axis_t, sf.size, sf.texture, sf.name,
-                        sf.cull_back) for sf in surfaces_c]
+    surfaces = [sphere(Rt @ sf.center + T0, sf.radius, sf.texture, Rt @ sf.frame, sf.name) if hasattr(sf, "radius")
+                else Surface(Rt @ sf.origin + T0, Rt @ sf.axis_s, Rt @ sf.axis_t, sf.size, sf.texture, sf.name,
+                             sf.cull_back) for sf in surfaces_c]
     corners = (np.vstack(corners_c) @ R + T0) if corners_c else np.zeros((0, 3))
     return surfaces, corners
 
@@ -142,5 +143,26 @@ def _scene_repetitive(D, K, image_size, seed):
     return surfaces, [], []
 
 
+def _scene_floor(D, K, image_size, seed):
+    """A checkered floor seen obliquely (depths about 0.8-1.3 D over the image), a
+    textured cube and a textured sphere standing on it: curved and repetitive at once."""
+    fov_w, fov_h, _, _ = _frame(D, K, image_size)
+    texel = D / K[0, 0] * 1.4
+    tilt = _tilt(-40, 0)  # floor normal 40 deg from the optical axis: the image top is farther
+    up = -tilt[:, 2]  # the floor's normal, towards the camera
+    floor_size = (6.0 * fov_w, 8.0 * fov_h)
+    surfaces = [plane([0, 0, D], tilt, floor_size, Checker(fov_w / 12), "floor")]
+    side = 0.16 * D
+    centre = np.array([-0.18 * fov_w, 0.0, D]) + 0.5 * side * up
+    rot = tilt @ _tilt(0, 0) @ Rotation.from_euler("z", 25, degrees=True).as_matrix()
+    tex = [Noise(texel * 0.9, (1.1 * side,) * 2, seed + f) for f in range(6)]
+    surfaces += box(centre, rot, [side] * 3, tex, "cube")
+    radius = 0.1 * D
+    c = np.array([0.2 * fov_w, 0.0, D]) + 0.12 * fov_h * tilt[:, 1] + radius * up
+    frame = np.column_stack([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # seam away from the camera
+    surfaces.append(sphere(c, radius, Noise(texel * 0.9, (2 * np.pi * radius, np.pi * radius), seed + 7), frame))
+    return surfaces, [], []
+
+
 _SCENE_BUILDERS = {"checker": _scene_checker, "natural": _scene_natural, "board": _scene_board,
-                   "mixed": _scene_mixed, "repetitive": _scene_repetitive}
+                   "mixed": _scene_mixed, "repetitive": _scene_repetitive, "floor": _scene_floor}

@@ -50,7 +50,10 @@ def _crop(sf, K, R, dist, C, image_size, S):
     full = (slice(0, h * S), slice(0, w * S))
     if np.asarray(dist).size and np.any(np.asarray(dist) != 0):
         return full  # distortion can fold far-off points: render the whole frame
-    P = sf.point(np.array([[0, 0], [sf.size[0], 0], [sf.size[0], sf.size[1]], [0, sf.size[1]]], float))
+    if hasattr(sf, "bounding_corners"):  # a solid (a sphere): its bounding cube
+        P = sf.bounding_corners()
+    else:
+        P = sf.point(np.array([[0, 0], [sf.size[0], 0], [sf.size[0], sf.size[1]], [0, sf.size[1]]], float))
     Xc = (P - C) @ R.T
     if np.any(Xc[:, 2] <= 1e-9 * np.abs(Xc).max()):
         return full
@@ -67,8 +70,11 @@ def surface_hits(sf, d, C, sl=slice(None)):
     ``d`` has unit camera z) and surface coordinates ``s, t``, each ``d[k][sl].shape``.
 
     ``d``: the three world components of the ray directions (arrays of one shape);
-    ``z = n . (origin - C) / n . d`` (inf or NaN for rays parallel to the plane).
+    ``z = n . (origin - C) / n . d`` (inf or NaN for rays parallel to the plane). A
+    surface with its own ``hits`` method (a :class:`~.surfaces.Sphere`) answers itself.
     """
+    if hasattr(sf, "hits"):
+        return sf.hits(d, C, sl)
     dx, dy, dz = d[0][sl], d[1][sl], d[2][sl]
     n = sf.normal
     a, b = sf.axis_s, sf.axis_t
@@ -81,7 +87,9 @@ def surface_hits(sf, d, C, sl=slice(None)):
 
 def on_surface(sf, z, s, t) -> np.ndarray:
     """bool mask: the hit ``(z, s, t)`` of :func:`surface_hits` lies in front of the
-    camera and inside the rectangle ``[0, size[0]] x [0, size[1]]``."""
+    camera and inside the rectangle ``[0, size[0]] x [0, size[1]]`` (or on the solid)."""
+    if hasattr(sf, "on"):
+        return sf.on(z, s, t)
     return (z > 0) & (s >= 0) & (s <= sf.size[0]) & (t >= 0) & (t <= sf.size[1])
 
 

@@ -34,7 +34,7 @@ from .degrade import Degradations, degrade_view, draw_view_effects, overlay_box
 from .raycast import on_surface, render_view, sample_rays, surface_hits
 from .presets import SCENE_KINDS, default_camera, preset_scene, robot_translations
 from .simulate import Scene
-from .surfaces import Surface, box, checker_board, paper_board, plane
+from .surfaces import Sphere, Surface, box, checker_board, paper_board, plane, sphere
 from .textures import Checker, Constant, Noise, Squares, Tiled
 
 __all__ = [
@@ -45,7 +45,9 @@ __all__ = [
     "Tiled",
     "Degradations",
     "Surface",
+    "Sphere",
     "plane",
+    "sphere",
     "box",
     "paper_board",
     "checker_board",
@@ -289,13 +291,15 @@ def render_scene(
 
     Parameters
     ----------
-    kind : {"checker", "natural", "board", "mixed", "repetitive"}
+    kind : {"checker", "natural", "board", "mixed", "repetitive", "floor"}
         ``checker``: a large checkerboard and a checkered box in front of a plain wall;
         ``natural``: a noise-textured wall and two textured boxes at other depths;
         ``board``: the paper's six black squares on a white board in front of a textured
         wall; ``mixed``: textured wall, checkerboard, paper board and a textured box;
         ``repetitive``: a wall of identical tiles, a tilted tiled panel in front of it
-        and a small textured box (descriptors match the wrong tile easily).
+        and a small textured box (descriptors match the wrong tile easily); ``floor``: a
+        checkered floor seen obliquely (depths 0.8-1.25 x ``distance``) with a textured
+        cube and a textured sphere on it.
     n_views : int
         Number of views (>= 2).
     image_size : (width, height)

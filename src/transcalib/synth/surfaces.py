@@ -14,7 +14,7 @@ import numpy as np
 
 from .textures import Checker, Squares, _Framed
 
-__all__ = ["Surface", "plane", "box", "paper_board", "checker_board"]
+__all__ = ["Surface", "Sphere", "plane", "box", "sphere", "paper_board", "checker_board"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +51,80 @@ class Surface:
         """World points ``(n, 3)`` of surface coordinates ``st`` ``(n, 2)``."""
         st = np.asarray(st, float)
         return self.origin + st[:, :1] * self.axis_s + st[:, 1:2] * self.axis_t
+
+
+@dataclass(frozen=True, eq=False)
+class Sphere:
+    """A textured sphere: centre ``center``, radius ``radius``, texture in longitude and
+    latitude arc lengths ``s = r (phi + pi)``, ``t = r theta`` about the axes ``frame``.
+
+    In the frame's coordinates ``p = frame^T (X - center) / r``: ``phi = atan2(p_y, p_x)``,
+    ``theta = arccos(p_z)``; the texture's seam (``phi = +-pi``) is on the side of
+    ``-frame[:, 0]``, the poles along ``+-frame[:, 2]``. A curved surface for the tracker's
+    tests (depth is not locally affine in the image, unlike on a plane).
+
+    Attributes
+    ----------
+    center : (3,) float
+    radius : float
+    frame : (3, 3) float
+        Rotation whose columns are the sphere's axes in the world.
+    texture : callable ``(s, t, ws, wt) -> value in [0, 1]``
+        Over ``[0, 2 pi r] x [0, pi r]``.
+    name : str
+    """
+
+    center: np.ndarray
+    radius: float
+    frame: np.ndarray
+    texture: object
+    name: str = "sphere"
+    cull_back: bool = False
+
+    @property
+    def size(self) -> tuple[float, float]:
+        return (2.0 * np.pi * self.radius, np.pi * self.radius)
+
+    def bounding_corners(self) -> np.ndarray:
+        """The 8 corners ``(8, 3)`` of the axis-aligned cube around the sphere."""
+        c = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+        return np.asarray(self.center, float) + self.radius * c
+
+    def hits(self, d, C, sl=slice(None)):
+        """Nearest intersection of the rays ``C + z d`` (three direction arrays): ``z`` (inf
+        where the ray misses) and the texture coordinates ``s, t``; see
+        :func:`transcalib.synth.raycast.surface_hits`. Solves ``|C + z d - c|^2 = r^2``."""
+        dx, dy, dz = d[0][sl], d[1][sl], d[2][sl]
+        o = np.asarray(C, float) - np.asarray(self.center, float)
+        a = dx * dx + dy * dy + dz * dz
+        b = dx * o[0] + dy * o[1] + dz * o[2]
+        disc = b * b - a * (o @ o - self.radius**2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(disc >= 0, (-b - np.sqrt(np.maximum(disc, 0.0))) / a, np.inf)
+        zf = np.where(np.isfinite(z), z, 0.0)
+        F = np.asarray(self.frame, float)
+        p = [(o[k] + zf * (dx, dy, dz)[k]) / self.radius for k in range(3)]
+        q = [p[0] * F[0, k] + p[1] * F[1, k] + p[2] * F[2, k] for k in range(3)]
+        s = self.radius * (np.arctan2(q[1], q[0]) + np.pi)
+        t = self.radius * np.arccos(np.clip(q[2], -1.0, 1.0))
+        return z, s, t
+
+    def on(self, z, s, t) -> np.ndarray:
+        """bool mask: the ray met the sphere in front of the camera."""
+        return np.isfinite(z) & (z > 0)
+
+    def point(self, st: np.ndarray) -> np.ndarray:
+        """World points ``(n, 3)`` of texture coordinates ``st`` ``(n, 2)``."""
+        st = np.asarray(st, float)
+        phi, theta = st[:, 0] / self.radius - np.pi, st[:, 1] / self.radius
+        q = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+        return np.asarray(self.center, float) + self.radius * q @ np.asarray(self.frame, float).T
+
+
+def sphere(center, radius: float, texture, frame=None, name: str = "sphere") -> Sphere:
+    """A :class:`Sphere` (``frame`` default: the world axes)."""
+    F = np.eye(3) if frame is None else np.asarray(frame, float)
+    return Sphere(np.asarray(center, float), float(radius), F, texture, name)
 
 
 def plane(center, normal_rot, size, texture, name: str = "") -> Surface:

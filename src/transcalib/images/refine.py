@@ -1,0 +1,257 @@
+"""Refinement: every observation aligned to its track's reference view, to a few hundredths of a pixel.
+
+Lucas-Kanade with an affine warp and a gain and offset, batched Gauss-Newton over all
+observations of a view pair at once (:func:`lk_affine`): the template is a window around
+the track's reference observation (Gaussian weights), the warp
+``x_tgt = p + M o`` for template offsets ``o``, photometric ``a I_tgt + b``; images are
+smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
+``cv2.remap`` of a three-channel image). The affine part models the change of scale and
+foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
+the gain and offset exposure changes. An observation is dropped when it does not
+converge, correlates poorly with its template, moves too far, distorts the window
+implausibly, lies on too weak a texture, or is too near the border.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .detect import n_threads
+from .epipoles import pair_epipole, residuals
+
+__all__ = ["RefineOptions", "SmoothedImages", "lk_affine", "refine_to_reference"]
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """Acceptance rules of :func:`refine_to_reference`.
+
+    Attributes
+    ----------
+    window_radius : int
+        Half-size of the window (px).
+    min_ncc : float
+        Smallest weighted normalised cross-correlation with the template.
+    max_shift_px : float
+        Largest move from the starting position.
+    iterations : int
+        Gauss-Newton steps, at most.
+    """
+
+    window_radius: int = 8
+    min_ncc: float = 0.9
+    max_shift_px: float = 4.0
+    iterations: int = 12
+
+
+class SmoothedImages:
+    """Per view: the image smoothed with sigma 1 and its gradients, as one three-channel
+    float32 image (``[I, dI/dx, dI/dy]``), built on first use."""
+
+    def __init__(self, grey: list):
+        self.grey = grey
+        self._cache = {}
+
+    def __getitem__(self, v: int) -> np.ndarray:
+        if v not in self._cache:
+            sm = cv2.GaussianBlur(np.asarray(self.grey[v], np.float32), (0, 0), 1.0)
+            gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
+            gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
+            self._cache[v] = cv2.merge([sm, gx, gy])
+        return self._cache[v]
+
+    def shape(self) -> tuple[int, int]:
+        return self.grey[0].shape[:2]
+
+
+def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bicubic samples of ``img`` (h, w[, c]) at float arrays ``x, y`` (m, P): (m, P[, c]) float32."""
+    m, P = x.shape
+    out = np.empty((m, P) + img.shape[2:], np.float32)
+    step = max(1, 30000 // max(P, 1))  # cv2 map sides stay below 32767
+    for r0 in range(0, m, step):
+        out[r0:r0 + step] = cv2.remap(img, x[r0:r0 + step].astype(np.float32), y[r0:r0 + step].astype(np.float32),
+                                      cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _offsets(radius: int):
+    r = np.arange(-radius, radius + 1, dtype=np.float32)
+    ox, oy = [a.ravel() for a in np.meshgrid(r, r)]
+    sig = 0.5 * radius + 0.5
+    return ox, oy, np.exp(-(ox**2 + oy**2) / (2 * sig**2)).astype(np.float32)
+
+
+def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.ndarray, M0: np.ndarray, radius: int,
+              iterations: int = 12):
+    """Batched Lucas-Kanade: align windows of ``tgt`` to template windows of ``ref_img``.
+
+    Parameters
+    ----------
+    ref_img, tgt : (h, w, 3) float32
+        :class:`SmoothedImages` entries (image and gradients).
+    p_ref : (m, 2) float
+        Template centres in the reference view.
+    p0 : (m, 2) float
+        Starting positions in the target view.
+    M0 : (m, 2, 2) float
+        Starting affine parts.
+    radius : int
+    iterations : int
+
+    Returns
+    -------
+    p : (m, 2) float
+    M : (m, 2, 2) float
+    ncc : (m,) float
+        Weighted normalised cross-correlation with the template.
+    min_eig : (m,) float
+        Smallest eigenvalue of the translation block (texture strength).
+    converged : (m,) bool
+    """
+    m = len(p_ref)
+    ox, oy, wgt = _offsets(radius)
+    Tm = _sample(ref_img[..., 0], p_ref[:, :1] + ox[None], p_ref[:, 1:2] + oy[None])
+    p, M = p0.astype(float).copy(), M0.astype(float).copy()
+    a, b = np.ones(m), np.zeros(m)
+    conv = np.zeros(m, bool)
+    active = np.ones(m, bool)
+    last = np.full(m, np.inf)
+    eye8 = np.eye(8, dtype=np.float32)
+    for _ in range(iterations):
+        ia = np.flatnonzero(active)
+        if len(ia) == 0:
+            break
+        wx = (p[ia, :1] + M[ia, 0, :1] * ox[None] + M[ia, 0, 1:2] * oy[None]).astype(np.float32)
+        wy = (p[ia, 1:2] + M[ia, 1, :1] * ox[None] + M[ia, 1, 1:2] * oy[None]).astype(np.float32)
+        S = _sample(tgt, wx, wy)
+        I, Gx, Gy = S[..., 0], S[..., 1], S[..., 2]
+        aa = a[ia, None].astype(np.float32)
+        res = aa * I + b[ia, None].astype(np.float32) - Tm[ia]
+        J = np.empty((len(ia), 8, I.shape[1]), np.float32)
+        J[:, 0], J[:, 1] = aa * Gx, aa * Gy
+        J[:, 2], J[:, 3] = J[:, 0] * ox, J[:, 0] * oy
+        J[:, 4], J[:, 5] = J[:, 1] * ox, J[:, 1] * oy
+        J[:, 6], J[:, 7] = I, 1.0
+        Jw = J * wgt
+        H = (Jw @ J.transpose(0, 2, 1)).astype(float)
+        g = (Jw @ res[..., None])[..., 0].astype(float)
+        H += 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * eye8
+        try:
+            delta = -np.linalg.solve(H, g[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            delta = -np.einsum("mab,mb->ma", np.linalg.pinv(H), g)
+        step = np.linalg.norm(delta[:, :2], axis=1)
+        step = np.where(np.isfinite(step), step, np.inf)
+        lim = np.minimum(1.0, 2.0 / np.maximum(step, 1e-12))  # at most 2 px per step
+        delta = np.where(np.isfinite(delta), delta, 0.0) * lim[:, None]
+        p[ia] += delta[:, :2]
+        M[ia] += delta[:, 2:6].reshape(-1, 2, 2)
+        a[ia] += delta[:, 6]
+        b[ia] += delta[:, 7]
+        last[ia] = step
+        done = step < 2e-3
+        conv[ia[done]] = True
+        active[ia[done]] = False
+    conv |= last < 0.01  # still creeping by < 0.01 px: good enough
+    wx = (p[:, :1] + M[:, 0, :1] * ox[None] + M[:, 0, 1:2] * oy[None]).astype(np.float32)
+    wy = (p[:, 1:2] + M[:, 1, :1] * ox[None] + M[:, 1, 1:2] * oy[None]).astype(np.float32)
+    S = _sample(tgt, wx, wy)
+    ncc = _wncc(S[..., 0], Tm, wgt)
+    Gx, Gy = S[..., 1], S[..., 2]
+    hxx, hxy, hyy = (wgt * Gx * Gx).sum(1), (wgt * Gx * Gy).sum(1), (wgt * Gy * Gy).sum(1)
+    min_eig = 0.5 * (hxx + hyy - np.sqrt((hxx - hyy) ** 2 + 4 * hxy**2)) / wgt.sum()
+    return p, M, ncc, min_eig.astype(float), conv
+
+
+def _wncc(I, T, w):
+    w = w / w.sum()
+    Ic = I - (I * w).sum(1, keepdims=True)
+    Tc = T - (T * w).sum(1, keepdims=True)
+    num = (w * Ic * Tc).sum(1)
+    den = np.sqrt((w * Ic * Ic).sum(1) * (w * Tc * Tc).sum(1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, num / den, 0.0)
+
+
+def _start_warp(epi, r, j, p_ref, p0, M0):
+    """Start of the affine part: given ``M0`` (m, 2, 2), or ``(1 + rho e3) I`` from the
+    pair's epipole (the scale change of a fronto-parallel patch), or ``I``."""
+    if M0 is not None:
+        return M0
+    M = np.repeat(np.eye(2)[None], len(p_ref), axis=0)
+    e = None if epi is None else pair_epipole(epi, r, j)
+    if e is not None:
+        _, rho = residuals(e, p_ref, p0)
+        M = M * np.clip(1.0 + np.nan_to_num(rho) * e[2], 0.5, 2.0)[:, None, None]
+    return M
+
+
+def refine_to_reference(smoothed: SmoothedImages, uv: np.ndarray, ref: np.ndarray, epi: dict | None,
+                        opts: RefineOptions, report=None, only=None, warps=None) -> np.ndarray:
+    """Align every non-reference observation of ``uv`` to its track's reference observation.
+
+    Parameters
+    ----------
+    smoothed : SmoothedImages
+    uv : (n_views, n_tracks, 2) float
+        Starting positions; NaN where unseen.
+    ref : (n_tracks,) int
+        Reference view of each track (its template).
+    epi : dict ``(i, j) -> epipole or PairGeometry``, optional
+        Epipoles for the start of the affine part.
+    opts : RefineOptions
+    report : callable ``(stage, done, total)``, optional
+        Called once per view pair (every pair, so a bar reaches its total).
+    only : (n_views, n_tracks) bool, optional
+        Refine only these observations (the others are returned as they are).
+    warps : (n_views, n_tracks, 2, 2) float, optional
+        Starting affine parts (NaN: from the epipole).
+
+    Returns
+    -------
+    (n_views, n_tracks, 2) float
+        Refined positions, NaN where dropped; a reference observation too near the border
+        has no template: its track loses the observations refined against it.
+    """
+    n = uv.shape[0]
+    h, w = smoothed.shape()
+    seen = np.isfinite(uv[..., 0])
+    todo = seen if only is None else (only & seen)
+    out = uv.copy()
+    margin = opts.window_radius + 2
+    inside = (uv[..., 0] >= margin) & (uv[..., 0] <= w - 1 - margin) & (uv[..., 1] >= margin) & \
+        (uv[..., 1] <= h - 1 - margin)
+    steps = [(r, j) for r in range(n) for j in range(n) if j != r]
+
+    def one(step):
+        r, j = step
+        sel = np.flatnonzero((ref == r) & todo[j])
+        if len(sel) == 0:
+            return step, sel, None
+        p_ref, p0 = uv[r, sel], uv[j, sel]
+        M0 = None if warps is None else warps[j, sel]
+        if M0 is not None and not np.all(np.isfinite(M0)):
+            M0 = np.where(np.isfinite(M0), M0, _start_warp(epi, r, j, p_ref, p0, None))
+        M0 = _start_warp(epi, r, j, p_ref, p0, M0)
+        p, M, ncc, min_eig, conv = lk_affine(smoothed[r], smoothed[j], p_ref, p0, M0, opts.window_radius,
+                                             opts.iterations)
+        det = np.linalg.det(M)
+        good = (inside[r, sel] & inside[j, sel] & conv & (ncc >= opts.min_ncc)
+                & (np.linalg.norm(p - p0, axis=1) < opts.max_shift_px) & (det > 0.25) & (det < 4.0) & (min_eig > 1.0))
+        return step, sel, np.where(good[:, None], p, np.nan)
+
+    for k in range(n):  # build the smoothed images before the threads share them
+        smoothed[k]
+    with ThreadPoolExecutor(n_threads()) as pool:
+        for k, ((r, j), sel, p) in enumerate(pool.map(one, steps)):
+            if p is not None:
+                out[j, sel] = p
+                out[r, sel[~inside[r, sel]]] = np.nan  # no template: the reference goes too
+            if report is not None:
+                report("refine", k + 1, len(steps))
+    return out

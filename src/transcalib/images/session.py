@@ -1,0 +1,194 @@
+"""One session (views of one camera orientation, pure translations) from features to tracks.
+
+The stages, each timed in :class:`~.frames.TrackInfo` ``time_s``:
+
+1. **match** - SIFT descriptors of every view pair (:func:`~.detect.match_pair`);
+2. **verify** - the epipole of every pair and their consistency (:mod:`.epipoles`; with
+   the robot translations, one ``A`` for all), and the rotation test (:mod:`.rotation`);
+3. **chain** - every corner followed through the session along its epipolar lines
+   (:mod:`.propagate`);
+4. **refine** - every observation aligned to its reference view (:mod:`.refine`);
+5. **checks** - depth smoothness, epipoles from the refined tracks, multi-view depth
+   (:mod:`.checks`);
+6. **extend** - each track searched again where its depth says the views it lacks see
+   it (re-detection along the epipolar lines), aligned and checked like the others;
+7. static tracks dropped, duplicates merged (:mod:`.checks`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .checks import check_added, check_session, drop_static, n_observations
+from .detect import Features, match_pair
+from .epipoles import PairGeometry, fit_translations, verify_pairs
+from .propagate import PropagateOptions, Pyramids, predict_missing, propagate
+from .refine import RefineOptions, SmoothedImages, refine_to_reference
+from .rotation import check_pure_translation
+
+__all__ = ["SessionOptions", "SessionResult", "track_session"]
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    """Options of :func:`track_session` (the ``track`` options that concern one session).
+
+    Attributes
+    ----------
+    ratio : float
+        Lowe's ratio of the descriptor matches.
+    threshold_px : float
+        Epipolar distance of a match before refinement.
+    final_threshold_px : float
+        Epipolar distance after refinement.
+    smooth_px : float
+        Largest disagreement (image px) of an observation's depth with its neighbours'.
+    refine : bool
+        Align the observations (sub-pixel Lucas-Kanade).
+    extend : bool
+        Search tracks again in the views they lack.
+    propagate : PropagateOptions
+    refinement : RefineOptions
+    """
+
+    ratio: float = 0.8
+    threshold_px: float = 1.5
+    final_threshold_px: float = 0.5
+    smooth_px: float = 2.5
+    refine: bool = True
+    extend: bool = True
+    propagate: PropagateOptions = field(default_factory=PropagateOptions)
+    refinement: RefineOptions = field(default_factory=RefineOptions)
+
+
+@dataclass(frozen=True, eq=False)
+class SessionResult:
+    """Tracks of one session and how they were found.
+
+    Attributes
+    ----------
+    uv : (n_views, n_tracks, 2) float
+    geometry : dict ``(i, j) -> PairGeometry``
+        The verified pairs (session view indices).
+    n_matches : dict ``(i, j) -> int``
+        Descriptor matches of each pair.
+    epipoles : dict ``(i, j) -> (3,) float``
+        Epipoles re-estimated from the refined tracks.
+    inconsistent, repaired, set_by_translations : list of (i, j)
+    counts : dict str -> int
+        Observations after each stage.
+    n_static_dropped : int
+    time_s : dict str -> float
+    """
+
+    uv: np.ndarray
+    geometry: dict
+    n_matches: dict
+    epipoles: dict
+    inconsistent: list
+    repaired: list
+    set_by_translations: list
+    counts: dict
+    n_static_dropped: int
+    time_s: dict
+
+
+class _Timer:
+    """``with timer("stage"):`` adds the stage's wall time to ``times[stage]``."""
+
+    def __init__(self):
+        self.times = {}
+
+    def __call__(self, stage):
+        self._stage = stage
+        return self
+
+    def __enter__(self):
+        self._t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.times[self._stage] = self.times.get(self._stage, 0.0) + time.perf_counter() - self._t0
+
+
+def _matches(feats: list[Features], ratio: float, report):
+    """Descriptor matches of every pair ``i < j``: ``{(i, j): (x_i (m, 2), x_j (m, 2))}``."""
+    n = len(feats)
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    xy = {}
+    for k, (i, j) in enumerate(pairs):
+        m = match_pair(feats[i].descriptors, feats[j].descriptors, ratio)
+        xy[(i, j)] = (feats[i].keypoints[m[:, 0]], feats[j].keypoints[m[:, 1]])
+        report("match", k + 1, len(pairs))
+    return xy
+
+
+def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, report, T=None,
+                  names=None) -> SessionResult:
+    """Tracks of one pure-translation session (module docstring).
+
+    Parameters
+    ----------
+    grey : list of (h, w) float32
+        The session's views.
+    feats : list of Features
+        Their features.
+    opts : SessionOptions
+    rng : Generator
+    report : callable ``(stage, done, total)``
+    T : (n_views, 3) float, optional
+        The session's robot translations.
+    names : sequence of str, optional
+        View names for messages.
+    """
+    timer = _Timer()
+    n, shape = len(grey), grey[0].shape[:2]
+    with timer("match"):
+        xy = _matches(feats, opts.ratio, report)
+    with timer("verify"):
+        geo, inconsistent, repaired = verify_pairs(xy, n, opts.threshold_px, rng, report)
+        check_pure_translation(xy, geo, opts.threshold_px, names)
+        replaced = []
+        if T is not None:
+            geo, replaced = fit_translations(geo, xy, T, opts.threshold_px, float(max(shape)), rng)
+    sources = {p: (xy[p][0][g.inliers], xy[p][1][g.inliers]) for p, g in geo.items()}
+    pyr = Pyramids(grey, opts.propagate.window_px, opts.propagate.levels)
+    with timer("chain"):
+        uv = propagate(pyr, [f.corners for f in feats], geo, sources, opts.propagate, shape, report)
+    counts = {"chained": n_observations(uv)}
+    epi = {p: g.e for p, g in geo.items() if g.e is not None}
+    smoothed = SmoothedImages(grey)
+    with timer("refine"):
+        if opts.refine and uv.shape[1]:
+            uv = refine_to_reference(smoothed, uv, np.argmax(np.isfinite(uv[..., 0]), axis=0), geo, opts.refinement,
+                                     report)
+    counts["refined"] = n_observations(uv)
+    thr = opts.final_threshold_px if opts.refine else opts.threshold_px
+    with timer("checks"):
+        uv, epi_final = check_session(uv, epi, thr, opts.smooth_px, rng, counts)
+    if opts.extend and opts.refine and uv.shape[1]:
+        with timer("extend"):
+            uv = _extend(smoothed, uv, epi_final, opts, thr, rng, counts)
+    uv, n_static = drop_static(uv)
+    counts["static"] = n_observations(uv)
+    return SessionResult(uv=uv, geometry=geo, n_matches={p: len(v[0]) for p, v in xy.items()}, epipoles=epi_final,
+                         inconsistent=inconsistent, repaired=repaired, set_by_translations=replaced, counts=counts,
+                         n_static_dropped=n_static, time_s=timer.times)
+
+
+def _extend(smoothed, uv, epi, opts: SessionOptions, thr, rng, counts):
+    """Stage 6: each track searched where its depth predicts it in the views it lacks."""
+    margin = opts.refinement.window_radius + 2
+    guess = predict_missing(uv, epi, smoothed.shape(), margin)
+    new = np.isfinite(guess[..., 0])
+    if not new.any():
+        counts["extended"] = counts["multiview"]
+        return uv
+    trial = np.where(new[..., None], guess, uv)
+    ref = np.argmax(np.isfinite(uv[..., 0]), axis=0)
+    refined = refine_to_reference(smoothed, trial, ref, epi, opts.refinement, None, only=new)
+    out = check_added(np.where(new[..., None], refined, uv), new, guess, epi, thr, opts.smooth_px)
+    counts["extended"] = n_observations(out)
+    return out
