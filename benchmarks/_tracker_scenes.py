@@ -157,6 +157,101 @@ def study_scene(rng, *, image_size=(480, 360), rotate_deg: float = 0.0, pose_err
     return StudyScene(images=images, K=K, R=Rv, T=T, dist=dist, surfaces=surfaces, config=config)
 
 
+def orbit_scene(rng, *, kind: str = "natural", image_size=(640, 480), views_per_session: int = 6,
+                angles_deg=(30.0,), singles_deg=(), distance: float = 800.0, baseline: float = 0.1,
+                noise_std: float = 1.0, degrade=None, supersample: int = 1):
+    """Sessions at several orientations looking at one preset scene, and single views.
+
+    Session 0 is the preset's camera with ``views_per_session`` translations; each angle
+    of ``angles_deg`` adds a session whose camera orbits the scene centre (the point at
+    ``distance`` on the first camera's axis) by that angle about a random axis, with its
+    own translations; each angle of ``singles_deg`` adds one view orbited likewise.
+
+    Returns
+    -------
+    scene : StudyScene
+        ``R`` per view; ``config["groups"]`` the group label of each view, ``config["angle"]``
+        the orbit angle of each group.
+    """
+    rng = np.random.default_rng(rng)
+    base = render.render_scene(kind, n_views=views_per_session, image_size=image_size, distance=distance,
+                               baseline=baseline, noise_std=noise_std, supersample=1, rng=rng)
+    centre = base.T[0] + distance * base.R[2]
+    Rs, Ts, labels = [base.R] * views_per_session, list(base.T), ["s0"] * views_per_session
+    angle = {"s0": 0.0}
+    for g, (deg, n) in enumerate([(d, views_per_session) for d in angles_deg] + [(d, 1) for d in singles_deg]):
+        Q = _small_rotation(deg, rng)
+        R = base.R @ Q.T  # camera rotated with the orbit: it keeps looking at the centre
+        moves = render.robot_translations(n, baseline * distance, rng) if n > 1 else np.zeros((1, 3))
+        label = f"s{g + 1}" if n > 1 else f"v{g + 1}"
+        for t in moves:
+            Rs.append(R)
+            Ts.append(centre + Q @ (base.T[0] - centre) + t)
+            labels.append(label)
+        angle[label] = float(deg)
+    R, T = np.array(Rs), np.array(Ts)
+    images = np.concatenate([render.render(base.surfaces, base.K, R[i], T[i:i + 1], image_size, supersample=supersample,
+                                           noise_std=noise_std, degrade=degrade, rng=int(rng.integers(2**31)))
+                             for i in range(len(T))])
+    return StudyScene(images=images, K=base.K, R=R, T=T, dist=np.zeros(0), surfaces=base.surfaces,
+                      config={"kind": kind, "groups": labels, "angle": angle})
+
+
+def link_quality(scene: StudyScene, uv: np.ndarray, groups: list, margin_px: float = 12.0, tol_px: float = 2.0):
+    """How well the points of ``uv`` are linked across the groups of ``scene``.
+
+    A point's truth is the scene point seen at its first observation; it is *visible* in a
+    group when, unoccluded and ``margin_px`` inside the image, it is seen by 2+ of the
+    group's views (1 for a single view). For every pair of groups: the points visible in
+    both, those of them seen in both (*linked*), and the observations in the other group
+    farther than ``tol_px`` from the truth's projection (*wrong links*, points next to an
+    occlusion edge left out): the observations in the group that does not hold the point's
+    first observation. Returns ``{(g, h): (visible, linked, wrong, linked_all)}``.
+    """
+    labels = list(dict.fromkeys(groups))
+    views = {g: [i for i, x in enumerate(groups) if x == g] for g in labels}
+    seen = np.isfinite(uv[..., 0])
+    first = np.argmax(seen, axis=0)
+    X = np.full((uv.shape[1], 3), np.nan)
+    ghost = np.zeros(uv.shape[1], bool)
+    for v in range(uv.shape[0]):
+        mine = first == v
+        if mine.any():
+            rv = replace_view(scene, v)
+            X[mine] = rv.backproject(0, uv[v, mine])
+            ghost[mine] = rv.near_occlusion(0, uv[v, mine])
+    vis = np.zeros(seen.shape, bool)
+    err = np.full(seen.shape, np.inf)
+    for v in range(uv.shape[0]):
+        rv = replace_view(scene, v)
+        vis[v] = rv.visible(X, margin_px=margin_px)[0]
+        err[v] = np.linalg.norm(rv.project(X)[0] - uv[v], axis=-1)
+    out = {}
+    for a in labels:
+        for b in labels:
+            if a >= b:
+                continue
+            need_a, need_b = min(2, len(views[a])), min(2, len(views[b]))
+            both = (vis[views[a]].sum(0) >= need_a) & (vis[views[b]].sum(0) >= need_b) & ~ghost
+            in_a, in_b = seen[views[a]].any(0), seen[views[b]].any(0)
+            linked = in_a & in_b & ~ghost
+            grp = np.array([groups[v] for v in first])
+            other = np.where(grp == a, 1, 0)  # the group not holding the first observation: b for points of a
+            off_b = (np.where(seen[views[b]], err[views[b]], 0.0) > tol_px).any(0)
+            off_a = (np.where(seen[views[a]], err[views[a]], 0.0) > tol_px).any(0)
+            bad = linked & np.where(other == 1, off_b, off_a)
+            out[(a, b)] = (int(both.sum()), int((both & linked).sum()), int(bad.sum()), int(linked.sum()))
+    return out
+
+
+def replace_view(scene: StudyScene, v: int) -> render.Rendered:
+    """View ``v`` of ``scene`` alone as :class:`~transcalib.synth.render.Rendered`."""
+    w, h = scene.images.shape[2], scene.images.shape[1]
+    return render.Rendered(images=scene.images[v:v + 1], K=scene.K, R=scene.R[v], dist=scene.dist,
+                           T=scene.T[v:v + 1], surfaces=scene.surfaces, corners=np.zeros((0, 3)),
+                           corner_kind=np.array([], dtype=object), image_size=(w, h))
+
+
 def floor_scene(rng=0, *, image_size=(640, 480), n_views: int = 5, noise_std: float = 1.0) -> StudyScene:
     """The false refusal of issue 21: 5 views, 250 mm moves at 2-3 m over a checkered
     floor with a checkered cube and a noise-textured sphere (pure translation, no

@@ -177,10 +177,10 @@ def drop_static(uv: np.ndarray, static_px: float = STATIC_PX, factor: float = ST
     return uv[:, ~static], int(static.sum())
 
 
-def merge_duplicates(uv: np.ndarray, tol: float = 0.75) -> np.ndarray:
+def merge_duplicates(uv: np.ndarray, tol: float = 0.75, min_shared: int = 1) -> np.ndarray:
     """One track for tracks that coincide (within ``tol`` px in every view both see, and
-    at least one): the union of their observations (the first track's where both see
-    it). Returns the merged ``uv`` (fewer tracks)."""
+    at least ``min_shared`` such views): the union of their observations (the first
+    track's where both see it). Returns the merged ``uv`` (fewer tracks)."""
     n_views, n_pts = uv.shape[:2]
     if n_pts < 2:
         return uv
@@ -193,7 +193,7 @@ def merge_duplicates(uv: np.ndarray, tol: float = 0.75) -> np.ndarray:
         for a, b in cKDTree(uv[v, idx]).query_pairs(tol, output_type="ndarray"):
             pa, pb = idx[a], idx[b]
             both = seen[:, pa] & seen[:, pb]
-            if np.all(np.linalg.norm(uv[both, pa] - uv[both, pb], axis=1) < tol):
+            if both.sum() >= min_shared and np.all(np.linalg.norm(uv[both, pa] - uv[both, pb], axis=1) < tol):
                 ra, rb = _root(parent, pa), _root(parent, pb)
                 if ra != rb:
                     parent[max(ra, rb)] = min(ra, rb)

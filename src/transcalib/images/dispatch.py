@@ -154,7 +154,7 @@ def track(
                                                      max_seeds=2000 if max_tracks is None else int(1.3 * max_tracks)),
                           refinement=RefineOptions(window_radius=window_radius, min_ncc=min_ncc))
     detect = DetectOptions(max_features=max_features, max_corners=max_corners, corner_quality=corner_quality)
-    run = dict(T=T, groups=groups, labels=labels, method=method, opts=opts, detect=detect, min_views=min_views,
+    run = dict(T=T, rotations=rotations, groups=groups, labels=labels, method=method, opts=opts, detect=detect, min_views=min_views,
                min_tracks=min_tracks, max_tracks=max_tracks, progress=progress, rng=rng)
     if method != "auto" or (groups is not None and len(groups) > 1):
         return _track_features(images, **run)
@@ -177,7 +177,7 @@ def track(
     return tracks
 
 
-def _track_features(images, *, T, groups, labels, method, opts, detect, min_views, min_tracks, max_tracks, progress,
+def _track_features(images, *, T, rotations, groups, labels, method, opts, detect, min_views, min_tracks, max_tracks, progress,
                     rng) -> Tracks:
     """Feature tracking of every group, then the links between groups."""
     rng = np.random.default_rng(rng)
@@ -195,16 +195,18 @@ def _track_features(images, *, T, groups, labels, method, opts, detect, min_view
         feats = [replace(f, corners=f.keypoints) for f in feats]
     times["detect"] = time.perf_counter() - t0
     shape = grey[0].shape[:2]
-    per, info_pairs, counts, n_static, flags = [], [], {}, 0, ([], [], [])
+    per, epis, info_pairs, counts, n_static, flags = [], [], [], {}, 0, ([], [], [])
     for g, views in enumerate(groups):
         if len(views) < 2:
             per.append(None)
+            epis.append(None)
             continue
         res = track_session([grey[v] for v in views], [feats[v] for v in views], opts, rng,
                             _prefixed(report, labels[g], len(groups)), T=None if T is None else T[views],
                             names=[names[v] for v in views])
         uv = keep_tracks(res.uv, min_views, max_tracks, shape)
         per.append(uv)
+        epis.append(res.epipoles)
         _merge_times(times, res.time_s)
         for k, v in res.counts.items():
             counts[k] = counts.get(k, 0) + v
@@ -213,7 +215,8 @@ def _track_features(images, *, T, groups, labels, method, opts, detect, min_view
         for lst, src in zip(flags, (res.inconsistent, res.repaired, res.set_by_translations)):
             lst += [(views[a], views[b]) for a, b in src]
     t0 = time.perf_counter()
-    uv, links = link_groups(grey, feats, groups, labels, per, opts, rng, report)
+    uv, links = link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=T,
+                            rotations=None if rotations is None else np.asarray(rotations, float))
     times["link"] = time.perf_counter() - t0
     uv = uv[:, np.isfinite(uv[..., 0]).sum(0) >= min_views]
     if uv.shape[1] < min_tracks:

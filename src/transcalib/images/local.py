@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["local_median", "local_linear", "detrended"]
+__all__ = ["local_median", "local_linear", "local_affine", "detrended"]
 
 
 def local_median(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k: int = 6) -> np.ndarray:
@@ -84,6 +84,60 @@ def local_linear(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k:
             w = w * (r <= cut)
         out[:, c] = a
     return out[:, 0] if seeds_v.ndim == 1 else out
+
+
+def local_affine(src_a: np.ndarray, src_b: np.ndarray, query: np.ndarray, k: int = 12, keep: float = 0.7,
+                 return_residual: bool = False):
+    """The local affine map of correspondences ``src_a -> src_b`` at each query point.
+
+    A trimmed linear fit of each target coordinate to the ``k`` nearest sources (as
+    :func:`local_linear`): ``x_b ~ p + J (x_a - q)`` near each query ``q``. The map of a
+    small patch between views of any orientation (rotation, scale, foreshortening).
+
+    Parameters
+    ----------
+    src_a, src_b : (m, 2) float
+        Corresponding points of two views.
+    query : (q, 2) float
+        Points of the first view.
+    k : int
+    keep : float
+
+    return_residual : bool
+        Also return how far the neighbours are from the affine map.
+
+    Returns
+    -------
+    p : (q, 2) float
+        Predicted positions in the second view (NaN with fewer than 4 sources).
+    J : (q, 2, 2) float
+        Local Jacobians ``d x_b / d x_a``.
+    residual : (q,) float
+        With ``return_residual``: the largest misfit (px) of the neighbours kept by the
+        trimming (large next to a depth discontinuity, where no affine map fits).
+    """
+    nq = len(query)
+    if len(src_a) < 4 or nq == 0:
+        none = (np.full((nq, 2), np.nan), np.full((nq, 2, 2), np.nan))
+        return none + (np.full(nq, np.inf),) if return_residual else none
+    kk = min(k, len(src_a))
+    _, nn = cKDTree(src_a).query(query, k=kk)
+    nn = nn.reshape(nq, kk)
+    du, dv = src_a[nn, 0] - query[:, None, 0], src_a[nn, 1] - query[:, None, 1]
+    scale = np.maximum(np.sqrt((du * du + dv * dv).mean(1)), 1e-6)[:, None]
+    du, dv = du / scale, dv / scale
+    rank = np.full(nq, max(3, int(keep * kk)) - 1)
+    p, J, res = np.empty((nq, 2)), np.empty((nq, 2, 2)), np.zeros(nq)
+    for c in range(2):
+        y, w = src_b[nn, c], np.ones((nq, kk))
+        for _ in range(2):
+            a, b, cc = _weighted_plane(w, du, dv, y)
+            r = np.abs(a[:, None] + b[:, None] * du + cc[:, None] * dv - y)
+            cut = np.take_along_axis(np.sort(r, axis=1), rank[:, None], axis=1)
+            w = (r <= cut).astype(float)
+        p[:, c], J[:, c, 0], J[:, c, 1] = a, b / scale[:, 0], cc / scale[:, 0]
+        res = np.maximum(res, np.max(np.where(w > 0, r, 0.0), axis=1))
+    return (p, J, res) if return_residual else (p, J)
 
 
 def _weighted_plane(w, du, dv, y, reg: float = 1e-6):
