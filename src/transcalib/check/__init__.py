@@ -9,8 +9,9 @@ and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
 =========================  ==============================================================
 code                       meaning
 =========================  ==============================================================
-``translations_coplanar``  the translations (within the sessions, in the flange frame) nearly lie in a plane
-``translations_small``     the translations are tiny compared with the scene distance
+``translations_coplanar``  the translations of one orientation nearly lie in a plane
+``translations_small``     the translations (within sessions) are tiny compared with the scene distance (not
+                           checked with >= 2 single views: their orientations determine K and R)
 ``translations_coplanar_known_params``  coplanar translations made identifiable by known parameters
 ``null_space_2d``          the linear system has a nearly two-dimensional null space
 ``points_behind_camera``   reconstructed points behind the camera in some view
@@ -34,7 +35,7 @@ import numpy as np
 
 from ..errors import DegenerateError, Diagnostic
 from ..types import Calibration, LinearEstimate
-from ..validate import as_uv_T
+from ..validate import WEAK_SPAN_RATIO, as_uv_T
 from .common import camera_poses, depths
 from .linear import check_null_space
 from .points import check_outliers, check_points_behind, check_views
@@ -53,7 +54,7 @@ def skipped(check: str, reason) -> Diagnostic:
 
 
 def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_rotation: bool = True,
-             unit: str = "units", all_uv=None, rotation_data=None, sessions=None) -> list:
+             unit: str = "units", all_uv=None, rotation_data=None, sessions=None, views_left_out=None) -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
     Parameters
@@ -83,6 +84,8 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
         Session of each view (views of one flange orientation; default
         ``calibration.hand_eye``'s, else one session): the motion within sessions is what
         determines the camera, and where image motion is parallax.
+    views_left_out : (n_views,) bool, optional
+        Views the start left out (their poses contradict their images; reported there).
 
     Returns
     -------
@@ -95,8 +98,15 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
     K, X = np.asarray(calibration.K, float), np.asarray(calibration.X, float)
     sessions = _sessions(calibration, sessions, len(T))
     R_cam, C = camera_poses(calibration, T)
-    out = check_translations(_session_moves(T, calibration, sessions), focal_px=0.5 * (K[0, 0] + K[1, 1]),
-                             distance=_scene_distance(R_cam, X, C), unit=unit)
+    out = []
+    sizes = np.bincount(sessions)
+    if np.sum(sizes == 1) < 2:  # >= 2 single views determine K and R whatever the moves
+        moves, frame = _session_moves(T, calibration, sessions)
+        # coplanar moves leave K and R undetermined at one orientation only; with several the
+        # start's information test names what is undetermined
+        ratio = WEAK_SPAN_RATIO if np.sum(sizes >= 1) == 1 else 0.0
+        out += check_translations(moves, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=_scene_distance(R_cam, X, C),
+                                  unit=unit, frame=frame, coplanar_ratio=ratio)
     if linear is None:
         linear = calibration if isinstance(calibration, LinearEstimate) else calibration.linear
     if linear is not None:
@@ -104,7 +114,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
     out += _behind(uv, T, calibration)
     if isinstance(calibration, Calibration):
         out += _track_checks(uv if all_uv is None else all_uv, calibration, sessions)
-        out += check_views(uv, calibration.residuals_px, used=calibration.inliers)
+        out += check_views(uv, calibration.residuals_px, used=calibration.inliers, left_out=views_left_out)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
         if check_rotation:
             rot_uv, rot_cal = rotation_data if rotation_data is not None else (uv, calibration)
@@ -123,18 +133,21 @@ def _sessions(calibration, sessions, n_views: int) -> np.ndarray:
     return np.zeros(n_views, int) if he is None else np.asarray(he.session_of_view, int)
 
 
-def _session_moves(T, calibration, sessions) -> np.ndarray:
-    """The moves that determine the camera: within each session of >= 2 views, in the
-    flange frame (``R_s^T (T_i - mean_s T)``; the translations themselves for one
-    orientation)."""
+def _session_moves(T, calibration, sessions) -> tuple:
+    """``(moves (m, 3), frame)``: the moves that determine the camera, within each session
+    of >= 2 views, in the model's flange frame (``R_s^T (T_i - mean_s T)``) and named in
+    the user's terms: the robot axes for one orientation (or without rotations), the flange
+    axes for several; eye-to-hand the model's flange frame is the robot base."""
     R_i = getattr(calibration, "flange_rotations", None)
+    he = getattr(calibration, "hand_eye", None)
+    if R_i is None or (he.setup == "eye-in-hand" and len(np.unique(sessions)) == 1):
+        return T - T.mean(axis=0), "robot"
     moves = []
     for s in np.unique(sessions):
         views = np.flatnonzero(sessions == s)
         if len(views) >= 2:
-            d = T[views] - T[views].mean(axis=0)
-            moves.append(d if R_i is None else d @ np.asarray(R_i)[views[0]])
-    return np.concatenate(moves) if moves else T - T.mean(axis=0)
+            moves.append((T[views] - T[views].mean(axis=0)) @ np.asarray(R_i)[views[0]])
+    return np.concatenate(moves), "flange" if he.setup == "eye-in-hand" else "robot base"
 
 
 def _scene_distance(R_cam, X, C) -> float | None:

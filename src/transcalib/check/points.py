@@ -52,7 +52,7 @@ def check_points_behind(uv, T, calibration) -> list:
 
 def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINTS,
                 residual_ratio: float = VIEW_RESIDUAL_RATIO, alpha: float = 1e-4,
-                min_excess_px: float = 0.1) -> list:
+                min_excess_px: float = 0.1, left_out=None) -> list:
     """Warn about views with very few points and views whose residuals stand out.
 
     Parameters
@@ -74,6 +74,8 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
     min_excess_px : float
         ... and the view's RMS must exceed the others' by this much (very precise tracks
         make harmless differences of hundredths of a pixel significant).
+    left_out : (n_views,) bool, optional
+        Views left out on purpose (already reported): not counted as having few points.
 
     Returns
     -------
@@ -88,7 +90,7 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
         ok &= np.asarray(used, bool)[None, :]
     counts = ok.sum(axis=1)
     out = []
-    few = np.flatnonzero(counts < min_points)
+    few = np.flatnonzero((counts < min_points) & (True if left_out is None else ~np.asarray(left_out, bool)))
     if len(few):
         detail = ", ".join(f"view {i}: {counts[i]}" for i in few[:10])
         out.append(Diagnostic(

@@ -327,6 +327,9 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings, report_worker=worker)
     if hand_eye is not None:
         written += write_hand_eye(hand_eye, plan["out"], args.unit)
+    notes = _size_notes(cal, uv, plan)
+    for note in notes:
+        progress.log(f"note: {note}")
     if args.images:
         written.insert(0, plan["out"] / "tracks.csv")
     t_end = time.perf_counter()
@@ -339,7 +342,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
         summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)
         summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
                        outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings,
-                       memory_peak_gib=memory)
+                       memory_peak_gib=memory, notes=notes)
         print_json(summary)
     else:
         print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
@@ -357,6 +360,18 @@ def _peak_rss_gib() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
+
+
+def _size_notes(cal, uv, plan) -> list[str]:
+    """What the outputs could not know: the image size, without images, ``--image-size``
+    or ``--truth``, for the formats that state it."""
+    if plan["image_size"] is not None or not {"opencv", "ros", "colmap"} & set(plan["formats"]):
+        return []
+    from ..io.formats import image_size_or_extent
+
+    w, h = image_size_or_extent(cal, uv)
+    return [f"the image size is unknown (tracks only): camera.yaml, camera_info.yaml and COLMAP state {w}x{h}, the "
+            "extent of the tracked pixels; give --image-size WIDTHxHEIGHT for the true size"]
 
 
 def _size_source(args, plan) -> str | None:

@@ -82,23 +82,25 @@ class SessionScene:
         scene: the recorded poses become ``R_i^T`` and ``-R_i^T T_i``."""
         if self.setup != "eye-in-hand":
             raise InputError("eye_to_hand() applies to an eye-in-hand scene")
+        return self._poses_inverted("eye-to-hand")
+
+    def as_eye_in_hand(self) -> "SessionScene":
+        """The scene with the poses the model uses: eye-to-hand poses inverted (itself
+        eye-in-hand)."""
+        return self if self.setup == "eye-in-hand" else self._poses_inverted("eye-in-hand")
+
+    def _poses_inverted(self, setup: str) -> "SessionScene":
         Rt = np.transpose(self.R, (0, 2, 1))
-        return replace(self, R=Rt, T=-np.einsum("vij,vj->vi", Rt, self.T), setup="eye-to-hand")
+        return replace(self, R=Rt, T=-np.einsum("vij,vj->vi", Rt, self.T), setup=setup)
 
     def camera_rotations(self) -> np.ndarray:
         """(n_views, 3, 3) scene -> camera rotations ``(R_i R_X)^T`` (eye-in-hand)."""
-        return np.transpose(self._eye_in_hand().R @ self.R_X, (0, 2, 1))
+        return np.transpose(self.as_eye_in_hand().R @ self.R_X, (0, 2, 1))
 
     def camera_centres(self) -> np.ndarray:
         """(n_views, 3) camera centres in the scene frame, ``T_i + R_i t_X`` (eye-in-hand)."""
-        scene = self._eye_in_hand()
+        scene = self.as_eye_in_hand()
         return scene.T + scene.R @ self.t_X
-
-    def _eye_in_hand(self) -> "SessionScene":
-        if self.setup == "eye-in-hand":
-            return self
-        Rt = np.transpose(self.R, (0, 2, 1))
-        return replace(self, R=Rt, T=-np.einsum("vij,vj->vi", Rt, self.T), setup="eye-in-hand")
 
 
 def look_rotation(direction: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:

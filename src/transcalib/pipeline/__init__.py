@@ -145,7 +145,8 @@ def calibrate(
     t2 = time.perf_counter()
     found = list(start.diagnostics) + diagnose(
         uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
-        unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view)
+        unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
+        views_left_out=start.views_left_out)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     if opts.check_rotation and not opts.refine:

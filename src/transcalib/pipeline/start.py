@@ -171,10 +171,12 @@ def _from_sessions(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng
     # differences of the views inside a session (within the tolerance they count as one)
     F_sessions = np.transpose(g.rotations[g.session_of_view], (0, 2, 1))
     uv_kept = np.where(left_out[:, None, None], np.nan, uv)
+    kept = np.unique(g.session_of_view[~left_out])  # sessions still seen (for the message's axes)
     obs = offset_observability(lin.K, np.zeros(5), lin.R_X.T, joined.t, joined.X, uv_kept, motion.T, F_sessions,
-                               g.rotations, g.labels, fix=opts.refinement.fix,
+                               g.rotations[kept], [g.labels[s] for s in kept], fix=opts.refinement.fix,
                                estimate_skew=opts.refinement.estimate_skew,
-                               square_pixels=opts.refinement.square_pixels, distortion=_start_model(opts))
+                               square_pixels=opts.refinement.square_pixels, distortion=_start_model(opts),
+                               frame="flange" if motion.setup == "eye-in-hand" else "base")
     linear = _linear_estimate(lin, joined.X, in_session, motion.n_views)
     diagnostics = tuple(_orientation_off(i, a, g.tolerance_deg) for i, a in joined.off_views)
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
