@@ -238,21 +238,21 @@ def _order_images(images: list[Path], poses) -> list[Path]:
 # --------------------------------------------------------------------------------------
 
 
-def track_images(images, target, progress: Progress, T=None, sessions=None):
-    """Tracks from images: ``target="squares"`` finds the corners of dark squares; with
-    the robot translations ``T`` the epipoles are checked against them; several
-    ``sessions`` are tracked each alone and linked."""
-    if sessions is not None:
-        from ..images import track_sessions
-
-        return track_sessions([str(p) for p in images], sessions.session_of_view, T=T)
+def track_images(images, target, progress: Progress, poses=None, tolerance_deg: float = SESSION_TOLERANCE_DEG):
+    """Tracks from images: ``target="squares"`` finds the corners of dark squares; else
+    features, with the robot ``poses`` when given: their translations check the epipoles
+    and their orientations group the views into sessions and single views, tracked each
+    and linked across orientations (:func:`transcalib.images.track`)."""
     if target == "squares":
         from ..images import track_squares
 
         return track_squares([str(p) for p in images], progress=progress)
     from ..images import track
 
-    return track([str(p) for p in images], progress=progress, T=T)
+    if poses is None:
+        return track([str(p) for p in images], progress=progress)
+    return track([str(p) for p in images], progress=progress, T=poses.T, rotations=poses.R, sessions=poses.session,
+                 session_tolerance_deg=tolerance_deg)
 
 
 def _observations(args, plan, progress: Progress):
@@ -263,7 +263,7 @@ def _observations(args, plan, progress: Progress):
     poses = plan["poses"]
     if args.images:
         progress.log(f"tracking {len(plan['images'])} images ...")
-        tracks = track_images(plan["images"], args.target, progress, T=poses.T, sessions=plan["sessions"])
+        tracks = track_images(plan["images"], args.target, progress, poses, args.session_tolerance_deg)
         ids = point_id_array(tracks.ids)
         tio.write_tracks_csv(plan["out"] / "tracks.csv", tracks.uv, ids, poses.views)
         return tracks.uv, ids, tracks.colors, [p.name for p in plan["images"]]

@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import DegenerateError, InputError
+from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from .checks import keep_tracks
 from .detect import DetectOptions, detect_all
 from .frames import GroupInfo, PairInfo, TrackInfo, Tracks, load_images, progress_fn
@@ -32,9 +33,6 @@ __all__ = ["track"]
 
 #: With fewer feature tracks seen in 3+ views, ``track(method="auto")`` tries the target mode.
 AUTO_MIN_LONG_TRACKS = 30
-#: Largest angle (degrees) between the flange orientations of two views of one session
-#: when ``track`` groups them itself (as :mod:`transcalib.handeye.sessions` does).
-SESSION_TOLERANCE_DEG = 1.0
 
 
 def track(
@@ -43,6 +41,7 @@ def track(
     T=None,
     rotations=None,
     sessions=None,
+    session_tolerance_deg: float = SESSION_TOLERANCE_DEG,
     method: str = "auto",
     target: str | None = None,
     max_features: int = 2000,
@@ -82,6 +81,8 @@ def track(
     sessions : (n_views,) labels, optional
         The session of each view, overriding the grouping by ``rotations`` (a label used
         once makes a single view).
+    session_tolerance_deg : float
+        Largest angle (degrees) between the orientations of two views of one session.
     method : {"auto", "sift", "corners"}
         The points tracked: ``"corners"`` Shi-Tomasi corners, ``"sift"`` SIFT keypoints;
         ``"auto"`` corners, and when fewer than ``AUTO_MIN_LONG_TRACKS`` tracks reach 3
@@ -147,7 +148,7 @@ def track(
         raise InputError(f"track: min_views must be >= 2, got {min_views}")
     n_images = len(images) if hasattr(images, "__len__") and not isinstance(images, str) else None
     T = _check_T(T, n_images)
-    groups, labels = _groups(rotations, sessions, n_images)
+    groups, labels = _groups(rotations, sessions, n_images, session_tolerance_deg)
     opts = SessionOptions(ratio=ratio, threshold_px=threshold_px, final_threshold_px=final_threshold_px,
                           smooth_px=smooth_px, refine=refine,
                           propagate=PropagateOptions(threshold_px=threshold_px,
@@ -277,7 +278,7 @@ def _check_T(T, n):
     return T
 
 
-def _groups(rotations, sessions, n):
+def _groups(rotations, sessions, n, tolerance_deg=SESSION_TOLERANCE_DEG):
     """The views of each orientation group and its label, or ``(None, None)`` for one
     session of every view."""
     if rotations is None and sessions is None:
@@ -293,7 +294,7 @@ def _groups(rotations, sessions, n):
         R = np.repeat(np.eye(3)[None], len(sessions), axis=0)
     if sessions is not None and n is not None and len(sessions) != n:
         raise InputError(f"track: sessions has {len(sessions)} labels for {n} views; give one label per view")
-    grouping = group_sessions(R, SESSION_TOLERANCE_DEG, session=sessions)
+    grouping = group_sessions(R, tolerance_deg, session=sessions)
     groups = [np.flatnonzero(grouping.session_of_view == s).tolist() for s in range(grouping.n_sessions)]
     return groups, [str(x) for x in grouping.labels]
 

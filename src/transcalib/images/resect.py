@@ -71,7 +71,7 @@ class _Resection:
 
     def _dlt(self, idx):
         A = self.rows[idx].reshape(idx.shape[0], -1, 12)
-        P = np.linalg.svd(A)[2][:, -1]
+        P = np.linalg.svd(A, full_matrices=False)[2][:, -1]
         return P, np.all(np.isfinite(P), axis=1)
 
     def solve(self, samples):
@@ -126,7 +126,7 @@ class _ResectionWithHint(_Resection):
 
     def _dlt(self, idx):
         A = self.rows[idx].reshape(idx.shape[0], -1, 4)
-        p = np.linalg.svd(A)[2][:, -1]
+        p = np.linalg.svd(A, full_matrices=False)[2][:, -1]
         return p, np.all(np.isfinite(p), axis=1)
 
     def errors(self, p):
