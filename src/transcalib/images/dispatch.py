@@ -196,7 +196,7 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
         feats = [replace(f, corners=f.keypoints) for f in feats]
     times["detect"] = time.perf_counter() - t0
     shape = grey[0].shape[:2]
-    per, epis, info_pairs, counts, n_static, flags = [], [], [], {}, 0, ([], [], [])
+    per, epis, info_pairs, counts, n_static, flags, rot = [], [], [], {}, 0, ([], [], []), []
     for g, views in enumerate(groups):
         if len(views) < 2:
             per.append(None)
@@ -208,6 +208,7 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
         uv = keep_tracks(res.uv, min_views, max_tracks, shape)
         per.append(uv)
         epis.append(res.epipoles)
+        rot.append(res.rotation)
         _merge_times(times, res.time_s)
         for k, v in res.counts.items():
             counts[k] = counts.get(k, 0) + v
@@ -229,7 +230,7 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     info = TrackInfo(method="features", time_s=times, pairs=tuple(info_pairs), n_observations=counts,
                      n_static_dropped=n_static, inconsistent_pairs=tuple(flags[0]), repaired_pairs=tuple(flags[1]),
                      pairs_set_by_translations=tuple(flags[2]), groups=group_info, links=tuple(links),
-                     n_shared_points=int((in_groups.sum(0) >= 2).sum()))
+                     n_shared_points=int((in_groups.sum(0) >= 2).sum()), rotation_tests=tuple(rot))
     return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
 
 

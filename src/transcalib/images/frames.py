@@ -108,6 +108,8 @@ class TrackInfo:
         Points seen in two or more groups.
     squares_per_view : tuple of int
         Target mode: squares found in each view.
+    rotation_tests : tuple of RotationTest
+        Each session's rotation test (:mod:`.rotation`; session view indices).
     """
 
     method: str = "features"
@@ -122,6 +124,7 @@ class TrackInfo:
     links: tuple = ()
     n_shared_points: int = 0
     squares_per_view: tuple = ()
+    rotation_tests: tuple = ()
 
     def pair(self, a: int, b: int) -> PairInfo | None:
         """The :class:`PairInfo` of views ``a``, ``b`` (either order), or None."""

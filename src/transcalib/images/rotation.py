@@ -1,46 +1,159 @@
 """The rotation test: are the views of a session pure translations of each other?
 
-(Placeholder: today's test, to be replaced.)
+Under pure translation every view pair's fundamental matrix is ``F = [e]_x`` (2 degrees
+of freedom, :mod:`.epipoles`); a rotation between the views gives a general ``F``
+(7 degrees of freedom). For each view pair with enough moving descriptor matches:
+
+1. a general ``F`` is fitted (USAC MAGSAC, the pair's epipolar threshold); the pair is
+   **tested** only when ``F`` explains at least :data:`MIN_GENERAL_FRACTION` of its matches
+   (a clean pair: on repetitive textures or planes a general ``F`` also fits families of
+   mismatches, and nothing can be concluded);
+2. the pure-translation model is fitted to **the same matches** (``F``'s inliers: an
+   epipole by 2-match RANSAC), and the fraction of them it explains is measured as the
+   distance from the epipolar lines alone, without the sign of the depth. Counting the
+   translation's own inliers instead (its RANSAC on all matches, with cheirality and the
+   depth checks) made the test refuse valid scenes: on a checkered floor, mismatches one
+   period along the epipolar line fit a general ``F`` but have the wrong depth sign, so
+   ``F`` "explained" more matches than the translation (issue 21's false refusal);
+3. the pair is **flagged** when that fraction is below :data:`MIN_EXPLAINED`.
+
+A rotated view breaks every pair it is in, so views are judged, not pairs: a view is
+**rotated** when more than half of its tested pairs are flagged. One stray pair (a
+textured patch that fooled both fits) refuses nothing. :func:`check_pure_translation`
+raises :class:`RotatedViewsError` naming the views and their pairs.
+
+Thresholds from ``benchmarks/bench_tracker_rotation.py`` (rendered scenes with large
+moves, repetitive textures, curved objects, lens distortion, JPEG): the rates are in
+``benchmarks/results/tracker_rotation.md``. Rotations too small to stop the tracker are
+left to the calibration's own rotation test (:mod:`transcalib.check.rotation`), which
+measures each view's rotation with the bundle adjuster.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from ..errors import DegenerateError
+from .epipoles import epipole_ransac, residuals
 
-__all__ = ["RotatedViewsError", "check_pure_translation"]
+__all__ = ["RotatedViewsError", "RotationTest", "PairRotationTest", "check_pure_translation", "rotation_test"]
 
-ROTATION_MIN_F_FRACTION = 0.85
-ROTATION_MAX_E_RATIO = 0.85
+#: A pair is tested when a general fundamental matrix explains at least this fraction of its matches.
+MIN_GENERAL_FRACTION = 0.85
+#: A tested pair is flagged when the pure translation explains less than this fraction of F's inliers.
+MIN_EXPLAINED = 0.85
+#: Fewest descriptor matches (and F inliers) of a tested pair.
+MIN_TEST_MATCHES = 50
+#: A pair whose matches move less than this (median, px) cannot show a rotation.
+MIN_MOTION_PX = 2.0
 
 
 class RotatedViewsError(DegenerateError):
     """Some view pairs were taken with a rotation between them: the pure-translation
-    tracker cannot track them (a :class:`DegenerateError`; the message names the pairs)."""
+    tracker cannot track them (a :class:`DegenerateError`; the message names the views)."""
 
 
-def check_pure_translation(xy: dict, geo: dict, threshold_px: float, names=None, min_matches: int = 50):
-    """Raise :class:`RotatedViewsError` when some view pair was taken with a rotation."""
+@dataclass(frozen=True)
+class PairRotationTest:
+    """The rotation test of one view pair (session view indices ``i < j``).
+
+    Attributes
+    ----------
+    views : (int, int)
+    n_matches : int
+        Descriptor matches.
+    n_general : int
+        Matches a general fundamental matrix explains (0 when not fitted).
+    explained : float
+        Fraction of those the pure translation explains (NaN when not tested).
+    tested : bool
+    flagged : bool
+    """
+
+    views: tuple
+    n_matches: int
+    n_general: int = 0
+    explained: float = float("nan")
+    tested: bool = False
+    flagged: bool = False
+
+
+@dataclass(frozen=True)
+class RotationTest:
+    """The rotation test of a session: every pair, and the views found rotated.
+
+    Attributes
+    ----------
+    pairs : tuple of PairRotationTest
+    rotated_views : tuple of int
+        Views (session indices) with more than half of their tested pairs flagged.
+    """
+
+    pairs: tuple
+    rotated_views: tuple
+
+    @property
+    def n_tested(self) -> int:
+        return sum(p.tested for p in self.pairs)
+
+
+def _general_inliers(x: np.ndarray, y: np.ndarray, threshold_px: float) -> np.ndarray | None:
+    """Inliers ``(m,)`` of a general fundamental matrix (USAC MAGSAC), or None."""
+    try:
+        F, mask = cv2.findFundamentalMat(x.astype(np.float64), y.astype(np.float64), cv2.USAC_MAGSAC, threshold_px,
+                                         0.999, 2000)
+    except cv2.error:  # OpenCV's USAC can fail on degenerate samples
+        return None
+    if F is None or mask is None or F.shape != (3, 3):
+        return None
+    return mask.ravel().astype(bool)
+
+
+def pair_test(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, views=(0, 1)) -> PairRotationTest:
+    """The test of one pair of matches ``x -> y`` ``(m, 2)`` (module docstring, steps 1-3)."""
+    m = len(x)
+    if m < MIN_TEST_MATCHES or np.median(np.linalg.norm(y - x, axis=1)) < MIN_MOTION_PX:
+        return PairRotationTest(views=views, n_matches=m)
+    S = _general_inliers(x, y, threshold_px)
+    n_f = 0 if S is None else int(S.sum())
+    if n_f < max(MIN_TEST_MATCHES, MIN_GENERAL_FRACTION * m):
+        return PairRotationTest(views=views, n_matches=m, n_general=n_f)
+    e, _, _ = epipole_ransac(x[S], y[S], threshold_px=threshold_px, rng=rng)
+    dist = np.full(n_f, np.inf) if e is None else residuals(e, x[S], y[S])[0]
+    explained = float(np.mean(dist < threshold_px))
+    return PairRotationTest(views=views, n_matches=m, n_general=n_f, explained=explained, tested=True,
+                            flagged=explained < MIN_EXPLAINED)
+
+
+def rotation_test(xy: dict, n_views: int, threshold_px: float, rng) -> RotationTest:
+    """The test of every pair of ``xy`` (``(i, j) -> (x (m, 2), y (m, 2))``) and the views
+    with more than half of their tested pairs flagged."""
+    pairs = tuple(pair_test(x, y, threshold_px, rng, views=p) for p, (x, y) in xy.items())
     rotated = []
+    for v in range(n_views):
+        mine = [p for p in pairs if v in p.views and p.tested]
+        if mine and sum(p.flagged for p in mine) > len(mine) / 2:
+            rotated.append(v)
+    return RotationTest(pairs=pairs, rotated_views=tuple(rotated))
+
+
+def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, names=None) -> RotationTest:
+    """:func:`rotation_test`, raising :class:`RotatedViewsError` when a view is rotated."""
+    test = rotation_test(xy, n_views, threshold_px, rng)
+    if not test.rotated_views:
+        return test
     name = (lambda i: str(i)) if names is None else (lambda i: str(names[i]))
-    for (i, j), (xi, xj) in xy.items():
-        g = geo[(i, j)]
-        if len(xi) < min_matches or np.median(np.linalg.norm(xj - xi, axis=1)) < 2.0:
-            continue
-        F, mask = cv2.findFundamentalMat(xi.astype(np.float64), xj.astype(np.float64), cv2.USAC_MAGSAC,
-                                         threshold_px, 0.999, 2000)
-        n_f = 0 if mask is None or F is None else int(mask.sum())
-        n_e = g.n_inliers if g.e is not None else 0
-        if n_f >= max(min_matches, ROTATION_MIN_F_FRACTION * len(xi)) and n_e < ROTATION_MAX_E_RATIO * n_f:
-            rotated.append(f"{name(i)}-{name(j)} (general epipolar geometry: {n_f} of {len(xi)} matches, "
-                           f"pure translation: {n_e})")
-    if rotated:
-        raise RotatedViewsError(
-            "the views are not related by pure translations: the camera rotated between views "
-            + "; ".join(rotated[:6]) + ("; ..." if len(rotated) > 6 else "")
-            + ". The pure-translation tracker needs one camera orientation per session. If the robot turned "
-            "the wrist between groups of views, give the flange orientations (a session per orientation): "
-            "transcalib.images.track(images, T=T, rotations=R), or the poses file's orientation columns; "
-            "otherwise check that the robot did not rotate")
+    flagged = [p for p in test.pairs if p.flagged and set(p.views) & set(test.rotated_views)]
+    detail = "; ".join(f"{name(p.views[0])}-{name(p.views[1])} (general epipolar geometry: {p.n_general} of "
+                       f"{p.n_matches} matches, pure translation: {round(p.explained * p.n_general)} of them)"
+                       for p in flagged[:6]) + ("; ..." if len(flagged) > 6 else "")
+    raise RotatedViewsError(
+        f"the views are not related by pure translations: the camera rotated at view(s) "
+        f"{', '.join(name(v) for v in test.rotated_views)}, seen in the pairs {detail}. The pure-translation "
+        "tracker needs one camera orientation per session. If the robot turned the wrist between groups of "
+        "views, give the flange orientations (a session per orientation): "
+        "transcalib.images.track(images, T=T, rotations=R), or the poses file's orientation columns; "
+        "otherwise check that the robot did not rotate")

@@ -27,7 +27,7 @@ from .detect import Features, match_pair
 from .epipoles import PairGeometry, fit_translations, verify_pairs
 from .propagate import PropagateOptions, Pyramids, predict_missing, propagate
 from .refine import RefineOptions, SmoothedImages, refine_to_reference
-from .rotation import check_pure_translation
+from .rotation import RotationTest, check_pure_translation
 
 __all__ = ["SessionOptions", "SessionResult", "track_session"]
 
@@ -82,6 +82,8 @@ class SessionResult:
         Observations after each stage.
     n_static_dropped : int
     time_s : dict str -> float
+    rotation : RotationTest
+        The rotation test of the session's pairs (:mod:`.rotation`).
     """
 
     uv: np.ndarray
@@ -94,6 +96,7 @@ class SessionResult:
     counts: dict
     n_static_dropped: int
     time_s: dict
+    rotation: RotationTest | None = None
 
 
 class _Timer:
@@ -149,7 +152,7 @@ def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, 
         xy = _matches(feats, opts.ratio, report)
     with timer("verify"):
         geo, inconsistent, repaired = verify_pairs(xy, n, opts.threshold_px, rng, report)
-        check_pure_translation(xy, geo, opts.threshold_px, names)
+        rotation = check_pure_translation(xy, n, opts.threshold_px, rng, names)
         replaced = []
         if T is not None:
             geo, replaced = fit_translations(geo, xy, T, opts.threshold_px, float(max(shape)), rng)
@@ -175,7 +178,7 @@ def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, 
     counts["static"] = n_observations(uv)
     return SessionResult(uv=uv, geometry=geo, n_matches={p: len(v[0]) for p, v in xy.items()}, epipoles=epi_final,
                          inconsistent=inconsistent, repaired=repaired, set_by_translations=replaced, counts=counts,
-                         n_static_dropped=n_static, time_s=timer.times)
+                         n_static_dropped=n_static, time_s=timer.times, rotation=rotation)
 
 
 def _extend(smoothed, uv, epi, opts: SessionOptions, thr, rng, counts):
