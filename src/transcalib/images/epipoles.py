@@ -383,6 +383,21 @@ def _agrees(e_pred, x, y, inliers, thr, min_fraction=0.8):
     return max(_support(e_pred, xi, yi, thr).mean(), _support(-e_pred, xi, yi, thr).mean()) >= min_fraction
 
 
+def _support_counts(E: np.ndarray, x: np.ndarray, y: np.ndarray, thr: float) -> np.ndarray:
+    """Matches consistent with each hypothesis ``E (h, 3)`` of either sign (:func:`_support`
+    of ``e`` and ``-e``, the larger count): ``(h,)`` int, all hypotheses at once."""
+    d = E[:, None, 2:3] * x[None] - E[:, None, :2]  # (h, m, 2) line directions
+    disp = (y - x)[None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nd = np.sqrt((d * d).sum(-1))
+        dist = np.abs(d[..., 0] * disp[..., 1] - d[..., 1] * disp[..., 0]) / nd
+    on = dist < thr
+    moving = (np.linalg.norm(y - x, axis=1) >= MOVING_PX)[None]
+    on |= ~moving
+    along = (d * disp).sum(-1)
+    return np.maximum((on & ((along > 0) | ~moving)).sum(1), (on & ((along < 0) | ~moving)).sum(1))
+
+
 def fit_translations(geo: dict, xy: dict, T: np.ndarray, threshold_px: float, scale: float, rng,
                      trials: int = 200) -> tuple[dict, list]:
     """Known robot translations: every epipole is ``e_ij ~ A (T_j - T_i)`` with one ``A = K R``.
@@ -402,16 +417,10 @@ def fit_translations(geo: dict, xy: dict, T: np.ndarray, threshold_px: float, sc
         return geo, []
     coords = {p: B.T @ (np.asarray(T[p[1]], float) - T[p[0]]) for p in geo}
     n_min = int(np.ceil((3 * k - 1) / 2))
-    best, best_M = -1, None
-    for _ in range(trials):
-        sub = rng.choice(len(pairs), n_min, replace=False)
-        M = _fit_A([geo[pairs[s]].e for s in sub], np.array([coords[pairs[s]] for s in sub]), scale)
-        score = 0
-        for p, (x, y) in xy.items():
-            e = M @ coords[p]
-            score += int(max(_support(e, x, y, threshold_px).sum(), _support(-e, x, y, threshold_px).sum()))
-        if score > best:
-            best, best_M = score, M
+    Ms = np.array([_fit_A([geo[pairs[s]].e for s in sub], np.array([coords[pairs[s]] for s in sub]), scale)
+                   for sub in (rng.choice(len(pairs), n_min, replace=False) for _ in range(trials))])
+    score = sum(_support_counts(np.einsum("hak,k->ha", Ms, coords[p]), x, y, threshold_px) for p, (x, y) in xy.items())
+    best_M = Ms[int(np.argmax(score))]
     consistent = [p for p in pairs if _agrees(best_M @ coords[p], *xy[p], geo[p].inliers, threshold_px)]
     if len(consistent) >= n_min:
         best_M = _fit_A([geo[p].e for p in consistent], np.array([coords[p] for p in consistent]), scale)

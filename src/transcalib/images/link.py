@@ -24,12 +24,14 @@ and B into A), so a point seeded in either session is linked.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .checks import merge_duplicates
-from .detect import match_pair
+from .detect import match_pair, n_threads
 from .epipoles import pair_epipole, residuals
 from .frames import LinkInfo
 from .local import local_affine
@@ -141,6 +143,7 @@ def _transfer(smoothed, pairs, x, w, a, b, opts, shape, rng, H=None, rounds: int
     wa = interpolate_w(x[ok], w[ok], src_a)
     P, _ = resect(src_a, wa, src_b, 2 * opts.threshold_px, rng, H=H)
     order = np.flatnonzero(ok)[np.argsort(cKDTree(src_a).query(x[ok])[0], kind="stable")]
+    rounds = 1 if H is not None else rounds  # the hint predicts well everywhere: no batches
     batches = np.array_split(order, rounds) if len(order) >= 50 * rounds else [order]
     for batch in batches + [order]:
         todo = batch[~np.isfinite(out[batch, 0])]
@@ -276,6 +279,18 @@ def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=Non
             if uvg is not None and len(groups[g]) >= 4:
                 cams[g] = session_camera(uvg, np.asarray(T)[groups[g]], rng=0)
     steps = [(A, B) for A in range(len(groups)) if per[A] is not None for B in range(len(groups)) if B != A]
+    for v in range(n):  # built before the threads share them
+        smoothed[v]
+    with ThreadPoolExecutor(n_threads()) as pool:
+        _link_steps(uv, owner, steps, groups, per, epis, cams, rotations, smoothed, pairs, opts, shape, rng, report,
+                    pool)
+    uv = merge_duplicates(uv, min_shared=2)  # one common view is no evidence of one point
+    return uv, _link_infos(uv, groups, labels, pairs)
+
+
+def _link_steps(uv, owner, steps, groups, per, epis, cams, rotations, smoothed, pairs, opts, shape, rng, report, pool):
+    """The points of session ``A`` found in the views of group ``B``, for every step
+    ``(A, B)``, written into ``uv`` (the views of ``B`` on the threads of ``pool``)."""
     for k, (A, B) in enumerate(steps):
         pts = np.flatnonzero(owner == A)
         a1 = _by_support(uv[:, pts], groups[A])[0]
@@ -284,11 +299,16 @@ def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=Non
         in_a1 = np.flatnonzero(np.isfinite(uv[a1, pts, 0]) & (np.isfinite(uv[groups[A]][:, pts, 0]).sum(0) >= need))
         w = affine_structure(uv[groups[A]][:, pts], epis[A] or {}, groups[A].index(a1), in_a1)
         found = np.full((len(groups[B]), len(pts), 2), np.nan)
-        for bi, b in enumerate(groups[B]):
+
+        def into(b, seed, A=A, a1=a1, pts=pts, in_a1=in_a1, w=w):
             sel = ~np.isfinite(uv[b, pts[in_a1], 0])
             H = None if cams[A] is None else infinite_homography(cams[A], rotations[a1], rotations[b])
-            found[bi, in_a1[sel]] = _transfer(smoothed, pairs, uv[a1, pts[in_a1[sel]]], w[sel], a1, b, opts, shape,
-                                              rng, H=H)
+            return sel, _transfer(smoothed, pairs, uv[a1, pts[in_a1[sel]]], w[sel], a1, b, opts, shape,
+                                  np.random.default_rng(seed), H=H)
+
+        seeds = rng.integers(2**32, size=len(groups[B]))  # one stream per view: the same result on any thread
+        for bi, (sel, got) in enumerate(pool.map(into, groups[B], seeds)):
+            found[bi, in_a1[sel]] = got
         if len(groups[B]) > 1:
             keep = _consistent_in_session(found, epis[B] or {}, opts.threshold_px)
             found[~keep] = np.nan
@@ -296,8 +316,6 @@ def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=Non
             new = np.isfinite(found[bi, :, 0])
             uv[b, pts[new]] = found[bi, new]
         report("link", k + 1, len(steps))
-    uv = merge_duplicates(uv, min_shared=2)  # one common view is no evidence of one point
-    return uv, _link_infos(uv, groups, labels, pairs)
 
 
 def _link_infos(uv, groups, labels, pairs) -> list[LinkInfo]:

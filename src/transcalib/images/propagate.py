@@ -21,13 +21,14 @@ alignment: re-detection along the epipolar lines.
 from __future__ import annotations
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .detect import to_u8
+from .detect import n_threads, to_u8
 from .epipoles import MOVING_PX, direction, pair_epipole, residuals, signed_distance
 from .local import local_linear
 
@@ -171,27 +172,30 @@ def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: Prop
     n = len(corners)
     uv = np.zeros((n, 0, 2))
     steps, done = n * (n - 1), 0
-    for r in range(n):
-        cand = np.asarray(corners[r], float).reshape(-1, 2)
-        seen_r = np.isfinite(uv[r, :, 0])
-        if seen_r.any() and len(cand):
-            cand = cand[cKDTree(uv[r, seen_r]).query(cand)[0] >= opts.min_spacing_px]
-        seeds = cand[_spread(cand, max(0, opts.max_seeds - uv.shape[1]), shape)]
-        obs = np.full((n, len(seeds), 2), np.nan)
-        obs[r] = seeds
-        for j in range(n):
-            if j == r:
-                continue
-            done += 1
-            if len(seeds):
+    with ThreadPoolExecutor(n_threads()) as pool:  # the views j of one reference on both cores
+        for r in range(n):
+            cand = np.asarray(corners[r], float).reshape(-1, 2)
+            seen_r = np.isfinite(uv[r, :, 0])
+            if seen_r.any() and len(cand):
+                cand = cand[cKDTree(uv[r, seen_r]).query(cand)[0] >= opts.min_spacing_px]
+            seeds = cand[_spread(cand, max(0, opts.max_seeds - uv.shape[1]), shape)]
+            obs = np.full((n, len(seeds), 2), np.nan)
+            obs[r] = seeds
+
+            def follow(j, r=r, seeds=seeds):
                 g = geo.get((min(r, j), max(r, j)))
-                src = _sources(sources, uv, r, j)
-                obs[j] = _follow(pyr, r, j, seeds, src, pair_epipole(geo, r, j), bool(g is not None and g.static),
-                                 opts, shape)
-            if report is not None:
-                report("chain", done, steps)
-        keep = np.isfinite(obs[..., 0]).sum(0) >= 2
-        uv = np.concatenate([uv, obs[:, keep]], axis=1)
+                return _follow(pyr, r, j, seeds, _sources(sources, uv, r, j), pair_epipole(geo, r, j),
+                               bool(g is not None and g.static), opts, shape)
+
+            others = [j for j in range(n) if j != r]
+            for j, found in zip(others, pool.map(follow, others) if len(seeds) else [None] * len(others)):
+                done += 1
+                if found is not None:
+                    obs[j] = found
+                if report is not None:
+                    report("chain", done, steps)
+            keep = np.isfinite(obs[..., 0]).sum(0) >= 2
+            uv = np.concatenate([uv, obs[:, keep]], axis=1)
     return uv
 
 

@@ -18,12 +18,13 @@ The stages, each timed in :class:`~.frames.TrackInfo` ``time_s``:
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .checks import check_added, check_session, drop_static, n_observations
-from .detect import Features, match_pair
+from .detect import Features, match_pair, n_threads
 from .epipoles import PairGeometry, fit_translations, verify_pairs
 from .propagate import PropagateOptions, Pyramids, predict_missing, propagate
 from .refine import RefineOptions, SmoothedImages, refine_to_reference
@@ -117,14 +118,16 @@ class _Timer:
 
 
 def _matches(feats: list[Features], ratio: float, report):
-    """Descriptor matches of every pair ``i < j``: ``{(i, j): (x_i (m, 2), x_j (m, 2))}``."""
+    """Descriptor matches of every pair ``i < j``: ``{(i, j): (x_i (m, 2), x_j (m, 2))}``,
+    on :func:`~.detect.n_threads` threads (the matrix products release the GIL)."""
     n = len(feats)
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     xy = {}
-    for k, (i, j) in enumerate(pairs):
-        m = match_pair(feats[i].descriptors, feats[j].descriptors, ratio)
-        xy[(i, j)] = (feats[i].keypoints[m[:, 0]], feats[j].keypoints[m[:, 1]])
-        report("match", k + 1, len(pairs))
+    with ThreadPoolExecutor(n_threads()) as pool:
+        found = pool.map(lambda p: match_pair(feats[p[0]].descriptors, feats[p[1]].descriptors, ratio), pairs)
+        for k, ((i, j), m) in enumerate(zip(pairs, found)):
+            xy[(i, j)] = (feats[i].keypoints[m[:, 0]], feats[j].keypoints[m[:, 1]])
+            report("match", k + 1, len(pairs))
     return xy
 
 
