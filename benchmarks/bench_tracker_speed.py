@@ -12,7 +12,8 @@ median of ``--repeat`` wall times (warm disk cache, the files read once before):
 - with ``--main SRC``, the same command with ``PYTHONPATH=SRC`` (another checkout);
 - COLMAP's SIFT extraction plus exhaustive matching (pycolmap, CPU, 2 threads), alone.
 
-Also the tracker's own stage times (``Tracks.info.time_s``, in process) and fx against
+Wall times depend on what else the machine runs; CPU times (user + system, every
+thread) much less, so both are given. Also the tracker's own stage times (``Tracks.info.time_s``, in process) and fx against
 the truth. Writes ``benchmarks/results/tracker_speed.md`` (``--quick``: a scratch folder,
 one repetition).
 """
@@ -57,27 +58,35 @@ def write_set(folder: Path, n, size, ext, rng):
 
 
 def run_cli(paths, folder: Path, src: str):
-    """Wall time (s) of the command and its summary."""
+    """Wall and CPU time (s, the child's user + system) of the command, and its summary."""
     env = dict(os.environ, PYTHONPATH=src, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "2"))
     out = folder / f"out_{abs(hash(src)) % 1000}"
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _children_cpu()
     r = subprocess.run([sys.executable, "-m", "transcalib.cli", "calibrate", "--images", *map(str, paths), "--poses",
                         str(folder / "poses.csv"), "--out", str(out), "--formats", "json", "--json", "--quiet"], capture_output=True, text=True, env=env)
-    dt = time.perf_counter() - t0
+    dt, cpu = time.perf_counter() - t0, _children_cpu() - c0
     if r.returncode not in (0, 1):
         raise RuntimeError(r.stderr[-2000:])
-    return dt, json.loads(r.stdout)
+    return dt, cpu, json.loads(r.stdout)
+
+
+def _children_cpu() -> float:
+    import resource
+
+    u = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return u.ru_utime + u.ru_stime
 
 
 def run_colmap(paths, folder: Path):
-    """Wall time (s) of COLMAP's extraction + exhaustive matching on the images."""
+    """Wall and CPU time (s, this process's threads) of COLMAP's extraction + exhaustive
+    matching on the images."""
     import pycolmap
 
     db = folder / "colmap.db"
     if db.exists():
         db.unlink()
     img_dir = paths[0].parent
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     ext = pycolmap.FeatureExtractionOptions()
     ext.num_threads = 2
     pycolmap.extract_features(db, img_dir, image_names=[p.name for p in paths],
@@ -86,7 +95,7 @@ def run_colmap(paths, folder: Path):
     mopt = pycolmap.FeatureMatchingOptions()
     mopt.num_threads = 2
     pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def stages(paths):
@@ -122,19 +131,26 @@ def main(argv=()) -> str:
             for p in paths:
                 p.read_bytes()  # warm the disk cache
             times = {"ours": [], "main": [], "colmap": []}
+            cpus = {"ours": [], "main": [], "colmap": []}
             fx = {}
             for _ in range(repeat):
-                dt, summ = run_cli(paths, folder, here)
+                dt, cpu, summ = run_cli(paths, folder, here)
                 times["ours"].append(dt)
+                cpus["ours"].append(cpu)
                 fx["ours"] = summ["K"][0][0]
                 if args.main:
-                    dt, summ = run_cli(paths, folder, args.main)
+                    dt, cpu, summ = run_cli(paths, folder, args.main)
                     times["main"].append(dt)
+                    cpus["main"].append(cpu)
                     fx["main"] = summ["K"][0][0]
-                times["colmap"].append(run_colmap(paths, folder))
+                dt, cpu = run_colmap(paths, folder)
+                times["colmap"].append(dt)
+                cpus["colmap"].append(cpu)
             st, n_pts, mean_len = stages(paths)
             med = {k: float(np.median(v)) if v else float("nan") for k, v in times.items()}
-            rows.append([name, med["ours"], med["main"], med["colmap"], med["ours"] / med["colmap"],
+            mc = {k: float(np.median(v)) if v else float("nan") for k, v in cpus.items()}
+            rows.append([name, med["ours"], med["main"], med["colmap"], med["ours"] / med["colmap"], mc["ours"],
+                         mc["main"], mc["colmap"], mc["ours"] / mc["colmap"],
                          100 * (fx["ours"] / K[0, 0] - 1), n_pts, mean_len,
                          ", ".join(f"{k} {v:.2f}" for k, v in st.items())])
             print(rows[-1], file=sys.stderr, flush=True)
@@ -144,8 +160,9 @@ def main(argv=()) -> str:
             f"{' --main ' + args.main if args.main else ''}` (median of {repeat}, wall s; "
             "pycolmap SIFT extraction + exhaustive matching, CPU, 2 threads; 2-core machine shared with other "
             "jobs: " + "; ".join(notes) + ")\n\n"
-            + md_table(["images", "transcalib calibrate --images (s)", "main's command (s)",
-                        "COLMAP extract + match (s)", "ours / COLMAP", "fx error %", "tracks",
+            + md_table(["images", "transcalib calibrate --images (wall s)", "main's command (wall s)",
+                        "COLMAP extract + match (wall s)", "ours / COLMAP (wall)", "ours (CPU s)", "main (CPU s)",
+                        "COLMAP (CPU s)", "ours / COLMAP (CPU)", "fx error %", "tracks",
                         "mean views per track", "tracker stages (s, in process)"], rows))
     print(text)
     (results_dir(args.quick) / "tracker_speed.md").write_text(text + "\n")
