@@ -74,9 +74,10 @@ def outcome(images, T=None, rotated_view: int = -1, T_true=None) -> tuple[str, f
     return result, time.process_time() - c0, msg
 
 
-def run(n_scenes: dict, seed: int, studies=STUDIES, with_T: bool = False, log=print) -> dict:
+def run(n_scenes: dict, seed: int, studies=STUDIES, with_T: bool = False, log=print, checkpoint=None) -> dict:
     """Outcomes per study: ``{study: [(scene index, outcome, cpu s, config), ...]}``;
-    ``n_scenes[study]`` scenes each."""
+    ``n_scenes[study]`` scenes each; ``checkpoint(out)`` every 10 scenes (a long run
+    stopped early still leaves its table)."""
     out = {name: [] for name in studies}
     for k in range(max(n_scenes.values())):
         for name, kw in studies.items():
@@ -87,8 +88,10 @@ def run(n_scenes: dict, seed: int, studies=STUDIES, with_T: bool = False, log=pr
             out[name].append((k, res, cpu, sc.config, msg))
             if res not in ("ok", "named") and (name in ("pure", "pose error") or res != "refused"):
                 log(f"  scene {seed + k} {name}: {res}: {msg[:160]} {sc.config}")
-        if (k + 1) % 25 == 0:
+        if (k + 1) % 10 == 0:
             log(f"  {k + 1}/{max(n_scenes.values())} scenes")
+            if checkpoint is not None:
+                checkpoint(out)
     return out
 
 
@@ -123,13 +126,18 @@ def main(argv=()) -> dict:
     studies = {k: STUDIES[k] for k in args.studies.split(",")}
     counts = {k: (n if k == "pure" else m) for k in studies}
     t0 = time.perf_counter()
-    out = run(counts, args.seed, studies, with_T=args.with_T, log=lambda msg: print(msg, file=sys.stderr, flush=True))
-    text = (f"Rotation test of the tracker: random scenes (seeds from {args.seed}), "
-            f"`track(images{', T=T' if args.with_T else ''})`; "
-            f"`python benchmarks/bench_tracker_rotation.py{' --quick' if args.quick else ''}` "
-            f"({time.perf_counter() - t0:.0f} s)\n\n" + table(out))
-    print(text)
-    (results_dir(args.quick) / "tracker_rotation.md").write_text(text + "\n")
+
+    def write(out, final=False):
+        text = (f"Rotation test of the tracker: random scenes (seeds from {args.seed}), "
+                f"`track(images{', T=T' if args.with_T else ''})`; "
+                f"`python benchmarks/bench_tracker_rotation.py{' --quick' if args.quick else ''}` "
+                f"({time.perf_counter() - t0:.0f} s{'' if final else ', run still going'})\n\n" + table(out))
+        (results_dir(args.quick) / "tracker_rotation.md").write_text(text + "\n")
+        return text
+
+    out = run(counts, args.seed, studies, with_T=args.with_T, log=lambda msg: print(msg, file=sys.stderr, flush=True),
+              checkpoint=write)
+    print(write(out, final=True))
     return out
 
 
