@@ -123,7 +123,8 @@ def test_one_orientation_with_a_view_off_names_it(tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert [w["code"] for w in summary["diagnostics"]] == ["pose_orientation_off"]
-    assert "view 5" in summary["diagnostics"][0]["message"] and "5.00 deg" in summary["diagnostics"][0]["message"]
+    message = summary["diagnostics"][0]["message"]
+    assert "view 5" in message and abs(float(re.search(r"is ([0-9.]+) deg off", message).group(1)) - 5.0) < 0.1
     cal = load(tmp_path / "o")
     assert cal.rms_px < 0.7 and abs(cal.K[0, 2] - sc.K[0, 2]) < 5 * cal.std["cx"]
     assert "one flange orientation" in cal.hand_eye.notes[0]
@@ -149,9 +150,9 @@ def test_single_views_determine_the_offset_at_the_bound():
     bound = sessions_crlb(replace(base, noise_px=0.5))
     rng = np.random.default_rng(0)
     est, reported = [], []
-    for _ in range(30):
+    for trial in range(30):
         uv = np.where(np.isfinite(base.uv), base.uv_true + rng.normal(0, 0.5, base.uv.shape), np.nan)
-        cal = calibrate(uv, Poses.of(base.T, base.R), distortion="none")
+        cal = calibrate(uv, Poses.of(base.T, base.R), distortion="none", rng=trial)
         assert cal.hand_eye.undetermined.shape == (3, 0)
         est.append([cal.K[0, 0], cal.K[1, 1], *cal.hand_eye.t])
         reported.append([cal.std["fx"], cal.std["fy"], *cal.hand_eye.t_std])
