@@ -480,6 +480,9 @@ def test_without_webgl_the_page_says_so_without_an_error(report):
     ({"flange_rotations": np.zeros((4, 3, 3))}, r"flange_rotations must have shape \(n_views, 3, 3\) = \(5, 3, 3\)"),
     ({"extra": np.zeros((10, 3))}, "extra must be a transcalib.report.PointCloud"),
     ({"viewer_points": 0}, "viewer_points must be a positive integer"),
+    ({"point_ids": ["a", "b"]}, r"point_ids must hold one id per point \(40\), got 2"),
+    ({"view_names": ["a.png"]}, r"view_names must hold one name per view \(5\), got 1"),
+    ({"uv": np.zeros((5, 39, 2))}, r"uv must have shape \(n_views, n_points, 2\) = \(5, 40, 2\)"),
 ])
 def test_bad_viewer_input_is_named(kwargs, message):
     from transcalib import InputError

@@ -320,7 +320,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
               "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
               "image_size_from": _size_source(args, plan)}
     ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
-                        truth=plan["truth"])
+                        truth=plan["truth"], flange_rotations=None if hand_eye is None else plan["poses"].R)
     write_timings = {}
     written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings, report_worker=worker)
     if hand_eye is not None:

@@ -239,6 +239,17 @@ def _checked(name: str, a, n: int, dtype) -> np.ndarray | None:
     return a.astype(dtype)
 
 
+def _check_lengths(uv, point_ids, view_names, n: int, V: int) -> None:
+    """:class:`InputError` unless ``uv``, ``point_ids``, ``view_names`` (where given) fit
+    ``n`` points in ``V`` views."""
+    if uv is not None and np.shape(uv) != (V, n, 2):
+        raise InputError(f"uv must have shape (n_views, n_points, 2) = ({V}, {n}, 2), got {np.shape(uv)}")
+    if point_ids is not None and len(point_ids) != n:
+        raise InputError(f"point_ids must hold one id per point ({n}), got {len(point_ids)}")
+    if view_names is not None and len(view_names) != V:
+        raise InputError(f"view_names must hold one name per view ({V}), got {len(view_names)}")
+
+
 def _extra(cloud, lo: float, hi: float, R0, C0, origin, max_points: int, rng) -> dict | None:
     """The extra cloud, subsampled and coloured (see :attr:`ViewerData.extra`)."""
     if cloud is None:
@@ -249,7 +260,7 @@ def _extra(cloud, lo: float, hi: float, R0, C0, origin, max_points: int, rng) ->
     if X.ndim != 2 or X.shape[1] != 3:
         raise InputError(f"the extra cloud's X must have shape (m, 3), got {X.shape}")
     colors = _checked("the extra cloud's colors", cloud.colors, len(X), float)
-    if colors is not None and not np.all((colors >= 0) & (colors <= 255)):
+    if colors is not None and not np.all((colors >= 0) & (colors <= 255)):  # NaN fails too
         raise InputError("the extra cloud's colors must be RGB values 0-255 (uint8)")
     ok = np.flatnonzero(np.isfinite(X).all(axis=1))
     idx = _sample(ok, max_points, rng)
@@ -293,6 +304,7 @@ def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None, f
 
     n, V = cal.n_points, cal.n_views
     poses = view_poses(cal, flange_rotations)
+    _check_lengths(uv, point_ids, view_names, n, V)
     colors = _checked("colors", colors, n, np.uint8)
     ok = np.flatnonzero(np.isfinite(cal.X).all(axis=1))
     idx = _sample(ok, max_points, rng)
