@@ -166,15 +166,16 @@ def test_reconstruction_draws_near_points_over_far_ones():
 
 
 def test_report_data_is_small_whatever_n():
-    """The figures' data (what the worker receives) hold at most a few thousand marks."""
+    """The figures' data (what the worker receives) hold at most a few thousand marks,
+    the 3-D view's at most ``viewer_points`` points."""
     import pickle
 
     from transcalib.report import report_data
     from transcalib.report.figures import MAX_ARROWS, MAX_POINTS
 
     cal = full_calibration(n_points=20_000)
-    data = report_data(cal)
-    assert len(pickle.dumps(data)) < 2_000_000
+    data = report_data(cal, viewer_points=5000)
+    assert len(pickle.dumps(data)) < 2_000_000 and data.viewer.n_drawn == 5000 and data.viewer.n_points == 19_999
     views = data.figures["residuals.png"][1]["views"]
     assert all(len(v["xy"]) <= MAX_ARROWS + 50 for v in views)
     assert len(data.figures["reconstruction.png"][1]["X"]) == MAX_POINTS
