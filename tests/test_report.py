@@ -396,6 +396,12 @@ def test_extra_cloud_colours_and_subsample():
     assert np.array_equal(e["colors"], rgb[keep]) and 7 not in keep
     again = viewer_data(cal, extra=PointCloud(X, None), max_points=200).extra
     assert np.array_equal(again["X"], e["X"]) and not np.array_equal(again["colors"], e["colors"])
+    from transcalib import InputError
+
+    with pytest.raises(InputError, match=r"the extra cloud's colors must be an array of shape \(500, 3\)"):
+        viewer_data(cal, extra=PointCloud(X, rgb[:10]))
+    with pytest.raises(InputError, match=r"the extra cloud's X must have shape \(m, 3\), got \(500,\)"):
+        viewer_data(cal, extra=PointCloud(X[:, 0]))
 
 
 def test_points_coloured_by_image_colour_else_depth():
@@ -477,6 +483,8 @@ def test_without_webgl_the_page_says_so_without_an_error(report):
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"colors": np.zeros((3, 3))}, r"colors must be an array of shape \(40, 3\)"),
+    ({"colors": np.full((40, 3), 0.5)}, "colors must be RGB values, integers 0-255"),
+    ({"extra": None, "colors": np.full((40, 3), 256)}, "colors must be RGB values"),
     ({"flange_rotations": np.zeros((5, 3, 3))}, "flange_rotations of views"),
     ({"flange_rotations": np.zeros((4, 3, 3))}, r"flange_rotations must have shape \(n_views, 3, 3\) = \(5, 3, 3\)"),
     ({"extra": np.zeros((10, 3))}, "extra must be a transcalib.report.PointCloud"),
