@@ -151,7 +151,6 @@ def main(argv: list[str]) -> int:
     times = {}
     for n in sizes:
         times[n] = least(n, repeat)
-        print(f"  ({n:,} points done)", flush=True)
     lines = tables(times)
     print("\n".join(lines))
     note = (f"{time.strftime('%Y-%m-%d %H:%M')}, least of {repeat} run(s) a size; load average at the start "
@@ -159,7 +158,6 @@ def main(argv: list[str]) -> int:
     print(f"({note})")
     out = results_dir(quick) / "report.md"
     out.write_text("# The report's cost (`bench_report.py`)\n\n" + note + ".\n\n```\n" + "\n".join(lines) + "\n```\n")
-    print(f"wrote {out}")
     return 0
 
 
