@@ -363,7 +363,8 @@ def test_orbit_pan_and_zoom(report):
 def test_large_clouds_are_subsampled_and_the_page_says_how_many(tmp_path):
     """60 000 points and an extra coloured cloud of 70 000 (1 000 of them NaN): 50 000 of
     each drawn, and the page says so; the extra cloud keeps its colours."""
-    from transcalib.report import MAX_POINTS, PointCloud, write_report
+    from transcalib.report import PointCloud, write_report
+    from transcalib.report.viewer import MAX_POINTS
 
     cal = full_calibration(n_points=60_000)
     rng = np.random.default_rng(3)
