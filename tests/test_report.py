@@ -252,8 +252,9 @@ def _legend(tab) -> str:
 @needs_chromium
 def test_3d_view_draws_every_point_and_frustum_and_loads_nothing(report):
     """The view loads without a console error; three.js drew every reconstructed point
-    (299: one of 300 is NaN) and 11 segments per view's frustum plus the 3 robot axes;
-    the page requested nothing but itself (and the data inside it)."""
+    (299: one of 300 is NaN), 11 segments per view's frustum, the 3 world axes and 3 per
+    view for the robot base of each view (the calibration is eye-to-hand); the page
+    requested nothing but itself (and the data inside it)."""
     folder, _, cal = report
     page = folder / "report.html"
     with browser.Tab() as tab:
@@ -266,7 +267,8 @@ def test_3d_view_draws_every_point_and_frustum_and_loads_nothing(report):
     assert errors == []
     assert stats["points"] == stats["cloud"] == n  # primitives of the last frame, counted by three.js
     assert stats["frusta"] == cal.n_views and stats["frustum_lines"] == 11 * cal.n_views
-    assert stats["lines"] == 11 * cal.n_views + 3 and stats["flange"] == 0 and stats["extra"] == 0
+    assert stats["frames"] == cal.n_views and stats["extra"] == 0  # eye-to-hand: the robot base of each view
+    assert stats["lines"] == 11 * cal.n_views + 3 + 3 * cal.n_views
     assert attrs == {"pointsDrawn": str(n), "pointsTotal": str(n), "frusta": str(cal.n_views), "extraDrawn": "0"}
     assert f"all {n} reconstructed points" in legend and f"each of the {cal.n_views} views" in legend
     assert revision == "187"
@@ -415,7 +417,8 @@ def test_points_coloured_by_image_colour_else_depth():
     d = viewer_data(cal, colors=rgb)
     assert d.colour_by == "image" and np.array_equal(d.colors, rgb[d.index])
     d = viewer_data(cal)
-    z = (cal.X[d.index] - cal.T[0]) @ cal.R[2]
+    R_cam, C = cal.camera_poses()
+    z = (cal.X[d.index] - C[0]) @ R_cam[0, 2]
     assert d.colour_by == "depth" and np.allclose(d.depth_range, np.percentile(z, [2, 98]))
     assert np.array_equal(d.colors[np.argmin(z)], [68, 1, 84]) and np.array_equal(d.colors[np.argmax(z)], [253, 231, 37])
 
@@ -426,49 +429,61 @@ def _reprojection_px(poses, K, X, uv) -> float:
     return float(np.nanmax(np.linalg.norm(x[..., :2] / x[..., 2:] - uv, axis=-1)))
 
 
-def test_view_poses_reproject_the_points_one_orientation_and_hand_eye():
-    """The poses the view draws are the model's: with one orientation (every view
-    ``cal.R`` at ``cal.T[i]``) and with three sessions (camera ``R_X^T R_i^T`` at ``T_i +
-    R_i t_X``, the flange at ``(R_i, T_i)``), they project the points onto the
-    noise-free observations; the hand-eye frusta sit at the true camera centres."""
-    from transcalib import calibrate, calibrate_sessions
+def _calibration(motion: str):
+    """A noise-free calibration of each kind of motion, and its scene."""
+    from transcalib import Poses, calibrate
     from transcalib.handeye.simulate import session_scene
-    from transcalib.report import view_poses
     from transcalib.synth import simulate
 
-    s = simulate.random_scene(60, 5, noise_px=0.0, rng=4)
-    cal = calibrate(s.uv, s.T, robust=False)
-    poses = view_poses(cal)
-    assert poses.flange_T is None and "T = 0" in poses.origin
-    assert _reprojection_px(poses, cal.K, cal.X, s.uv) < 1e-6
-
+    if motion == "translations":
+        s = simulate.random_scene(60, 5, noise_px=0.0, rng=4)
+        return calibrate(s.uv, s.T, robust=False), s
     sc = session_scene(2, n_sessions=3, moves="3d")
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
-    poses = view_poses(he.calibration, sc.R)
-    assert _reprojection_px(poses, he.K, he.X, sc.uv) < 1e-6
-    assert np.abs(poses.centres - (sc.T + sc.R @ sc.t_X)).max() < 1e-8
-    assert np.array_equal(poses.flange_R, sc.R) and np.array_equal(poses.flange_T, sc.T)
-    assert poses.origin == "the robot base"
-    assert view_poses(he.calibration).flange_T is None  # without the rotations: not drawn
-    assert _reprojection_px(view_poses(he.calibration), he.K, he.X, sc.uv) > 1.0  # (and the frusta would be wrong)
+    if motion == "eye-to-hand":
+        sc = sc.eye_to_hand()
+    return calibrate(sc.uv, Poses.of(sc.T, sc.R), setup=motion, robust=False), sc
+
+
+@pytest.mark.parametrize("motion", ["translations", "eye-in-hand", "eye-to-hand"])
+def test_view_poses_reproject_the_points(motion):
+    """The poses the view draws are the model's: they project the points onto the
+    noise-free observations. One orientation: every view ``cal.R`` at ``cal.T[i]``, no
+    robot frame. Eye-in-hand (three sessions): camera ``R_X^T R_i^T`` at the true centre
+    ``T_i + R_i t_X``, the flange at ``(R_i, T_i)``. Eye-to-hand (the same images, the
+    flange carrying the scene): the same cameras in the flange frame, and the robot base
+    of each view where the eye-in-hand flange was."""
+    from transcalib.report import view_poses
+
+    cal, sc = _calibration(motion)
+    poses = view_poses(cal)
+    assert _reprojection_px(poses, cal.K, cal.X, sc.uv) < 1e-6
+    if motion == "translations":
+        assert poses.frame_T is None and "T = 0" in poses.origin
+        return
+    ein = sc if motion == "eye-in-hand" else sc._eye_in_hand()
+    assert np.abs(poses.centres - ein.camera_centres()).max() < 1e-8
+    assert np.abs(poses.frame_R - ein.R).max() < 1e-12 and np.abs(poses.frame_T - ein.T).max() < 1e-9
+    assert ("flange of every view" in poses.frames) == (motion == "eye-in-hand")
+    assert ("robot base of every view" in poses.frames) == (motion == "eye-to-hand")
 
 
 @needs_chromium
-def test_hand_eye_view_draws_the_flange_of_every_view(tmp_path):
-    from transcalib import calibrate_sessions
-    from transcalib.handeye.simulate import session_scene
+@pytest.mark.parametrize("motion", ["translations", "eye-in-hand"])
+def test_robot_frames_drawn_where_known(tmp_path, motion):
+    """The flange of every view is drawn (3 segments each) with a hand-eye pose, nothing
+    of the kind with translations alone; the page says which."""
     from transcalib.report import write_report
 
-    sc = session_scene(2, n_sessions=3, moves="3d")
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
-    write_report(he.calibration, tmp_path, flange_rotations=sc.R)
+    cal, _ = _calibration(motion)
+    write_report(cal, tmp_path)
     with browser.Tab() as tab:
         stats = _load(tab, tmp_path / "report.html")
         legend, errors = _legend(tab), tab.errors
-    V = len(sc.T)
-    assert errors == [] and stats["flange"] == stats["frusta"] == V
-    assert stats["lines"] == 11 * V + 3 + 3 * V
-    assert "the robot base" in legend and "flange axes of every view" in legend
+    V, frames = cal.n_views, motion != "translations"
+    assert errors == [] and stats["frusta"] == V and stats["frames"] == V * frames
+    assert stats["lines"] == 11 * V + 3 + 3 * V * frames
+    assert ("the axes of the flange of every view" in legend) == frames
+    assert ("the robot axes at the camera centre of robot position T = 0" in legend) == (not frames)
 
 
 @needs_chromium
@@ -486,8 +501,6 @@ def test_without_webgl_the_page_says_so_without_an_error(report):
     ({"colors": np.zeros((3, 3))}, r"colors must be an array of shape \(40, 3\)"),
     ({"colors": np.full((40, 3), 0.5)}, "colors must be RGB values, integers 0-255"),
     ({"extra": None, "colors": np.full((40, 3), 256)}, "colors must be RGB values"),
-    ({"flange_rotations": np.zeros((5, 3, 3))}, "flange_rotations of views"),
-    ({"flange_rotations": np.zeros((4, 3, 3))}, r"flange_rotations must have shape \(n_views, 3, 3\) = \(5, 3, 3\)"),
     ({"extra": np.zeros((10, 3))}, "extra must be a transcalib.report.PointCloud"),
     ({"viewer_points": 0}, "viewer_points must be a positive integer"),
     ({"point_ids": ["a", "b"]}, r"point_ids must hold one id per point \(40\), got 2"),

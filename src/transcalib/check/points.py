@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import Diagnostic
 from ..estimate.distributions import f_sf
 from ..estimate.noise import median_sigma
-from .common import depths, fmt_list, squared_norms
+from .common import camera_poses, depths, fmt_list, squared_norms
 
 MIN_VIEW_POINTS = 6
 VIEW_RESIDUAL_RATIO = 2.0
@@ -22,8 +22,8 @@ def check_points_behind(uv, T, calibration) -> list:
     uv : (n_views, n_points, 2) float
     T : (n_views, 3) float
     calibration : Calibration or LinearEstimate
-        ``R`` and ``X`` (points with non-finite ``X``, and outside its ``inliers``, are
-        skipped).
+        Its cameras and ``X`` (points with non-finite ``X``, and outside its ``inliers``,
+        are skipped).
 
     Returns
     -------
@@ -33,7 +33,8 @@ def check_points_behind(uv, T, calibration) -> list:
     uv, T = np.asarray(uv, float), np.asarray(T, float)
     X = np.asarray(calibration.X, float)
     seen = np.isfinite(uv[..., 0])
-    z = depths(np.asarray(calibration.R, float), X, T)
+    R_cam, C = camera_poses(calibration, T)
+    z = depths(R_cam, X, C)
     with np.errstate(invalid="ignore"):
         behind = np.any(seen & np.isfinite(z) & (z <= 0), axis=0)
     if getattr(calibration, "inliers", None) is not None:

@@ -39,8 +39,8 @@ def add_parser(sub) -> None:
     src.add_argument("--tracks", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
     src.add_argument("--images", nargs="+", metavar="IMAGE", help="images in view order (or named in poses.csv)")
     c.add_argument("--poses", required=True,
-                   help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]; orientations that "
-                        "vary between sessions select the hand-eye (several sessions) model")
+                   help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]: the flange pose of "
+                        "each view; with orientations, the camera's pose on the flange (hand-eye) too")
     c.add_argument("--rotation-format", default=None,
                    choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
@@ -48,6 +48,9 @@ def add_parser(sub) -> None:
     c.add_argument("--session-tolerance-deg", type=positive_float, default=SESSION_TOLERANCE_DEG,
                    help="views whose orientations differ by less than this form one session "
                         f"(default {SESSION_TOLERANCE_DEG:g} deg)")
+    c.add_argument("--setup", choices=["eye-in-hand", "eye-to-hand"], default="eye-in-hand",
+                   help="eye-in-hand: the camera on the flange (default); eye-to-hand: the camera fixed, watching "
+                        "an object carried by the flange (the points are then in the flange frame)")
     c.add_argument("--out", required=True, help="output folder (created if missing)")
     c.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
     c.add_argument("--image-size", type=image_size, metavar="WxH",
@@ -163,7 +166,8 @@ def build_options(args, size=None):
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
-                               unit=args.unit, subset_points=args.subset_points)
+                               unit=args.unit, subset_points=args.subset_points, setup=args.setup,
+                               session_tolerance_deg=args.session_tolerance_deg)
     if args.target and not args.images:
         raise OptionError("--target", "applies to --images only")
     return options
@@ -299,20 +303,18 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({t_imports - t_read:.2f} s)")
     from ..io.export import ExportContext, export_calibration  # after the reading: see import_in_background
     from ..pipeline import calibrate
-    from .handeye import calibrate_hand_eye, hand_eye_text, write_hand_eye
+    from .handeye import hand_eye_text, write_hand_eye
     from .summary import summary_json, summary_text
     opts = plan["options"]
     memory = {"after_read": _peak_rss_gib()}
     t_cal = time.perf_counter()
-    hand_eye = None
     if plan["sessions"] is not None:
-        hand_eye = calibrate_hand_eye(uv, plan, opts, args, progress)
-        cal = hand_eye.calibration
-    else:
-        cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
-                        refinement=opts.refinement if opts.refine else None, rotations=plan["poses"].R,
-                        image_size=plan["image_size"], unit=args.unit, subset_points=opts.subset_points,
-                        rng=args.seed, progress=progress)
+        progress.log(f"{plan['sessions'].n_sessions} flange orientations in {uv.shape[0]} views ({opts.setup})")
+    cal = calibrate(uv, plan["poses"], setup=opts.setup, session_tolerance_deg=opts.session_tolerance_deg,
+                    refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
+                    refinement=opts.refinement if opts.refine else None, image_size=plan["image_size"],
+                    unit=args.unit, subset_points=opts.subset_points, rng=args.seed, progress=progress)
+    hand_eye = cal.hand_eye
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
@@ -320,7 +322,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
               "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
               "image_size_from": _size_source(args, plan)}
     ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
-                        truth=plan["truth"], flange_rotations=None if hand_eye is None else plan["poses"].R)
+                        truth=plan["truth"])
     write_timings = {}
     written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings, report_worker=worker)
     if hand_eye is not None:

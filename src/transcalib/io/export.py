@@ -47,8 +47,6 @@ class ExportContext:
     inputs : dict, optional                            summary for ``calibration.json``
     truth : dict, optional                             ``truth.json`` of a simulation (report)
     camera_name : str                                  ROS ``camera_name``
-    flange_rotations : (n_views, 3, 3) float, optional flange -> base rotations of a hand-eye
-                                                       calibration (the report's 3-D view)
     """
 
     point_ids: object = None
@@ -58,7 +56,6 @@ class ExportContext:
     inputs: object = None
     truth: object = None
     camera_name: str = "camera"
-    flange_rotations: object = None
 
 
 def _write_json(cal, folder, ids, ctx):
@@ -75,8 +72,7 @@ def _write_csv(cal, folder, ids):
 def _report_data(cal, ids, ctx):
     from ..report import report_data
 
-    return report_data(cal, uv=ctx.uv, truth=ctx.truth, point_ids=ids, colors=ctx.colors, view_names=ctx.view_names,
-                       flange_rotations=ctx.flange_rotations)
+    return report_data(cal, uv=ctx.uv, truth=ctx.truth, point_ids=ids, colors=ctx.colors, view_names=ctx.view_names)
 
 
 def _write_report(cal, folder, ids, ctx):

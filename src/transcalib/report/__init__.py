@@ -2,7 +2,8 @@
 
 :func:`write_report` writes ``report.html`` with the parameters and their uncertainty,
 every diagnostic, an interactive 3-D view (:mod:`.viewer`: the points, the camera
-frustum of every view, the robot axes, the flange where known, an optional extra cloud),
+frustum of every view, the robot axes, the flange (or eye-to-hand the base) where known,
+an optional extra cloud),
 the residuals (arrows per view and histogram), the reconstruction (front and oblique,
 with the camera positions), the projection-uncertainty map and, for simulated input, the
 errors against the truth. Figures are embedded as base64 PNG and also written to
@@ -131,8 +132,7 @@ class ReportData:
 
 
 def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report", colors=None,
-                view_names=None, flange_rotations=None, extra: PointCloud | None = None,
-                viewer_points: int = MAX_POINTS) -> ReportData:
+                view_names=None, extra: PointCloud | None = None, viewer_points: int = MAX_POINTS) -> ReportData:
     """Reduce a calibration to its :class:`ReportData` (numpy only: no matplotlib).
 
     Parameters as :func:`write_report`.
@@ -146,9 +146,8 @@ def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "trans
 
     uv = observed_pixels(cal, uv)  # once, for every figure
     size = image_box(cal, uv)
-    viewer = viewer_data(cal, uv=uv, colors=colors, point_ids=point_ids, view_names=view_names,
-                         flange_rotations=flange_rotations, extra=extra, image_size=size, unit=unit,
-                         max_points=int(viewer_points))
+    viewer = viewer_data(cal, uv=uv, colors=colors, point_ids=point_ids, view_names=view_names, extra=extra,
+                         image_size=size, unit=unit, max_points=int(viewer_points))
     sections = [f"<h1>{html.escape(title)}</h1>",
                 f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
                 f"stages {html.escape(' → '.join(cal.stats.stages))}; transcalib {software_version()}; "
@@ -183,8 +182,7 @@ def render_report(data: ReportData, folder) -> list:
 
 
 def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report", colors=None,
-                 view_names=None, flange_rotations=None, extra: PointCloud | None = None,
-                 viewer_points: int = MAX_POINTS) -> list:
+                 view_names=None, extra: PointCloud | None = None, viewer_points: int = MAX_POINTS) -> list:
     """Write ``folder/report.html`` and ``folder/figures/*.png`` (in this process).
 
     :func:`report_data` then :func:`render_report`; the CLI runs the second in a
@@ -205,9 +203,6 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
         Image colour of each point (the 3-D view; default: coloured by depth).
     view_names : sequence of str (n_views), optional
         Image names, shown with the view indices in the 3-D view.
-    flange_rotations : (n_views, 3, 3) float, optional
-        Flange -> base rotations of a hand-eye calibration: each view's camera and flange
-        pose in the 3-D view (:func:`~transcalib.report.poses.view_poses`).
     extra : PointCloud, optional
         Another cloud for the 3-D view (a dense reconstruction), in the same frame.
     viewer_points : int
@@ -220,5 +215,4 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
         ``report.html`` and the PNG files.
     """
     return render_report(report_data(cal, uv=uv, truth=truth, point_ids=point_ids, title=title, colors=colors,
-                                     view_names=view_names, flange_rotations=flange_rotations, extra=extra,
-                                     viewer_points=viewer_points), folder)
+                                     view_names=view_names, extra=extra, viewer_points=viewer_points), folder)

@@ -3,7 +3,7 @@
  * Reads the JSON of <script id="tc-viewer-data">, draws with three.js (the vendored
  * three.min.js, inlined before this script: the global THREE) into <div id="tc-viewer">:
  * the points (image colour or depth colour), the optional extra cloud, a frustum per view,
- * the robot axes and, where known, the flange of every view. OrbitControls: drag to orbit,
+ * the world axes and, where known, the robot frame (flange or base) of every view. OrbitControls: drag to orbit,
  * right-drag (or shift-drag) to pan, wheel to zoom. A click picks the nearest drawn point
  * on screen and shows its id, position +- std and the views that saw it.
  *
@@ -73,7 +73,7 @@
   if (D.extra) layers.extra = cloud(D.extra, D.point_size);
   layers.frusta = lines(D.frusta.xyz, D.frusta.rgb);
   layers.axes = lines(D.axes.xyz, D.axes.rgb);
-  if (D.flange) layers.flange = lines(D.flange.xyz, D.flange.rgb);
+  if (D.frames) layers.frames = lines(D.frames.xyz, D.frames.rgb);
   const mark = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({size: 11, sizeAttenuation: false, color: 0xff2060}));
   mark.geometry.setAttribute("position", new THREE.BufferAttribute(new Float32Array(3), 3));
   mark.visible = false;
@@ -193,7 +193,7 @@
               cloud: layers.points.geometry.attributes.position.count,
               extra: layers.extra ? layers.extra.geometry.attributes.position.count : 0,
               frusta: D.frusta.n, frustum_lines: layers.frusta.geometry.attributes.position.count / 2,
-              flange: D.flange ? D.flange.n : 0};
+              frames: D.frames ? D.frames.n : 0};
     },
   };
 })();

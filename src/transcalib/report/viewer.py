@@ -16,8 +16,8 @@ What is drawn, in the world (robot) frame of the calibration:
 - the frustum of every view: apex at the camera centre, the image rectangle at depth
   ``d`` (:func:`_frustum_depth`; distortion ignored) and a triangle on the image's top
   edge; the poses come from :func:`.poses.view_poses`;
-- the robot axes at the world origin (x red, y green, z blue) and, where known, the flange
-  axes of every view.
+- the axes of the world frame at its origin (x red, y green, z blue) and, with a hand-eye
+  pose, the robot frame that moves with each view (the flange, or eye-to-hand the base).
 
 A click on a point shows its id, position +- std (``cal.X_std``) and the views that saw it
 (a finite observation in ``uv``, else a finite residual).
@@ -109,9 +109,9 @@ class ViewerData:
         Segment ends: per view 4 edges from the apex, 4 of the image rectangle, 3 of the
         "up" triangle.
     axes : (6, 3) float32
-        The robot axes (x, y, z segments from the world origin).
-    flange : (n_views * 6, 3) float32 or None
-        The flange axes of every view, where known.
+        The world axes (x, y, z segments from the world origin).
+    frames : (n_views * 6, 3) float32 or None
+        The axes of each view's robot frame, where known (:attr:`.poses.ViewPoses.frame_R`).
     camera : dict
         The page's views (:func:`_first_views`), ``{"oblique": view, "camera": view}``,
         each ``{"eye", "up"}`` (3-lists, the target is the origin), ``"near"``, ``"far"``.
@@ -119,6 +119,8 @@ class ViewerData:
         ``{"name", "n_points", "X" (k2, 3) float32, "colors" (k2, 3) uint8}``.
     origin_note : str
         What the world origin is (:attr:`.poses.ViewPoses.origin`).
+    frames_note : str
+        What ``frames`` are (:attr:`.poses.ViewPoses.frames`).
     """
 
     unit: str
@@ -136,10 +138,11 @@ class ViewerData:
     views: list
     frusta: np.ndarray
     axes: np.ndarray
-    flange: np.ndarray | None
+    frames: np.ndarray | None
     camera: dict
     extra: dict | None
     origin_note: str
+    frames_note: str = ""
 
     @property
     def n_drawn(self) -> int:
@@ -276,7 +279,7 @@ def _extra(cloud, lo: float, hi: float, R0, C0, origin, max_points: int, rng) ->
     return {"name": str(cloud.name), "n_points": int(ok.size), "X": (X[idx] - origin).astype(np.float32), "colors": rgb}
 
 
-def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None, flange_rotations=None,
+def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None,
                 extra: PointCloud | None = None, image_size=None, unit: str = "units",
                 max_points: int = MAX_POINTS, rng=0) -> ViewerData:
     """Reduce ``cal`` to what the 3-D view draws (numpy only).
@@ -292,8 +295,6 @@ def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None, f
         Point ids (default ``0..n-1``).
     view_names : sequence of str (n_views), optional
         Shown after the view index (image names).
-    flange_rotations : (n_views, 3, 3) float, optional
-        Flange -> base rotations (:func:`.poses.view_poses`).
     extra : PointCloud, optional
         Another cloud in the same frame (a dense reconstruction).
     image_size : (width, height), optional
@@ -311,7 +312,7 @@ def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None, f
     from .poses import view_poses
 
     n, V = cal.n_points, cal.n_views
-    poses = view_poses(cal, flange_rotations)
+    poses = view_poses(cal)
     _check_lengths(uv, point_ids, view_names, n, V)
     colors = _rgb("colors", colors, n)
     ok = np.flatnonzero(_finite_rows(cal.X))
@@ -325,7 +326,7 @@ def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None, f
     seen_all = np.isfinite(cal.residuals_px[:, idx, 0]) if uv is None else np.isfinite(np.asarray(uv)[:, idx, 0])
     ids = np.arange(n) if point_ids is None else np.asarray(point_ids)
     names = [str(v) for v in range(V)] if view_names is None else [f"{v} ({s})" for v, s in enumerate(view_names)]
-    flange = None if poses.flange_T is None else _axes(poses.flange_T - target, poses.flange_R, 0.06 * scale)
+    frames = None if poses.frame_T is None else _axes(poses.frame_T - target, poses.frame_R, 0.06 * scale)
     return ViewerData(
         unit=unit, origin=target, n_points=int(ok.size), index=idx, X=(X - target).astype(np.float32),
         colors=depth_colours(z, lo, hi) if colors is None else colors[idx], colour_by="depth" if colors is None else "image",
@@ -336,8 +337,8 @@ def viewer_data(cal, *, uv=None, colors=None, point_ids=None, view_names=None, f
         views=names, frusta=(_frusta(poses, cal.K, size, _frustum_depth(poses.centres, scale)) - target
                              ).astype(np.float32),
         axes=_axes(-target[None], np.eye(3)[None], 0.2 * scale).astype(np.float32),
-        flange=None if flange is None else flange.astype(np.float32),
-        camera=_first_views(poses, X, target), origin_note=poses.origin,
+        frames=None if frames is None else frames.astype(np.float32),
+        camera=_first_views(poses, X, target), origin_note=poses.origin, frames_note=poses.frames,
         extra=_extra(extra, lo, hi, poses.R_cam_world[0], poses.centres[0], target, max_points, rng))
 
 
@@ -369,9 +370,9 @@ def _payload(d: ViewerData) -> dict:
            "point_size": _point_size(d),
            "frusta": {"n": d.n_views, "xyz": _b64(d.frusta), "rgb": _segment_colours(11 * d.n_views, frustum_rgb)},
            "axes": {"xyz": _b64(d.axes), "rgb": _segment_colours(3, np.array(_AXES_RGB))},
-           "flange": None, "extra": None}
-    if d.flange is not None:
-        out["flange"] = {"n": d.n_views, "xyz": _b64(d.flange),
+           "frames": None, "extra": None}
+    if d.frames is not None:
+        out["frames"] = {"n": d.n_views, "xyz": _b64(d.frames),
                          "rgb": _segment_colours(3 * d.n_views, np.tile(np.array(_AXES_RGB), (d.n_views, 1)))}
     if d.extra is not None:
         out["extra"] = {"xyz": _b64(d.extra["X"]), "rgb": _b64(d.extra["colors"])}
@@ -388,9 +389,9 @@ def _legend(d: ViewerData) -> str:
               f"{d.depth_range[1]:.4g} {u} (yellow)")
     text = [f"Drawn: <span id='tc-drawn'>{drawn}</span>, coloured by {colour}; the camera frustum of each of the "
             f"<span id='tc-frusta'>{d.n_views}</span> views (view 0 yellow; a triangle marks the image's top edge); "
-            f"the robot axes at the origin, {html.escape(d.origin_note)} (x red, y green, z blue)"]
-    if d.flange is not None:
-        text.append("; the flange axes of every view")
+            f"{html.escape(d.origin_note)} (x red, y green, z blue)"]
+    if d.frames is not None:
+        text.append(f"; the axes of {html.escape(d.frames_note)}")
     if d.extra is not None:
         e = d.extra
         text.append(f"; {html.escape(e['name'])}: " + (f"all {e['n_points']:,} points" if len(e["X"]) == e["n_points"]
@@ -410,7 +411,7 @@ def viewer_html(d: ViewerData) -> str:
     layers = [("points", "points")]
     if d.extra is not None:
         layers.append(("extra", html.escape(d.extra["name"])))
-    layers += [("frusta", "frusta"), ("axes", "axes")] + [("flange", "flange")] * (d.flange is not None)
+    layers += [("frusta", "frusta"), ("axes", "axes")] + [("frames", "robot frames")] * (d.frames is not None)
     boxes = "".join(f"<label><input type='checkbox' data-layer='{k}' checked> {t}</label>" for k, t in layers)
     return (f"<h2>3-D view</h2>\n<div id='tc-viewer' class='tc-viewer' data-points-drawn='{d.n_drawn}' "
             f"data-points-total='{d.n_points}' data-frusta='{d.n_views}' "
