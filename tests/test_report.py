@@ -460,7 +460,7 @@ def test_view_poses_reproject_the_points(motion):
     if motion == "translations":
         assert poses.frame_T is None and "T = 0" in poses.origin
         return
-    ein = sc if motion == "eye-in-hand" else sc._eye_in_hand()
+    ein = sc if motion == "eye-in-hand" else sc.as_eye_in_hand()
     assert np.abs(poses.centres - ein.camera_centres()).max() < 1e-8
     assert np.abs(poses.frame_R - ein.R).max() < 1e-12 and np.abs(poses.frame_T - ein.T).max() < 1e-9
     assert ("flange of every view" in poses.frames) == (motion == "eye-in-hand")
