@@ -142,6 +142,22 @@ def test_eye_to_hand_is_eye_in_hand_with_the_poses_inverted():
     assert sessions_crlb(replace(e2h, noise_px=0.5)) == pytest.approx(sessions_crlb(replace(sc, noise_px=0.5)))
 
 
+def test_camera_yaml_names_the_frame_of_its_rotation(tmp_path):
+    """camera.yaml's rotation is flange -> camera eye-in-hand and base -> camera
+    eye-to-hand, named so; OpenCV reads it back."""
+    import cv2
+
+    from transcalib.io.formats import write_opencv_yaml
+
+    sc = session_scene(3, n_sessions=3)
+    for scene, setup, name in [(sc, "eye-in-hand", "R_cam_flange"), (sc.eye_to_hand(), "eye-to-hand", "R_cam_base")]:
+        cal = calibrate(scene.uv, Poses.of(scene.T, scene.R), setup=setup, distortion="none", robust=False)
+        write_opencv_yaml(cal, tmp_path / f"{setup}.yaml", (640, 480))
+        fs = cv2.FileStorage(str(tmp_path / f"{setup}.yaml"), cv2.FILE_STORAGE_READ)
+        assert np.abs(fs.getNode(name).mat() - cal.hand_eye.R.T).max() < 1e-12, setup
+        fs.release()
+
+
 def test_single_views_determine_the_offset_at_the_bound():
     """Small Monte Carlo (the 500-trial study: benchmarks/bench_handeye.py): one session
     plus 5 single views determine all of t_X; 30 trials put the sample std within ~13 %
