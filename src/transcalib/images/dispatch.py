@@ -187,6 +187,12 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     grey, rgb, names = load_images(images)
     if groups is None:
         groups, labels = [list(range(len(grey)))], ["0"]
+    if max(len(g) for g in groups) < 2:
+        raise DegenerateError(
+            f"the {len(grey)} views all have different orientations (no two within the session tolerance): the "
+            "tracker needs at least one session, 2 or more views taken at one orientation (pure translations), to "
+            "which the other views are linked. Take a few views by translating the robot only, or pass tracks "
+            "made elsewhere (--tracks)")
     times = {"load": time.perf_counter() - t0}
     t0 = time.perf_counter()
     if method == "sift":
