@@ -46,7 +46,7 @@ class DetectOptions:
     max_corners: int = 2000
     corner_quality: float = 0.02
     min_corner_distance_px: float = 6.0
-    sift_max_side_px: int = 800
+    sift_max_side_px: int = 640
 
 
 @dataclass(frozen=True, eq=False)
