@@ -21,8 +21,9 @@ of freedom, :mod:`.epipoles`); a rotation between the views gives a general ``F`
    better than ``[e]_x``; a rotation is not radial).
 
 A rotated view breaks every pair it is in, so views are judged, not pairs: a view is
-**rotated** when more than half of its tested pairs are flagged. One stray pair (a
-textured patch that fooled both fits) refuses nothing. :func:`check_pure_translation`
+**rotated** when more than half of its tested pairs are flagged, and at least two of
+them (one in a session of two views). One stray pair (a repetitive texture that fooled
+both fits) refuses nothing. :func:`check_pure_translation`
 raises :class:`RotatedViewsError` naming the views and their pairs.
 
 Thresholds from ``benchmarks/bench_tracker_rotation.py`` (rendered scenes with large
@@ -96,7 +97,8 @@ class RotationTest:
     ----------
     pairs : tuple of PairRotationTest
     rotated_views : tuple of int
-        Views (session indices) with more than half of their tested pairs flagged.
+        Views (session indices) with more than half of their tested pairs flagged (and at
+        least 2 of them, 1 with 2 views).
     """
 
     pairs: tuple
@@ -155,12 +157,13 @@ def pair_test(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, views=(0, 
 
 def rotation_test(xy: dict, n_views: int, threshold_px: float, rng) -> RotationTest:
     """The test of every pair of ``xy`` (``(i, j) -> (x (m, 2), y (m, 2))``) and the views
-    with more than half of their tested pairs flagged."""
+    with more than half of their tested pairs flagged, and at least 2 (1 with 2 views)."""
     pairs = tuple(pair_test(x, y, threshold_px, rng, views=p) for p, (x, y) in xy.items())
-    rotated = []
+    rotated, need = [], min(2, n_views - 1)
     for v in range(n_views):
         mine = [p for p in pairs if v in p.views and p.tested]
-        if mine and sum(p.flagged for p in mine) > len(mine) / 2:
+        n_flagged = sum(p.flagged for p in mine)
+        if n_flagged >= need and n_flagged > len(mine) / 2:
             rotated.append(v)
     return RotationTest(pairs=pairs, rotated_views=tuple(rotated))
 
