@@ -20,7 +20,7 @@ import numpy as np
 
 from ..geometry.camera import undistort
 
-__all__ = ["sample_rays", "surface_hits", "on_surface", "render_view"]
+__all__ = ["sample_rays", "surface_hits", "on_surface", "nearest_hits", "render_view"]
 
 
 def sample_rays(K, R, dist, image_size, S):
@@ -83,6 +83,34 @@ def on_surface(sf, z, s, t) -> np.ndarray:
     """bool mask: the hit ``(z, s, t)`` of :func:`surface_hits` lies in front of the
     camera and inside the rectangle ``[0, size[0]] x [0, size[1]]``."""
     return (z > 0) & (s >= 0) & (s <= sf.size[0]) & (t >= 0) & (t <= sf.size[1])
+
+
+def nearest_hits(surfaces, d, C) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest surface along each ray ``C + z d`` (the render's z-buffer, for a few rays).
+
+    Parameters
+    ----------
+    surfaces : list of Surface
+    d : (3, n) float
+        World ray directions (unit camera z gives camera depths).
+    C : (3,) float
+        Ray origin (camera centre).
+
+    Returns
+    -------
+    depth : (n,) float
+        ``z`` of the nearest hit, ``inf`` where no surface is hit.
+    which : (n,) int
+        Index into ``surfaces`` of the surface hit, -1 where none.
+    """
+    best = np.full(np.shape(d[0]), np.inf)
+    which = np.full(np.shape(d[0]), -1)
+    for k, sf in enumerate(surfaces):  # a loop over surfaces, vectorised over rays
+        z, s, t = surface_hits(sf, d, C)
+        hit = on_surface(sf, z, s, t) & (z < best)
+        best[hit] = z[hit]
+        which[hit] = k
+    return best, which
 
 
 def render_view(surfaces, d, C, S, background, K, R, dist, image_size):
