@@ -146,34 +146,55 @@ class RobotRendered(PixelTruth):
         none).
         """
         uv = np.asarray(uv, float).reshape(-1, 2)
-        rays = pixels_to_rays(self.K, uv, self.dist)  # camera frame, unit z
         if depth is not None:
+            rays = pixels_to_rays(self.K, uv, self.dist)  # camera frame, unit z
             Q, c = camera_poses(self.R[view:view + 1], self.T[view:view + 1], self.R_X, self.t_X, self.setup)
             return c[0] + (np.broadcast_to(np.asarray(depth, float), len(uv))[:, None] * rays) @ Q[0]
-        Rc, C = self.base_camera(view)
-        d = rays @ Rc  # base-frame directions, unit camera z
-        best, which = nearest_hits(self.base_surfaces(view), d.T, C)
-        X = C + best[:, None] * d
+        best, which, X = self.ray_hits(view, uv)
         if self.setup == "eye-to-hand":
             X = (X - self.T[view]) @ self.R[view]  # base -> flange: R_i^T (x - T_i)
         X[~np.isfinite(best) | (which >= len(self.scene_surfaces))] = np.nan
         return (X, which) if return_surface else X
 
-    def visible(self, X: np.ndarray, margin_px: float = 0.0, rtol: float = 1e-6) -> np.ndarray:
+    def ray_hits(self, view: int, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The renderer's ray cast of pixels ``uv (n, 2)`` of ``view`` (the nearest hit of
+        :meth:`base_surfaces` from :meth:`base_camera`): camera depth ``(n,)`` (inf: no
+        hit), index ``(n,)`` into ``scene_surfaces + static_surfaces`` (-1: none) and the
+        hit point ``(n, 3)`` in the base frame (NaN: none)."""
+        Rc, C = self.base_camera(view)
+        d = pixels_to_rays(self.K, np.asarray(uv, float).reshape(-1, 2), self.dist) @ Rc  # base, unit camera z
+        best, which = nearest_hits(self.base_surfaces(view), d.T, C)
+        X = C + best[:, None] * d
+        X[~np.isfinite(best)] = np.nan
+        return best, which, X
+
+    def visible(self, X: np.ndarray, margin_px: float = 0.0, rtol: float = 1e-9) -> np.ndarray:
         """``(n_views, n)`` bool: scene-frame point ``X`` inside the image by ``margin_px``,
-        in front of the camera and the nearest surface on its ray (within ``rtol`` of its
-        distance from the camera)."""
+        in front of the camera, and no surface on its ray nearer than its depth (by more
+        than ``rtol`` of it; a ray through a point on a face's edge may slip off that face
+        by rounding and meet one behind, which leaves the point visible)."""
         X = np.asarray(X, float).reshape(-1, 3)
         uv = self.project(X)
         w, h = self.image_size
         vis = ((uv[..., 0] >= margin_px - 0.5) & (uv[..., 0] <= w - 0.5 - margin_px)
                & (uv[..., 1] >= margin_px - 0.5) & (uv[..., 1] <= h - 0.5 - margin_px))
         Q, c = camera_poses(self.R, self.T, self.R_X, self.t_X, self.setup)
-        vis &= np.einsum("vk,vnk->vn", Q[:, 2], X[None] - c[:, None]) > 0
+        depth = np.einsum("vk,vnk->vn", Q[:, 2], X[None] - c[:, None])
         for i in range(self.n_views):  # a loop over views, vectorised over points
-            err = np.linalg.norm(self.backproject(i, uv[i]) - X, axis=1)
-            vis[i] &= np.isfinite(err) & (err <= rtol * np.linalg.norm(X - c[i], axis=1) + 1e-9)
+            vis[i] &= (depth[i] > 0) & (self.ray_hits(i, uv[i])[0] >= depth[i] * (1 - rtol))
         return vis
+
+    def sample_points(self, n: int, rng=None, surfaces=None) -> np.ndarray:
+        """``(n, 3)`` scene-frame points drawn uniformly (by area) on :attr:`scene_surfaces`
+        (or those of the indices ``surfaces``): scene points to track exactly
+        (:meth:`exact_tracks`)."""
+        rng = np.random.default_rng(rng)
+        sfs = [self.scene_surfaces[k] for k in (range(len(self.scene_surfaces)) if surfaces is None else surfaces)]
+        area = np.array([sf.size[0] * sf.size[1] for sf in sfs])
+        k = rng.choice(len(area), size=n, p=area / area.sum())
+        st = rng.uniform(0.0, 1.0, (n, 2)) * np.array([sf.size for sf in sfs])[k]
+        origin, a, b = (np.array([getattr(sf, f) for sf in sfs])[k] for f in ("origin", "axis_s", "axis_t"))
+        return origin + st[:, :1] * a + st[:, 1:] * b
 
     def exact_tracks(self, X: np.ndarray | None = None, margin_px: float = 0.0) -> np.ndarray:
         """Pixel-exact tracks ``uv (n_views, n, 2)`` of scene points ``X`` (default
@@ -198,7 +219,7 @@ class RobotRendered(PixelTruth):
 def render_robot(scene_surfaces, K, R, T, R_X, t_X, image_size, *, setup: str = "eye-in-hand",
                  static_surfaces=(), dist=(), session_of_view=None, corners=None, supersample: int = 2,
                  background: float = 0.5, noise_std: float = 0.0, blur_sigma: float = 0.0,
-                 degrade: Degradations | None = None, rng=None) -> RobotRendered:
+                 degrade: Degradations | None = None, images: bool = True, rng=None) -> RobotRendered:
     """Render the views of a robot at flange poses ``(R, T)``, eye-in-hand or eye-to-hand.
 
     Parameters
@@ -226,6 +247,10 @@ def render_robot(scene_surfaces, K, R, T, R_X, t_X, image_size, *, setup: str = 
     supersample, background, noise_std, blur_sigma, degrade, rng
         As in :func:`transcalib.synth.render.render`: ``S x S`` samples per pixel, the
         intensity where no surface is hit, the simple noise and blur, the camera effects.
+    images : bool
+        False: cast no pixel (``images`` of shape ``(n_views, 0, 0)``), the truth only:
+        poses, :meth:`RobotRendered.project`, :meth:`~RobotRendered.backproject`,
+        :meth:`~RobotRendered.exact_tracks` (fast, for geometry tests).
 
     Returns
     -------
@@ -236,7 +261,7 @@ def render_robot(scene_surfaces, K, R, T, R_X, t_X, image_size, *, setup: str = 
     rng = np.random.default_rng(rng)
     opt = Degradations() if degrade is None else degrade
     effects = draw_view_effects(opt, len(T), (w, h), rng)
-    out = RobotRendered(images=np.empty((len(T), h, w), np.uint8), K=np.asarray(K, float),
+    out = RobotRendered(images=np.empty((len(T), h, w) if images else (len(T), 0, 0), np.uint8), K=np.asarray(K, float),
                         dist=np.asarray(dist, float).ravel(), image_size=(w, h), setup=setup, R_X=R_X, t_X=t_X, R=R,
                         T=T, session_of_view=_sessions(R) if session_of_view is None else np.asarray(session_of_view),
                         scene_surfaces=list(scene_surfaces), static_surfaces=list(static_surfaces),
@@ -244,13 +269,21 @@ def render_robot(scene_surfaces, K, R, T, R_X, t_X, image_size, *, setup: str = 
                         meta={"degrade": opt.active(), "exposure_gain": effects.gain,
                               "specular_uv": effects.specular_uv, "overlay_box": overlay_box(opt, (w, h)),
                               "noise_std": noise_std, "blur_sigma": blur_sigma, "supersample": int(supersample)})
-    xy = sample_rays(out.K, np.eye(3), out.dist, (w, h), int(supersample))  # camera frame, once
-    for i in range(len(T)):  # a loop over views, vectorised over pixels
+    if images:
+        _cast(out, opt, effects, int(supersample), background, noise_std, blur_sigma, rng)
+    return out
+
+
+def _cast(out: RobotRendered, opt, effects, S, background, noise_std, blur_sigma, rng) -> None:
+    """Fill ``out.images``: per view, the ray cast of :meth:`RobotRendered.base_surfaces`
+    from :meth:`RobotRendered.base_camera`, then the camera effects."""
+    w, h = out.image_size
+    xy = sample_rays(out.K, np.eye(3), out.dist, (w, h), S)  # camera-frame [x, y, 1], once
+    for i in range(out.n_views):  # a loop over views, vectorised over pixels
         Rc, C = out.base_camera(i)
         d = [xy[0] * Rc[0, k] + xy[1] * Rc[1, k] + Rc[2, k] for k in range(3)]  # R^T [x, y, 1]
-        radiance = render_view(out.base_surfaces(i), d, C, int(supersample), background, out.K, Rc, out.dist, (w, h))
+        radiance = render_view(out.base_surfaces(i), d, C, S, background, out.K, Rc, out.dist, (w, h))
         out.images[i] = degrade_view(radiance, opt, i, effects, blur_sigma=blur_sigma, noise_std=noise_std, rng=rng)
-    return out
 
 
 def _checked_poses(R, T, R_X, t_X, image_size, setup, static_surfaces):
@@ -283,8 +316,8 @@ def _sessions(R: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 
 
 def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views: int = 6, tilt_deg=(15.0, 45.0),
-                distance_mm=(500.0, 1000.0), image_size=(640, 480), degrade: bool = True, rng=0,
-                supersample: int = 2) -> RobotRendered:
+                distance_mm=(500.0, 1000.0), image_size=(640, 480), degrade: bool | Degradations = True, rng=0,
+                supersample: int = 2, images: bool = True) -> RobotRendered:
     """The issue-20 preset: one 3-D pure-translation session plus single views tilted from it.
 
     Eye-in-hand, the camera on the flange looks down at a work cell (a textured table top,
@@ -305,11 +338,14 @@ def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views
     distance_mm : (2,) float
         Range of the camera's distance from the scene's centre (mm).
     image_size : (width, height)
-    degrade : bool
-        The camera effects of :func:`.robot_layout.preset_degradations` and the lens
-        :data:`PRESET_DIST`; False: an ideal pinhole camera, no noise.
+    degrade : bool or Degradations
+        True: the camera effects of :func:`.robot_layout.preset_degradations` and the lens
+        :data:`PRESET_DIST`; a :class:`Degradations`: those effects and the lens; False: an
+        ideal pinhole camera, no noise.
     rng : seed or Generator
     supersample : int
+    images : bool
+        False: the layout and the truth only, no pixel cast (see :func:`render_robot`).
 
     Returns
     -------
@@ -325,10 +361,11 @@ def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views
     Q, c = _layout(rng, K, scene, session_views, single_views, tilt_deg, distance_mm, image_size)
     R, T = flange_poses(Q, c, R_X, t_X, setup)
     sess = np.r_[np.zeros(session_views, int), 1 + np.arange(single_views)] - (session_views == 0)
+    effects = preset_degradations(image_size) if degrade is True else (None if degrade is False else degrade)
     return render_robot(scene.scene_surfaces, K, R, T, R_X, t_X, image_size, setup=setup,
-                        static_surfaces=scene.static_surfaces, dist=PRESET_DIST if degrade else (),
-                        session_of_view=sess, corners=scene.corners, supersample=supersample,
-                        degrade=preset_degradations(image_size) if degrade else None, rng=rng)
+                        static_surfaces=scene.static_surfaces, dist=PRESET_DIST if degrade is not False else (),
+                        session_of_view=sess, corners=scene.corners, supersample=supersample, degrade=effects,
+                        images=images, rng=rng)
 
 
 def _preset_scene(setup, seed, distance_mm):
