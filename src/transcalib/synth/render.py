@@ -166,8 +166,9 @@ class PixelTruth:
 
     def track_truth(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ground truth of tracks ``uv (n_views, n, 2)``: the point ``(n, 3)`` (in the frame
-        of ``backproject``; NaN: background) seen at each track's first observation, and ``(n,)`` bool, True where that observation is
-        next to an occlusion edge (a T-junction of two depths has no fixed 3-D point)."""
+        of ``backproject``; NaN: background) seen at each track's first observation, and
+        ``(n,)`` bool, True where that observation is next to an occlusion edge (a
+        T-junction of two depths has no fixed 3-D point)."""
         seen = np.isfinite(uv[..., 0])
         first = np.argmax(seen, axis=0)
         X = np.full((uv.shape[1], 3), np.nan)
