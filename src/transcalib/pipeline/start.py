@@ -25,9 +25,7 @@ from ..estimate.coplanar import fit_coplanar, fit_coplanar_robust
 from ..estimate.degeneracy import explain_span, translation_rank
 from ..estimate.layout import FlangeModel
 from ..estimate.linear import fit_linear
-from ..estimate.noise import mad_sigma
 from ..estimate.robust import fit_robust
-from ..geometry.camera import project
 from ..handeye.join import join_single_views
 from ..handeye.linear import check_flange_span, sessions_linear
 from ..handeye.observability import offset_observability
@@ -157,11 +155,10 @@ def _from_sessions(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng
     report(progress, "robust (sessions)" if robust else "linear (sessions)", sessions=sub.n_sessions,
            **({} if lin.ransac is None else {"inliers": lin.ransac.n_inliers, "sigma_px": lin.ransac.sigma_px}))
     inliers = None if lin.inliers is None else _track_inliers(lin.inliers, uv[in_session], sub)
-    sigma = lin.ransac.sigma_px if lin.ransac is not None else _start_sigma(uv[in_session], motion, in_session, lin)
     singles = np.flatnonzero(~in_session)
     X0 = lin.X if inliers is None else np.where(inliers[:, None], lin.X, np.nan)
     joined = join_single_views(uv, motion.T, motion.R, singles, lin.K, lin.R_X, lin.t_X, lin.undetermined, X0,
-                               sub.rotations[0], sigma, g.tolerance_deg, rng)
+                               sub.rotations[0], g.tolerance_deg, rng)
     left_out = np.zeros(motion.n_views, bool)
     left_out[[i for i, _ in joined.off_views]] = True
     if inliers is not None:
@@ -197,15 +194,6 @@ def _track_inliers(inliers: np.ndarray, uv: np.ndarray, grouping) -> np.ndarray:
     seen = np.isfinite(uv[..., 0])
     judged = np.stack([seen[grouping.session_of_view == s].sum(axis=0) >= 2 for s in range(grouping.n_sessions)])
     return np.all(inliers | ~judged, axis=0) & judged.any(axis=0)
-
-
-def _start_sigma(uv, motion: Motion, in_session, lin) -> float:
-    """Pixel noise per coordinate of the sessions' start (MAD of its residuals)."""
-    Rs, Ts = motion.R[in_session], motion.T[in_session]
-    res = uv - project(lin.K, lin.R_X.T @ np.transpose(Rs, (0, 2, 1)), np.nan_to_num(lin.X), Ts + Rs @ lin.t_X)
-    known = np.isfinite(lin.X[:, 0])
-    res[:, ~known] = np.nan
-    return mad_sigma(res, 3 * int(known.sum()) + 9)
 
 
 def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -> LinearEstimate:
