@@ -178,6 +178,8 @@ class Parser(argparse.ArgumentParser):
     :data:`GROUPS`."""
 
     def error(self, message: str):
+        if message.startswith("argument "):  # "argument --box: ..." -> "--box: ...", as the checks say it
+            message = message[len("argument "):]
         raise UsageError(f"{message} (see {self.prog} --help)")
 
     def groups(self) -> dict:
@@ -228,6 +230,7 @@ class Progress:
 
     def log(self, message: str) -> None:
         if not self.quiet:
+            self.close()  # a bar left open (a loop that ended early) ends its line first
             print(message, file=self.stream, flush=True)
 
     def __call__(self, event) -> None:
@@ -248,6 +251,7 @@ class Progress:
 
             bar = self._bars.get(name)
             if bar is None:
+                self.close()  # one bar at a time: another stage's bar ends its line
                 bar = self._bars[name] = tqdm(total=total, desc=f"  {name}", file=self.stream, leave=True)
             bar.update(done - bar.n)
             if done >= total:

@@ -118,7 +118,14 @@ def check_output_folder(out, *, force: bool = False, inputs=(), option: str = "-
                              "give another folder")
     if out.is_dir() and any(out.iterdir()) and read_manifest(out) is None and not force:
         raise InputError(_foreign_message(out, option))
-    check_writable_dir(out.parent if str(out.parent) else Path("."), option=option)
+    check_writable_dir(out, option=option)  # the nearest existing folder: out itself, or where it will be made
+    if out.exists():  # replaced by a rename in its parent
+        parent = out.parent if str(out.parent) else Path(".")
+        try:
+            check_writable_dir(parent, option=option)
+        except InputError:
+            raise InputError(f"{option} {str(out)!r} cannot be replaced: its folder {str(parent)!r} is not "
+                             "writable; give a folder you can write to") from None
     return out
 
 
