@@ -357,7 +357,7 @@ def _observations(args, plan, folder, progress: Progress):
 def run(args) -> int:
     """Check, then read / track, calibrate and write the output folder (complete or
     absent: :mod:`transcalib.io.folders`), then print the summary."""
-    from ..io.folders import output_folder, replacing
+    from ..io.folders import output_folder, replacing, uninterrupted
 
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
@@ -372,7 +372,7 @@ def run(args) -> int:
             result = _work(args, plan, folder, progress, t_start, worker)
         finally:
             if worker is not None:
-                worker.close()
+                uninterrupted(worker.close)  # a second Ctrl-C must not leave it writing
     result["timings"]["total_s"] = time.perf_counter() - t_start
     return _print_result(args, plan, result)
 

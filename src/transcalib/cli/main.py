@@ -16,7 +16,7 @@ import os
 import sys
 
 from .. import __version__
-from .common import EXIT_INPUT, Parser, UsageError, fail, run_guarded
+from .common import EXIT_INPUT, EXIT_INTERRUPTED, Parser, UsageError, fail, run_guarded
 
 #: Subcommand modules of this package, in ``--help`` order.
 COMMANDS = ("calibrate", "simulate", "track", "show", "undistort", "plan")
@@ -86,6 +86,14 @@ def tune_process() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # a second Ctrl-C while the first was being reported
+        return EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None) -> int:
     for stream in (sys.stdout, sys.stderr):  # "±" and "→" on a terminal that is not UTF-8
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")

@@ -55,7 +55,7 @@ from ..errors import InputError
 from .files import check_writable_dir, software_version, write_json
 
 __all__ = ["MANIFEST", "OutputFolder", "check_output_folder", "output_folder", "read_manifest", "replacing",
-           "terminate_as_interrupt"]
+           "interrupts_deferred", "uninterrupted", "terminate_as_interrupt"]
 
 #: Name of the manifest in every output folder.
 MANIFEST = "manifest.json"
@@ -185,22 +185,43 @@ def _remove(path: Path) -> None:
 
 
 @contextmanager
-def _interrupts_deferred():
+def interrupts_deferred():
     """Within the block Ctrl-C (SIGINT) and SIGTERM are held; one that came is raised as
-    ``KeyboardInterrupt`` at its end (main thread only; elsewhere nothing changes)."""
+    ``KeyboardInterrupt`` at its end (main thread only; elsewhere nothing changes). For
+    cleanup that must finish, such as stopping a helper process that writes into the
+    temporary folder before the folder is removed. A signal that comes while the handlers
+    are being swapped may still raise before the block starts: :func:`uninterrupted`
+    retries until the work is done."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     caught = []
-    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in (signal.SIGINT,
-                                                                                          signal.SIGTERM)}
+    previous = {}
     try:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            previous[s] = signal.signal(s, lambda signum, frame: caught.append(signum))
         yield
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
     if caught:
         raise KeyboardInterrupt
+
+
+def uninterrupted(work):
+    """``work()`` run to its end whatever Ctrl-C or SIGTERM comes meanwhile (each then
+    raises ``KeyboardInterrupt`` once the work is done); returns its value. ``work`` is
+    started again if an interrupt came before it started, never after."""
+    interrupted, done, value = False, False, None
+    while not done:
+        try:
+            with interrupts_deferred():
+                value, done = work(), True
+        except KeyboardInterrupt:
+            interrupted = True
+    if interrupted:
+        raise KeyboardInterrupt
+    return value
 
 
 @contextmanager
@@ -226,16 +247,14 @@ def output_folder(out, *, command: str, force: bool = False, inputs=(), info: di
     out = check_output_folder(out, force=force, inputs=inputs)
     parent = out.parent if str(out.parent) else Path(".")
     parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=parent))
+    tmp = uninterrupted(lambda: Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=parent)))
     try:
         yield OutputFolder(path=tmp, final=out)
         _write_manifest(tmp, command, info or {})
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
-        with _interrupts_deferred():
-            _swap_into_place(tmp, out)
+        uninterrupted(lambda: _swap_into_place(tmp, out))
     except BaseException:
-        with _interrupts_deferred():
-            _remove(tmp)
+        uninterrupted(lambda: _remove(tmp))
         raise
 
 
