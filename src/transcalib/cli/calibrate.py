@@ -178,6 +178,9 @@ def parse_fix(text: str | None, size) -> dict:
             out[name] = float(value)
         except ValueError:
             raise OptionError("--fix", f"{name}={value!r} is not a number") from None
+        if not np.isfinite(out[name]) or (name in ("fx", "fy") and out[name] <= 0):
+            why = "a focal length is a positive number" if name in ("fx", "fy") else "give a finite number"
+            raise OptionError("--fix", f"{name}={value} is not a valid value ({why})")
     return out
 
 
@@ -187,6 +190,7 @@ def build_options(args, size=None):
     from ..types import CalibrateOptions, RansacOptions, RefineOptions
 
     fixed = parse_fix(args.fix, size)
+    _check_refinement_options(args, fixed)
     ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
     given = {"distortion": args.distortion, "sigma_T": args.robot_sigma, "loss": args.loss,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
@@ -199,6 +203,23 @@ def build_options(args, size=None):
         raise OptionError("--target", "applies to --images only")
     _check_fixed_distortion(fixed, args)
     return options
+
+
+def _check_refinement_options(args, fixed: dict) -> None:
+    """Options of the refinement that ``--no-refine`` would ignore, and ``--estimate-skew``
+    against a fixed skew: errors naming the options."""
+    if args.no_refine:
+        given = [opt for opt, value in (("--distortion", args.distortion), ("--robot-sigma", args.robot_sigma),
+                                        ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
+                                        ("--estimate-skew", args.estimate_skew),
+                                        ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]
+        if given:
+            raise OptionError(" and ".join(given), "would do nothing with --no-refine (the linear "
+                              "estimate has no distortion, robot noise, loss or known parameters); drop "
+                              f"{'it' if len(given) == 1 else 'them'} or --no-refine")
+    if args.estimate_skew and "skew" in fixed:
+        raise OptionError("--estimate-skew", f"contradicts --fix skew={fixed['skew']:g}: the skew cannot be both "
+                          "estimated and known; drop one")
 
 
 def _check_fixed_distortion(fixed: dict, args) -> None:

@@ -38,9 +38,10 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser(NAME, help=HELP,
                               description="Plan where to move the robot (or --evaluate a poses.csv) and predict "
                                           "the calibration's accuracy before taking any image.")
-    # "--box -200,200,..." : let values that start with a minus sign and hold only numbers
-    # and commas be values, not options (argparse only accepts "-200" alone by default)
-    p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eE+-]*$")
+    # "--box -200,200,..." : let every word that starts with a minus sign and a digit be a
+    # value, not an option (argparse only takes a lone number such as "-200" by default),
+    # so that a typo in such a value is reported as the value's error
+    p._negative_number_matcher = re.compile(r"^-\.?\d")
     g = p.groups()
     _camera(g["model"])
     i = g["inputs"]
