@@ -48,3 +48,42 @@ def test_case(case, workspace, capsys):
         doc = json.loads(out)
         assert code == case.code and doc == {"status": "error", "exit_code": case.code,
                                              "error": err.strip().splitlines()[-1][len("transcalib: error: "):]}
+
+
+def test_help_is_grouped_and_explains_every_option(capsys):
+    """Every subcommand's options sit in the groups of ``GROUPS`` (inputs, model, robust,
+    outputs, performance), in that order, each with a help text; -h exits 0."""
+    import argparse
+
+    from transcalib.cli.common import GROUPS
+    from transcalib.cli.main import COMMANDS, build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    titles = [title for title, _ in GROUPS.values()]
+    for name in COMMANDS:
+        parser = sub.choices[name]
+        groups = [g for g in parser._action_groups if g._group_actions and g.title in titles]
+        assert [g.title for g in groups] == [t for t in titles if t in {g.title for g in groups}], name
+        grouped = {a for g in groups for a in g._group_actions}
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action in grouped, (name, action.option_strings or action.dest)
+            assert action.help and action.help != argparse.SUPPRESS and len(action.help) > 15, (name, action.dest)
+        assert main([name, "-h"]) == 0
+        text = capsys.readouterr().out
+        assert all(f"\n{g.title}:" in text for g in groups), name
+
+
+def test_sizes_are_spelt_one_way_everywhere(tmp_path, capsys):
+    """WxH and W,H are both taken wherever an image size is (calibrate, plan)."""
+    from transcalib.cli.common import image_size
+
+    assert image_size("640x480") == image_size("640,480") == image_size(" 640 X 480 ") == (640, 480)
+    base = ["plan", "--focal-px", "800", "--distance", "1000", "--evaluate"]
+    poses = tmp_path / "poses.csv"
+    poses.write_text("view,x,y,z\n0,0,0,0\n1,100,0,0\n2,0,100,0\n3,0,0,100\n")
+    for size in ("640x480", "640,480"):
+        assert main([*base, str(poses), "--image-size", size, "--json"]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        assert doc["status"] in ("ok", "warnings")
