@@ -87,3 +87,26 @@ def test_sizes_are_spelt_one_way_everywhere(tmp_path, capsys):
         assert main([*base, str(poses), "--image-size", size, "--json"]) == 0
         doc = json.loads(capsys.readouterr().out)
         assert doc["status"] in ("ok", "warnings")
+
+
+def test_the_python_boundary_of_the_same_cases():
+    """``calibrate(fix={"k1": 0.1})`` was a TypeError deep in the bundle adjuster and
+    ``plan(box=zeros)`` a ValueError: both are now named at the public boundary."""
+    import numpy as np
+
+    import transcalib
+    from transcalib import simulate
+    from transcalib.errors import DegenerateError, InputError
+
+    scene = simulate.paper_scene(noise_px=0.3, rng=0)
+    with pytest.raises(InputError, match="k1 is a distortion coefficient.*distortion='radial1'"):
+        transcalib.calibrate(scene.uv, scene.T, fix={"k1": 0.1})
+    with pytest.raises(InputError, match="k2 is not a coefficient of distortion='radial1'"):
+        transcalib.calibrate(scene.uv, scene.T, fix={"k2": 0.1}, distortion="radial1")
+    lin = transcalib.estimate_linear(scene.uv, scene.T)
+    with pytest.raises(InputError, match="k1"):
+        transcalib.refine(scene.uv, scene.T, lin, options=transcalib.RefineOptions(fix={"k1": 0.1}))
+    cal = transcalib.calibrate(scene.uv, scene.T, fix={"k1": 0.05}, distortion="radial2")
+    assert cal.dist[0] == 0.05 and np.isfinite(cal.dist[1])
+    with pytest.raises(DegenerateError, match="no extent along x, y, z"):
+        transcalib.plan(np.zeros(6), 6, image_size=(640, 480), focal_px=800, distance=1000)
