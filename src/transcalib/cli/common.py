@@ -23,7 +23,7 @@ from ..errors import DegenerateError, InputError, TranscalibError
 __all__ = ["EXIT_OK", "EXIT_FAILURE", "EXIT_INPUT", "EXIT_DEGENERATE", "EXIT_WARNINGS", "EXIT_INTERRUPTED", "OptionError",
            "positive_int", "positive_float", "nonnegative_float", "fraction", "image_size", "existing_file",
            "cli_message", "exit_code", "Progress", "print_json", "Parser", "UsageError", "GROUPS", "add_output_options",
-           "fail", "run_guarded", "import_in_background", "range_pair"]
+           "fail", "interrupted", "wants_json", "run_guarded", "import_in_background", "range_pair"]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -301,6 +301,31 @@ def fail(code: int, message: str, json_mode: bool, progress=None) -> int:
     return code
 
 
+#: Whether this run has reported an interrupt already (a second Ctrl-C while the first
+#: is being reported must not print a second JSON document); reset by ``main``.
+INTERRUPT_REPORTED = threading.Event()
+
+
+def interrupted(json_mode: bool, progress=None) -> int:
+    """Report Ctrl-C (or SIGTERM), once per run: one line on stderr, with ``--json`` one
+    JSON document; returns 130."""
+    if INTERRUPT_REPORTED.is_set():
+        return EXIT_INTERRUPTED
+    INTERRUPT_REPORTED.set()
+    if progress is not None:
+        progress.close()
+    print("transcalib: interrupted; no output folder was left half-written", file=sys.stderr, flush=True)
+    if json_mode:
+        print_json({"status": "interrupted", "exit_code": EXIT_INTERRUPTED, "error": "interrupted"})
+    return EXIT_INTERRUPTED
+
+
+def wants_json(argv: list[str]) -> bool:
+    """Whether ``--json`` is among the options of ``argv`` (before a ``--``): known before
+    argparse has run, for its own errors."""
+    return "--json" in (argv[:argv.index("--")] if "--" in argv else argv)
+
+
 def run_guarded(func, args) -> int:
     """Run a subcommand: every failure becomes one line (and a JSON document with
     ``--json``) and an exit code, never a traceback. SIGTERM is handled as Ctrl-C, so an
@@ -326,13 +351,7 @@ def run_guarded(func, args) -> int:
         message = f"cannot write {exc.filename or 'a file'}: {exc.strerror or exc}; nothing was written"
         return fail(EXIT_INPUT, message, json_mode, getattr(args, "_progress", None))
     except KeyboardInterrupt:
-        progress = getattr(args, "_progress", None)
-        if progress is not None:
-            progress.close()
-        print("transcalib: interrupted; no output folder was left half-written", file=sys.stderr, flush=True)
-        if json_mode:
-            print_json({"status": "interrupted", "exit_code": EXIT_INTERRUPTED, "error": "interrupted"})
-        return EXIT_INTERRUPTED
+        return interrupted(json_mode, getattr(args, "_progress", None))
     except Exception as exc:  # noqa: BLE001 - a bug or a failure of a helper process: exit 1, no traceback
         if os.environ.get("TRANSCALIB_TRACEBACK"):
             import traceback

@@ -16,7 +16,7 @@ import os
 import sys
 
 from .. import __version__
-from .common import EXIT_INPUT, EXIT_INTERRUPTED, Parser, UsageError, fail, run_guarded
+from .common import EXIT_INPUT, INTERRUPT_REPORTED, Parser, UsageError, fail, interrupted, run_guarded, wants_json
 
 #: Subcommand modules of this package, in ``--help`` order.
 COMMANDS = ("calibrate", "simulate", "track", "show", "undistort", "plan")
@@ -87,21 +87,22 @@ def tune_process() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    INTERRUPT_REPORTED.clear()
     try:
         return _main(argv)
-    except KeyboardInterrupt:  # a second Ctrl-C while the first was being reported
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt:  # before the command ran, or a second Ctrl-C while the first was reported
+        return interrupted(wants_json(argv))
 
 
-def _main(argv: list[str] | None) -> int:
+def _main(argv: list[str]) -> int:
     for stream in (sys.stdout, sys.stderr):  # "±" and "→" on a terminal that is not UTF-8
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
-    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     try:
         args = build_parser().parse_args(argv)
     except UsageError as exc:  # before any option is known: --json looked up by hand
-        return fail(EXIT_INPUT, str(exc), "--json" in argv[:argv.index("--")] if "--" in argv else "--json" in argv)
+        return fail(EXIT_INPUT, str(exc), wants_json(argv))
     except SystemExit as exc:  # --help, --version
         return exc.code if isinstance(exc.code, int) else EXIT_INPUT
     return run_guarded(args.func, args)
