@@ -67,6 +67,7 @@ CASES = [
     C(f"calibrate {S} --image-size 640 --out {{o}}", 2, ("--image-size", "WIDTHxHEIGHT")),
     C(f"calibrate {S} --image-size 0x480 --out {{o}}", 2, ("--image-size",)),
     C(f"calibrate {S} --target squares --out {{o}}", 2, ("--target", "--images")),
+    C(f"calibrate {B} --image-size 640x480 --out {{o}}", 2, ("--image-size", "320x240")),
     C("calibrate --images {board}/v0.png {board}/v0.png {board}/v0.png {board}/v0.png --poses {board}/poses4.csv "
       "--out {o}", 2, ("--images", "same file")),
     C("calibrate --images {board}/v0.png {board}/copy0.png {board}/v2.png {board}/v3.png --poses {board}/poses4.csv "

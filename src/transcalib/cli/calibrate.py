@@ -261,7 +261,11 @@ def check_all(args) -> dict:
         if len(images) != len(poses.views):
             raise OptionError("--images", f"{len(images)} images but {len(poses.views)} poses in {args.poses}; "
                               "give one pose per image")
-        size = size or _image_size_of(plan["images"][0])
+        actual = _image_size_of(plan["images"][0])
+        if size is not None and tuple(size) != actual:
+            raise OptionError("--image-size", f"{size[0]}x{size[1]} but the images are {actual[0]}x{actual[1]} px "
+                              f"({str(plan['images'][0])!r}); drop --image-size or give their size")
+        size = actual
     elif size is None and plan["truth"] is not None and "image_size" in plan["truth"]:
         size = tuple(int(v) for v in plan["truth"]["image_size"])
     plan["image_size"] = size
