@@ -193,7 +193,11 @@ class Interrupter:
         self.thread.start()
 
     def _files(self) -> int:
-        return sum(1 for t in self.out.parent.glob(f".{self.out.name}.tmp-*") for p in t.rglob("*") if p.is_file())
+        try:
+            return sum(1 for t in self.out.parent.glob(f".{self.out.name}.tmp-*") for p in t.rglob("*")
+                       if p.is_file())
+        except OSError:  # the folder is being renamed or removed as we look
+            return 0
 
     def _watch(self):
         while self.armed:  # sent again until the command takes it
