@@ -16,7 +16,7 @@ chosen), the others carry independent pixel noise. tf at ``TF_HZ``:
 so ``base_link -> tool0`` is the flange pose of ``make_sessions.poses`` (in metres).
 Storage: ``mcap`` or ``sqlite3`` (ROS 2 folder), ``ros1`` (a ``.bag`` file); encodings:
 ``mono8``, ``mono16``, ``rgb8``, ``bgr8``, ``bayer_rggb8`` (Image), ``jpeg``, ``png``
-(CompressedImage). Deterministic.
+(CompressedImage; JPEG at quality 80, image_transport's default). Deterministic.
 
     python examples/make_bag.py OUT [--storage mcap|sqlite3|ros1] [--encoding mono8|...]
 """
@@ -40,6 +40,7 @@ STOP_S, MOVE_S, LEAD_S = 1.0, 0.8, 0.6
 EXPOSURE_S, BLUR_SAMPLES, DEFOCUS_SIGMA, NOISE_STD = 0.06, 3, 1.5, 1.0
 START_NS = 1_700_000_000_000_000_000
 IMAGE_TOPIC = "/camera/image_raw"
+JPEG_QUALITY = 80  # image_transport's default
 
 
 def _sessions_module():
@@ -124,7 +125,7 @@ def _encode(store, grey: np.ndarray, encoding: str, header):
     types = store.types
     if encoding in ("jpeg", "png"):
         ok, buf = cv2.imencode(f".{'jpg' if encoding == 'jpeg' else 'png'}", grey,
-                               [cv2.IMWRITE_JPEG_QUALITY, 95] if encoding == "jpeg" else [])
+                               [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if encoding == "jpeg" else [])
         return types["sensor_msgs/msg/CompressedImage"](header=header, format=encoding, data=buf.ravel())
     rgb = np.stack([grey, (grey * 0.9).astype(np.uint8), (grey * 0.8).astype(np.uint8)], -1)
     pixels = {"mono8": grey, "mono16": grey.astype(np.uint16) * 257, "rgb8": rgb, "bgr8": rgb[..., ::-1],
@@ -190,6 +191,10 @@ def write_bag(path, storage: str = "mcap", encoding: str = "mono8", run: Run | N
     frames = render_frames(run, times) if frames is None else frames
     ros1 = storage == "ros1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if ros1:  # Noetic's store in rosbags lacks tf2_msgs
+        from rosbags.typesys import get_types_from_msg
+
+        store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
     writer = _writer(Path(path), storage)
     with writer:
         conns, kw = {}, {"typestore": store}

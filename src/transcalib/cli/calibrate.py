@@ -189,9 +189,9 @@ def check_all(args) -> dict:
     plan = {"out": out, "formats": parse_formats(args.formats)}
     build_options(args, args.image_size or (1, 1))  # every option but the image size checked now
     plan["truth"] = read_truth(args.truth) if args.truth else None
+    bag = bag_options(args)
     if args.tracks:
         plan["tracks"] = existing_file("--tracks", args.tracks)
-    bag = bag_options(args)
     if bag is not None:
         return _plan_bag(args, plan, bag)
     if args.poses is None:
