@@ -16,7 +16,7 @@ HELP = "write the still images of a ROS bag (one per stop) as PNG and their flan
 
 #: BagOptions field (or BagError parameter) -> the option a user types.
 BAG_OPTIONS = {"path": "--bag", "image_topic": "--image-topic", "base_frame": "--base-frame",
-               "flange_frame": "--flange-frame", "tf": "--bag", "still": "--still-mm/--still-deg/--still-window",
+               "flange_frame": "--flange-frame", "tf": "--bag", "still": "--bag",
                "still_mm": "--still-mm", "still_deg": "--still-deg", "still_window_s": "--still-window"}
 
 

@@ -116,7 +116,7 @@ def _check_topic(reader, path: Path, topic: str) -> str:
 
 def _no_still_error(sel: StillSelection, topic: str, options: BagOptions) -> BagError:
     n, moved, uncovered = len(sel.stop), int(sel.moved.sum()), int(sel.uncovered.sum())
-    least = f"; the stillest moved {sel.max_move_mm[sel.moved].min():.3g} mm and turned " \
+    least = f"; the least motion within a window was {sel.max_move_mm[sel.moved].min():.3g} mm and " \
             f"{sel.max_turn_deg[sel.moved].min():.3g} deg" if moved else ""
     return BagError("still", f"no still frames on {topic}: of {n} images, {moved} were taken while the flange moved "
                     f"more than {options.still_mm:g} mm or {options.still_deg:g} deg within {options.still_window_s:g} "
