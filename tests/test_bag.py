@@ -23,6 +23,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 TOPIC = "/camera/image_raw"
 FRAMES = ["--image-topic", TOPIC, "--base-frame", "base_link", "--flange-frame", "tool0"]
 OPTIONS = BagOptions(TOPIC, "base_link", "tool0")
+STOPS_PER_SESSION = 4  # 8 views: K and the hand-eye pose from 2 sessions, tracked in ~4 s
 
 
 def _make_bag_module():
@@ -33,12 +34,13 @@ def _make_bag_module():
 
 
 MB = _make_bag_module()
+N_VIEWS, N_IMAGES = 2 * STOPS_PER_SESSION, len(MB.frame_times(MB.make_run(stops_per_session=STOPS_PER_SESSION)))
 
 
 @pytest.fixture(scope="module")
 def rendered():
     """The run and its frames (rendered once for every bag of this module)."""
-    run = MB.make_run()
+    run = MB.make_run(stops_per_session=STOPS_PER_SESSION)
     times = MB.frame_times(run)
     return run, times, MB.render_frames(run, times)
 
@@ -84,14 +86,14 @@ def raw_route(bags, tmp_path_factory):
 def test_bag_route_equals_images_and_poses_route(raw_route, capsys):
     views = raw_route / "views"
     pngs = sorted(views.glob("view*.png"))
-    assert len(pngs) == 12 and (views / "poses.csv").is_file()
+    assert len(pngs) == N_VIEWS and (views / "poses.csv").is_file()
     code, _, err = _cli(capsys, "calibrate", "--images", *pngs, "--poses", views / "poses.csv", "--unit", "m",
                         "--out", raw_route / "images", "--formats", "json", "--quiet")
     assert code == 0, err
     a, b = _calibration(raw_route / "cal"), _calibration(raw_route / "images")
     Ka, Kb = np.array(a["K"]), np.array(b["K"])
     assert np.abs(Ka - Kb).max() <= 1e-6 * np.abs(Kb).max()
-    assert a["unit"] == b["unit"] == "m" and a["inputs"]["bag_images"]["used"] == 12
+    assert a["unit"] == b["unit"] == "m" and a["inputs"]["bag_images"]["used"] == N_VIEWS
     K_true = MB.K
     assert np.all(np.abs(Ka[[0, 1, 0, 1], [0, 1, 2, 2]] - K_true[[0, 1, 0, 1], [0, 1, 2, 2]]) < 0.5)
 
@@ -101,7 +103,7 @@ def test_views_are_the_stops_with_their_tf_poses(bags, rendered):
     window leaves the stop dropped; the defocused first frame of a stop never chosen."""
     run, times, _ = rendered
     views = read_bag(bags("mcap"), OPTIONS)
-    assert views.n_views == len(run.T) == 12
+    assert views.n_views == len(run.T) == N_VIEWS
     np.testing.assert_allclose(views.T, run.T / 1000.0, atol=1e-12)
     assert rotation_angle_deg(np.swapaxes(views.R, 1, 2) @ run.R).max() < 1e-9
     t = (views.stamps_ns - MB.START_NS) / 1e9
@@ -116,7 +118,7 @@ def test_views_are_the_stops_with_their_tf_poses(bags, rendered):
     np.testing.assert_array_equal(sel.uncovered, ~covered)
     c = views.counts()
     assert c["images"] == len(times) and c["used"] + c["still_not_sharpest"] + c["moved"] + c["outside_tf"] == c["images"]
-    assert c["moved"] > 40
+    assert c["moved"] > N_IMAGES / 3 and c["stops"] == N_VIEWS
 
 
 @pytest.mark.parametrize("storage, single_file", [("sqlite3", False), ("sqlite3", True), ("mcap", True),
@@ -137,9 +139,10 @@ def test_every_storage_gives_the_same_views(bags, storage, single_file):
 
 
 def test_compressed_images_within_the_calibrations_std(bags, raw_route, tmp_path, capsys):
-    """JPEG (quality 80, image_transport's default) moves K by less than 3 standard
-    deviations of the difference of the two calibrations, sqrt(std_raw^2 + std_jpeg^2)
-    (measured: at most 1.7; 2.5 std of the raw calibration alone)."""
+    """JPEG at quality 95 moves K by less than 3 standard deviations of the difference
+    of the two calibrations, sqrt(std_raw^2 + std_jpeg^2) (measured: fx 0.2, fy 0.2,
+    cx 1.6, cy 0.7; in std of the raw calibration alone 0.3, 0.2, 2.1, 1.0). At quality
+    80, image_transport's default, fx and fy moved by up to 3.8 raw std (2.5 combined)."""
     code, _, err = _cli(capsys, "calibrate", "--bag", bags("mcap", "jpeg"), *FRAMES, "--out", tmp_path / "jpeg",
                         "--formats", "json", "--quiet")
     assert code == 0, err
@@ -148,7 +151,7 @@ def test_compressed_images_within_the_calibrations_std(bags, raw_route, tmp_path
     for name, (i, j) in {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}.items():
         std = np.hypot(raw["std"][name], jpeg["std"][name])
         assert abs(Kj[i, j] - K[i, j]) < 3 * std, (name, Kj[i, j] - K[i, j], std)
-    assert abs(Kj[0, 0] / K[0, 0] - 1) < 1e-3
+    assert abs(Kj[0, 0] / K[0, 0] - 1) < 2e-4
 
 
 # ------------------------------------------------------------------ image encodings
@@ -265,12 +268,13 @@ def _clean_error(code, err, *words):
 @pytest.mark.parametrize("command", ["calibrate", "extract"])
 @pytest.mark.parametrize("change, words", [
     ({"--image-topic": "/camera/missing"}, ["--image-topic", "'/camera/missing' is not in the bag",
-                                            "its image topics: /camera/image_raw (Image, 107 messages)"]),
+                                            f"its image topics: /camera/image_raw (Image, {N_IMAGES} messages)"]),
     ({"--image-topic": "/tf"}, ["--image-topic", "TFMessage topic, not an image topic"]),
     ({"--flange-frame": "tool1"}, ["--flange-frame", "'tool1' is not in the tf tree",
                                    "base_link, camera_link, link_1, tool0, world"]),
     ({"--base-frame": "base"}, ["--base-frame", "'base' is not in the tf tree"]),
-    ({"--still-window": "3"}, ["no still frames", "of 107 images, 95 were taken while the flange moved", "--still-mm"]),
+    ({"--still-window": "3"}, ["--bag: no still frames", f"of {N_IMAGES} images, ", "were taken while the flange moved",
+                                "--still-mm"]),
 ])
 def test_bag_errors_name_the_option(bags, tmp_path, capsys, command, change, words):
     args = dict(zip(FRAMES[::2], FRAMES[1::2]))
