@@ -321,3 +321,20 @@ def test_extract_writes_what_the_pose_reader_reads(raw_route, bags):
     assert poses.rotation_format == "quaternion" and poses.images == ref.names
     np.testing.assert_array_equal(poses.T, ref.T)
     assert rotation_angle_deg(np.swapaxes(poses.R, 1, 2) @ ref.R).max() < 1e-6
+
+
+def test_sparse_tf_motion_seen_between_samples():
+    """tf at 0.1 Hz: no sample falls in an image's window, yet the interpolated motion
+    at the window's ends marks it moved; where the samples agree, it is still."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from transcalib.io.bag import select_still
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    tree = TfTree()
+    for sec, x in ((0, 0.0), (10, 0.0), (20, 1.0)):
+        tree.add(_transform(store, "base", "flange", sec, [x, 0.0, 0.0], [0, 0, 0]), static=False)
+    sel = select_still(tree.chain("base", "flange"), np.array([5, 15, 25]) * 10**9, OPTIONS)
+    assert sel.stop.tolist() == [0, -1, -1] and sel.moved.tolist() == [False, True, False]
+    assert sel.uncovered.tolist() == [False, False, True]
+    np.testing.assert_allclose(sel.max_move_mm[1], 25.0)

@@ -75,19 +75,30 @@ def _needed_samples(times: np.ndarray, lo_t: np.ndarray, hi_t: np.ndarray) -> np
     return np.cumsum(marks)[:-1] > 0
 
 
+def _deviation(T_s, R_s, T_k, R_k):
+    """Distance (metres) and angle (degrees) of poses ``(n, m, ...)`` from ``(n, ...)``."""
+    dist = np.linalg.norm(T_k - T_s[:, None], axis=-1)
+    return dist, rotation_angle_deg(np.swapaxes(R_s, 1, 2)[:, None] @ R_k)
+
+
 def _window_motion(chain: Chain, stamps_ns, T_s, R_s, half_ns: int):
     """Largest distance (metres) and angle (degrees) from the pose at each stamp over
-    the tf samples of its window: ``(n,)``, ``(n,)``."""
+    its window ``(n,)``, ``(n,)``: at the tf samples within it and at its two ends (the
+    chain interpolates between samples, so these bound the motion)."""
     n = len(stamps_ns)
     times = chain.sample_times_ns()
     if len(times) == 0 or n == 0:
         return np.zeros(n), np.zeros(n)
-    times = times[_needed_samples(times, stamps_ns - half_ns, stamps_ns + half_ns)]
-    T_k, R_k, _ = chain.pose_at(times)
-    idx, mask = _window_indices(times, stamps_ns - half_ns, stamps_ns + half_ns)
-    dist = np.linalg.norm(T_k[idx] - T_s[:, None], axis=-1)
-    angle = rotation_angle_deg(np.swapaxes(R_s, 1, 2)[:, None] @ R_k[idx])
-    return np.where(mask, dist, 0.0).max(axis=1), np.where(mask, angle, 0.0).max(axis=1)
+    lo, hi = stamps_ns - half_ns, stamps_ns + half_ns
+    T_e, R_e, _ = chain.pose_at(np.concatenate([lo, hi]))
+    dist, angle = _deviation(T_s, R_s, T_e.reshape(2, n, 3).swapaxes(0, 1), R_e.reshape(2, n, 3, 3).swapaxes(0, 1))
+    times = times[_needed_samples(times, lo, hi)]
+    if len(times):
+        T_k, R_k, _ = chain.pose_at(times)
+        idx, mask = _window_indices(times, lo, hi)
+        d, a = _deviation(T_s, R_s, T_k[idx], R_k[idx])
+        dist, angle = np.hstack([dist, np.where(mask, d, 0.0)]), np.hstack([angle, np.where(mask, a, 0.0)])
+    return dist.max(axis=1), angle.max(axis=1)
 
 
 def _stops(still: np.ndarray, order: np.ndarray, T, R, options: BagOptions) -> np.ndarray:
