@@ -99,22 +99,43 @@ def add_parser(sub) -> None:
 
 def write_views(views, out) -> list:
     """The images as PNG (grey or colour, 8 or 16 bit as decoded) and ``poses.csv``
-    (``view,x,y,z,qx,qy,qz,qw,image``, metres), each file atomically, poses.csv last."""
+    (``view,x,y,z,qx,qy,qz,qw,image``, metres), written into a temporary folder beside
+    ``out`` first: a new ``out`` appears complete (one rename), an existing one receives
+    the files one rename each, ``poses.csv`` last; a failure leaves nothing."""
+    import os
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(stage, 0o777 & ~mask)  # mkdtemp makes 0700
+    try:
+        names = _write_files(views, stage)
+        if not out.exists():
+            stage.rename(out)
+        else:
+            for name in names:
+                (stage / name).replace(out / name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return [out / name for name in names]
+
+
+def _write_files(views, folder) -> list[str]:
+    """The PNGs and ``poses.csv`` in ``folder``; their names, poses.csv last."""
     import cv2
 
-    from ..io import atomic_write, write_poses_csv
+    from ..io import write_poses_csv
 
-    written = []
     for name, image in zip(views.names, views.images):
-        ok, buf = cv2.imencode(".png", image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-        if not ok:
-            raise OSError(f"PNG encoding of {name} failed")
-        with atomic_write(out / name, "wb") as fh:
-            fh.write(buf.tobytes())
-        written.append(out / name)
+        if not cv2.imwrite(str(folder / name), image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"PNG writing of {folder / name} failed")
     poses = views.poses()
-    write_poses_csv(out / "poses.csv", poses.T, poses.views, images=poses.images, R=poses.R)
-    return written + [out / "poses.csv"]
+    write_poses_csv(folder / "poses.csv", poses.T, poses.views, images=poses.images, R=poses.R)
+    return views.names + ["poses.csv"]
 
 
 def run(args) -> int:
