@@ -18,7 +18,10 @@ Storage: ``mcap`` or ``sqlite3`` (ROS 2 folder), ``ros1`` (a ``.bag`` file); enc
 ``mono8``, ``mono16``, ``rgb8``, ``bgr8``, ``bayer_rggb8`` (Image), ``jpeg``, ``png``
 (CompressedImage; JPEG at quality 95). Deterministic.
 
-    python examples/make_bag.py OUT [--storage mcap|sqlite3|ros1] [--encoding mono8|...]
+With ``--setup eye-to-hand`` tf holds the same motion read the other way: the flange
+carries the scene, the camera is fixed in the base, tf has the inverse flange poses.
+
+    python examples/make_bag.py OUT [--storage mcap|sqlite3|ros1] [--encoding mono8|...] [--setup ...]
 """
 
 from __future__ import annotations
@@ -164,9 +167,12 @@ def _transform(store, header, child: str, t, R):
     return types["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=tr)
 
 
-def messages(store, run: Run, frames: np.ndarray, times: np.ndarray, encoding: str, ros1: bool):
+def messages(store, run: Run, frames: np.ndarray, times: np.ndarray, encoding: str, ros1: bool,
+             eye_to_hand: bool = False):
     """``(topic, ns, message)`` of the run in time order: tf_static once, tf at ``TF_HZ``,
-    the images."""
+    the images. ``eye_to_hand``: the same images read the other way (the flange carries
+    the scene, the camera is fixed in the base at the eye-in-hand ``(R_X, t_X)``), so tf
+    holds the inverse flange poses ``(R_i^T, -R_i^T T_i)``."""
     tfm = store.types["tf2_msgs/msg/TFMessage"]
     h0, _ = _header(store, 0.0, "world", ros1)
     static = [_transform(store, h0, "base_link", [0.5, -0.2, 0.8], rotvec_to_matrix([0, 0, 0.3])),
@@ -174,6 +180,9 @@ def messages(store, run: Run, frames: np.ndarray, times: np.ndarray, encoding: s
     out = [("/tf_static", START_NS, tfm(transforms=static))]
     tf_t = np.arange(0.0, run.end_s + 0.5, 1.0 / TF_HZ)
     T, R = run.pose(tf_t)
+    if eye_to_hand:
+        R = np.swapaxes(R, 1, 2)
+        T = -np.einsum("nij,nj->ni", R, T)
     for t, Ti, Ri in zip(tf_t, T / 1000.0, R):
         hb, ns = _header(store, t, "base_link", ros1)
         hl, _ = _header(store, t, "/link_1" if ros1 else "link_1", ros1)  # ROS 1 frames may carry a slash
@@ -185,9 +194,11 @@ def messages(store, run: Run, frames: np.ndarray, times: np.ndarray, encoding: s
     return sorted(out, key=lambda m: m[1])
 
 
-def write_bag(path, storage: str = "mcap", encoding: str = "mono8", run: Run | None = None, frames=None) -> Path:
+def write_bag(path, storage: str = "mcap", encoding: str = "mono8", run: Run | None = None, frames=None,
+              setup: str = "eye-in-hand") -> Path:
     """Write the run's bag at ``path`` (a folder for ``mcap`` / ``sqlite3``, a ``.bag``
-    file for ``ros1``); ``frames`` from :func:`render_frames` (rendered when None)."""
+    file for ``ros1``); ``frames`` from :func:`render_frames` (rendered when None);
+    ``setup="eye-to-hand"``: tf of the same images read eye-to-hand (see :func:`messages`)."""
     from rosbags.typesys import Stores, get_typestore
 
     run = run or make_run()
@@ -202,7 +213,7 @@ def write_bag(path, storage: str = "mcap", encoding: str = "mono8", run: Run | N
     writer = _writer(Path(path), storage)
     with writer:
         conns, kw = {}, {"typestore": store}
-        for topic, ns, msg in messages(store, run, frames, times, encoding, ros1):
+        for topic, ns, msg in messages(store, run, frames, times, encoding, ros1, setup == "eye-to-hand"):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msg.__msgtype__, **kw)
             data = store.serialize_ros1(msg, msg.__msgtype__) if ros1 else store.serialize_cdr(msg, msg.__msgtype__)
@@ -227,8 +238,9 @@ def main(argv=None) -> Path:
     p.add_argument("--storage", choices=["mcap", "sqlite3", "ros1"], default="mcap")
     p.add_argument("--encoding", choices=["mono8", "mono16", "rgb8", "bgr8", "bayer_rggb8", "jpeg", "png"],
                    default="mono8")
+    p.add_argument("--setup", choices=["eye-in-hand", "eye-to-hand"], default="eye-in-hand")
     args = p.parse_args(argv)
-    return write_bag(args.out, args.storage, args.encoding)
+    return write_bag(args.out, args.storage, args.encoding, setup=args.setup)
 
 
 if __name__ == "__main__":

@@ -51,11 +51,12 @@ def bags(rendered, tmp_path_factory):
     root, made = tmp_path_factory.mktemp("bags"), {}
     run, _, frames = rendered
 
-    def get(storage="mcap", encoding="mono8"):
-        if (storage, encoding) not in made:
-            name = f"{storage}_{encoding}" + (".bag" if storage == "ros1" else "")
-            made[storage, encoding] = MB.write_bag(root / name, storage, encoding, run=run, frames=frames)
-        return made[storage, encoding]
+    def get(storage="mcap", encoding="mono8", setup="eye-in-hand"):
+        if (storage, encoding, setup) not in made:
+            name = f"{storage}_{encoding}_{setup}" + (".bag" if storage == "ros1" else "")
+            made[storage, encoding, setup] = MB.write_bag(root / name, storage, encoding, run=run, frames=frames,
+                                                          setup=setup)
+        return made[storage, encoding, setup]
 
     return get
 
@@ -152,6 +153,22 @@ def test_compressed_images_within_the_calibrations_std(bags, raw_route, tmp_path
         std = np.hypot(raw["std"][name], jpeg["std"][name])
         assert abs(Kj[i, j] - K[i, j]) < 3 * std, (name, Kj[i, j] - K[i, j], std)
     assert abs(Kj[0, 0] / K[0, 0] - 1) < 2e-4
+
+
+def test_eye_to_hand_bag(bags, raw_route, tmp_path, capsys):
+    """The same images with tf read eye-to-hand (the flange carries the scene, tf the
+    inverse poses): --setup eye-to-hand gives the eye-in-hand K and the camera in the
+    base at the eye-in-hand R_X."""
+    from transcalib.handeye.simulate import DEFAULT_R_X
+
+    code, _, err = _cli(capsys, "calibrate", "--bag", bags(setup="eye-to-hand"), *FRAMES, "--setup", "eye-to-hand",
+                        "--out", tmp_path / "e2h", "--formats", "json", "--quiet")
+    assert code == 0, err
+    K, Ke = np.array(_calibration(raw_route / "cal")["K"]), np.array(_calibration(tmp_path / "e2h")["K"])
+    assert np.abs(Ke - K).max() <= 1e-6 * np.abs(K).max()
+    he = json.loads((tmp_path / "e2h" / "hand_eye.json").read_text())
+    assert he["setup"] == "eye-to-hand" and he["unit"] == "m"
+    assert rotation_angle_deg(np.array(he["R_base_camera"]).T @ DEFAULT_R_X) < 0.05
 
 
 # ------------------------------------------------------------------ image encodings
