@@ -117,6 +117,14 @@ CASES = [
     C("simulate --out {scene}/tracks.csv", 2, ("--out", "existing file")),
     C("simulate --out {foreign}", 2, ("--out", "not a transcalib run")),
     C("simulate", 2, ("--out", "required")),
+    # --- extract
+    C("extract --out {o}", 2, ("--bag", "required")),
+    C("extract --bag {missing}.mcap --image-topic /cam --base-frame base --flange-frame tool0 --out {o}", 2,
+      ("--bag",)),
+    C("extract --bag {empty}.csv --image-topic /cam --base-frame base --flange-frame tool0 --out {o}", 2, ("--bag",)),
+    C("extract --bag {missing}.mcap --out {o}", 2, ("--image-topic", "required with --bag")),
+    C("extract --bag {missing}.mcap --image-topic /cam --base-frame base --flange-frame tool0 --out {foreign}", 2,
+      ("--out", "not a transcalib run")),
     # --- track
     C("track {board}/v0.png {board}/v0.png {board}/v0.png {board}/v0.png -o {o}.csv", 2, ("IMAGE", "same file")),
     C("track {board}/v0.png {board}/v1.png -o {scene}", 2, ("-o/--output", "is a folder")),

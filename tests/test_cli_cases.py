@@ -64,7 +64,8 @@ def test_help_is_grouped_and_explains_every_option(capsys):
         parser = sub.choices[name]
         groups = [g for g in parser._action_groups if g._group_actions and g.title in titles]
         assert [g.title for g in groups] == [t for t in titles if t in {g.title for g in groups}], name
-        grouped = {a for g in groups for a in g._group_actions}
+        bag = [g for g in parser._action_groups if g.title == "ROS bag input (with --bag)"]  # extract.py's
+        grouped = {a for g in groups + bag for a in g._group_actions}
         for action in parser._actions:
             if isinstance(action, argparse._HelpAction):
                 continue

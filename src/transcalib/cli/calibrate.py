@@ -19,6 +19,7 @@ from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
 from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, add_output_options, existing_file, image_size,
                      import_in_background, positive_float, positive_int, print_json)
+from .extract import add_bag_arguments
 
 NAME = "calibrate"
 HELP = "calibrate from tracks (or images) and robot poses; write calibration, exports and report"
@@ -48,6 +49,7 @@ def add_parser(sub) -> None:
     out.add_argument("--truth", metavar="FILE", help="truth.json of a simulated scene: print and plot the errors")
     out.add_argument("--strict", action="store_true", help="exit with status 4 when the calibration has warnings")
     add_output_options(out)
+    add_bag_arguments(c, with_bag=False)
     perf = g["performance"]
     perf.add_argument("--subset-points", type=subset_points, default=SUBSET_POINTS, metavar="N|all",
                       help=f"with more tracks, fit a random subset of N (default {SUBSET_POINTS}) to convergence, "
@@ -62,10 +64,14 @@ def _inputs(g) -> None:
     src.add_argument("--tracks", metavar="FILE", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
     src.add_argument("--images", nargs="+", metavar="IMAGE",
                      help="images in view order (or matched to the image column of --poses); tracked first")
-    g.add_argument("--poses", required=True, metavar="FILE",
+    src.add_argument("--bag", metavar="RUN", help="a ROS 2 bag folder, .mcap or .db3 file, or ROS 1 .bag: its still "
+                                                  "images and their flange poses from tf (see ROS bag input)")
+    g.add_argument("--poses", metavar="FILE",
                    help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]: the flange pose of "
-                        "each view; with orientations, the camera's pose on the flange (hand-eye) too")
-    g.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
+                        "each view; with orientations, the camera's pose on the flange (hand-eye) too "
+                        "(required, except with --bag)")
+    g.add_argument("--unit", default=None,
+                   help="length unit of the poses; every output length is in it (default mm; with --bag m, tf's unit)")
     g.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
                         "or a,b,c (KUKA Z-Y-X Euler, degrees); default: found from the columns")
@@ -199,8 +205,8 @@ def build_options(args, size=None):
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
                                unit=args.unit, subset_points=args.subset_points, setup=args.setup,
                                session_tolerance_deg=args.session_tolerance_deg)
-    if args.target and not args.images:
-        raise OptionError("--target", "applies to --images only")
+    if args.target and not (args.images or args.bag):
+        raise OptionError("--target", "applies to --images or --bag only")
     _check_fixed_distortion(fixed, args)
     return options
 
@@ -243,14 +249,21 @@ def check_all(args) -> dict:
     """Every check of step (1); returns what the later steps need."""
     from ..io import read_poses
     from ..io.folders import check_output_folder
+    from .extract import bag_options
 
-    inputs = [p for p in (args.tracks, args.poses, args.truth, *(args.images or ())) if p]
+    args.unit = _input_unit(args)
+    inputs = [p for p in (args.tracks, args.poses, args.truth, args.bag, *(args.images or ())) if p]
     out = check_output_folder(args.out, force=args.force, inputs=inputs)
     plan = {"out": out, "inputs": inputs, "formats": parse_formats(args.formats)}
     build_options(args, args.image_size or (1, 1))  # every option but the image size checked now
     plan["truth"] = read_truth(args.truth) if args.truth else None
+    bag = bag_options(args)
     if args.tracks:
         plan["tracks"] = existing_file("--tracks", args.tracks)
+    if bag is not None:
+        return _plan_bag(args, plan, bag)
+    if args.poses is None:
+        raise OptionError("--poses", "required with --tracks or --images (the flange pose of each view)")
     poses = read_poses(existing_file("--poses", args.poses), rotation_format=args.rotation_format)
     plan["poses"] = poses
     plan["sessions"] = _sessions(poses, args.session_tolerance_deg)
@@ -270,6 +283,33 @@ def check_all(args) -> dict:
         size = tuple(int(v) for v in plan["truth"]["image_size"])
     plan["image_size"] = size
     plan["options"] = build_options(args, size)
+    return plan
+
+
+def _input_unit(args) -> str:
+    """``--unit``: mm by default; with ``--bag`` metres, tf's unit, and nothing else."""
+    if not args.bag:
+        return args.unit or "mm"
+    if args.unit not in (None, "m"):
+        raise OptionError("--unit", f"tf lengths are in metres: a --bag run takes --unit m (or none), got {args.unit!r}")
+    return "m"
+
+
+def _plan_bag(args, plan: dict, options) -> dict:
+    """The rest of :func:`check_all` for ``--bag``: the bag read (its still images and
+    flange poses), the sessions, the image size and the options."""
+    from .extract import check_bag_path, read_bag_views
+
+    for option, value in (("--poses", args.poses), ("--rotation-format", args.rotation_format)):
+        if value is not None:
+            raise OptionError(option, "not with --bag: the flange poses come from the bag's tf")
+    check_bag_path(args)
+    views = read_bag_views(args, options, args._progress)
+    args._progress.log(f"  {views.describe(options)}")
+    plan.update(bag=views, poses=views.poses(), images=list(views.images))
+    plan["sessions"] = _sessions(plan["poses"], args.session_tolerance_deg)
+    plan["image_size"] = args.image_size or (views.images[0].shape[1], views.images[0].shape[0])
+    plan["options"] = build_options(args, plan["image_size"])
     return plan
 
 
@@ -347,17 +387,18 @@ def track_images(images, target, progress: Progress, T=None, sessions=None):
     """Tracks from images: ``target="squares"`` finds the corners of dark squares; with
     the robot translations ``T`` the epipoles are checked against them; several
     ``sessions`` are tracked each alone and linked."""
+    images = [p if isinstance(p, np.ndarray) else str(p) for p in images]  # paths, or a bag's pixels
     if sessions is not None:
         from ..images import track_sessions
 
-        return track_sessions([str(p) for p in images], sessions.session_of_view, T=T)
+        return track_sessions(images, sessions.session_of_view, T=T)
     if target == "squares":
         from ..images import track_squares
 
-        return track_squares([str(p) for p in images], progress=progress)
+        return track_squares(images, progress=progress)
     from ..images import track
 
-    return track([str(p) for p in images], progress=progress, T=T)
+    return track(images, progress=progress, T=T)
 
 
 def _observations(args, plan, folder, progress: Progress):
@@ -367,12 +408,13 @@ def _observations(args, plan, folder, progress: Progress):
     from ..io.ids import point_id_array
 
     poses = plan["poses"]
-    if args.images:
+    if args.images or args.bag:
         progress.log(f"tracking {len(plan['images'])} images ...")
         tracks = track_images(plan["images"], args.target, progress, T=poses.T, sessions=plan["sessions"])
         ids = point_id_array(tracks.ids)
         tio.write_tracks_csv(folder.file("tracks.csv"), tracks.uv, ids, poses.views)
-        return tracks.uv, ids, tracks.colors, [p.name for p in plan["images"]]
+        names = plan["bag"].names if args.bag else [p.name for p in plan["images"]]
+        return tracks.uv, ids, tracks.colors, names
     uv, ids = tio.tracks_to_uv(plan["tracks"], poses)
     check_points_inside(uv, plan["image_size"], "--image-size" if args.image_size else "--truth")
     names = poses.images or [f"view{v}.png" for v in poses.views]
@@ -433,7 +475,9 @@ def _work(args, plan, folder, progress: Progress, t_start: float, worker) -> dic
                     unit=args.unit, subset_points=opts.subset_points, rng=args.seed, progress=progress)
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
-    inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
+    inputs = {"tracks": None if args.tracks is None else str(args.tracks),
+              "poses": None if args.poses is None else str(args.poses),
+              **({} if not args.bag else {"bag": str(args.bag), "bag_images": plan["bag"].counts()}),
               "images": None if not args.images else [str(p) for p in plan["images"]],
               "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
               "image_size_from": _size_source(args, plan)}
@@ -443,7 +487,7 @@ def _work(args, plan, folder, progress: Progress, t_start: float, worker) -> dic
     written = export_calibration(cal, folder.path, plan["formats"], ctx, timings=write_timings, report_worker=worker)
     if cal.hand_eye is not None:
         written += write_hand_eye(cal.hand_eye, folder.path, args.unit)
-    if args.images:
+    if args.images or args.bag:
         written.insert(0, folder.path / "tracks.csv")
     notes = _size_notes(cal, uv, plan)
     for note in notes:
@@ -503,7 +547,7 @@ def _size_notes(cal, uv, plan) -> list[str]:
 def _size_source(args, plan) -> str | None:
     if args.image_size:
         return "--image-size"
-    if args.images:
+    if args.images or args.bag:
         return "images"
     if plan["image_size"] is not None:
         return "--truth"
