@@ -46,7 +46,7 @@ def test_right_calibration_predicts_at_the_noise_level(made, capsys):
     assert [v["view"] for v in res["per_view"]] == ["v12", "v13", "v14"]  # 12 views calibrated
     assert {"view", "rms_px", "median_px", "n_points"} <= set(res["per_view"][0])
     assert 0.8 < res["rms_px"] / res["predicted_rms_px"] < 1.25, res
-    assert res["rms_px"] < 1.2  # noise 0.5 px per coordinate: about 0.7 px
+    assert res["rms_px"] < 1.2 and 0.4 < res["noise_px"] < 0.65  # noise 0.5 px per coordinate
 
 
 def test_fx_two_percent_off_is_flagged(made, capsys):
@@ -58,7 +58,7 @@ def test_fx_two_percent_off_is_flagged(made, capsys):
     (out / "bad" / "arrays.npz").write_bytes((out / "cal" / "arrays.npz").read_bytes())
     code, res, _ = _validate(capsys, out, "bad")
     assert code == 4 and res["flagged"] and res["diagnostics"][0]["code"] == "prediction_error"
-    assert res["median_px"] > 2 * res["predicted_median_px"]
+    assert res["median_px"] > 1.3 * res["predicted_median_px"]
 
 
 def test_offset_left_undetermined_is_fitted_on_new_views(made):
