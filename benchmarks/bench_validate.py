@@ -82,15 +82,17 @@ def main(argv: list[str]) -> int:
     (work / "cal_fx").mkdir()
     (work / "cal_fx" / "calibration.json").write_text(json.dumps(doc))
     (work / "cal_fx" / "arrays.npz").write_bytes((work / "cal" / "arrays.npz").read_bytes())
-    print("| calibration | exit | RMS px | median px | max px | predicted RMS | predicted median | fitted | points |")
-    print("|---|---:|---:|---:|---:|---:|---:|---|---:|")
+    print("| calibration | exit | RMS px | median px | max px | predicted RMS | predicted median | new views' own "
+          "noise px | fitted | points |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|")
     for label, folder in (("as calibrated", "cal"), ("fx 2 % off", "cal_fx")):
         v = run("validate", "--calibration", work / folder, "--tracks", work / "B_tracks.csv", "--poses",
                 work / "B_poses.csv", "--json", "--strict")
         out = json.loads(v.stdout)
         fitted = ", ".join(f"{f['name']} {f['value']:.1f}" for f in out["fitted"]) or "-"
         print(f"| {label} | {v.returncode} | {out['rms_px']:.3f} | {out['median_px']:.3f} | {out['max_px']:.3g} | "
-              f"{out['predicted_rms_px']:.3f} | {out['predicted_median_px']:.3f} | {fitted} | {out['n_points']} |")
+              f"{out['predicted_rms_px']:.3f} | {out['predicted_median_px']:.3f} | {out['noise_px']:.3f} | {fitted} | "
+              f"{out['n_points']} |")
     print(f"(files in {work}; t_X true {T_X.tolist()} mm)")
     return 0
 

@@ -101,17 +101,17 @@ def test_truth_of_another_scene_is_refused(scene, capsys):
 
 
 def test_pose_test_false_alarms_at_its_level():
-    """Correct poses: the outlying-pose test fires in at most a few of 40 noisy scenes
+    """Correct poses: the outlying-pose test fires in at most one of 25 noisy scenes
     (level 1e-3 family-wise)."""
     import transcalib as tc
     from transcalib.check.poses import pose_test
 
     fired = 0
-    for seed in range(40):
-        sc = tc.simulate.random_scene(60, 6, noise_px=0.5, rng=seed)
+    for seed in range(25):
+        sc = tc.simulate.random_scene(40, 6, noise_px=0.5, rng=seed)
         cal = tc.calibrate(sc.uv, sc.T, robust=False, check_rotation=False, distortion="none")
         fired += bool(pose_test(sc.uv, sc.T, cal)["flagged"])
-    assert fired <= 2, fired
+    assert fired <= 1, fired
 
 
 @pytest.mark.parametrize("fix, name", [("cx=99999", "cx = 99999"), ("fx=1000", "fx = 1000")])
@@ -131,3 +131,20 @@ def test_right_fix_passes(scene, capsys):
     fix = f"cx={truth['K'][0][2]},cy={truth['K'][1][2]}"
     code, summary, _ = _calibrate(capsys, scene, scene / "scene" / "poses.csv", "--fix", fix)
     assert code == 0 and not _codes(summary), summary.get("diagnostics")
+
+
+@pytest.mark.parametrize("setup", ["eye-in-hand", "eye-to-hand"])
+def test_typo_that_wrecks_the_robust_stage_is_resected(setup):
+    """Sessions 60 mm apart per step: a 30 mm typo makes RANSAC drop most tracks, the
+    typo'd view's among them; its camera resected from the other views' points names it
+    (measured: view 7, 30.0 mm eye-in-hand, 31.6 mm eye-to-hand)."""
+    import transcalib as tc
+    from transcalib.handeye.simulate import session_scene
+
+    sc = session_scene(2, n_sessions=3, views_per_session=5, n_points=80, noise_px=0.5, single_views=2, setup=setup)
+    T = sc.T.copy()
+    T[7, 1] += 30.0
+    cal = tc.calibrate(sc.uv, tc.Poses.of(T, sc.R), setup=setup, rng=0)
+    msg = {d.code: str(d) for d in cal.diagnostics}["pose_outlier"]
+    size = float(re.search(r"view 7: its recorded position is off by about ([\d.]+) ", msg)[1])
+    assert 25.0 < size < 35.0, msg

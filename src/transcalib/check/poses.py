@@ -188,6 +188,73 @@ def _refit(uv, T, calibration: Calibration, views) -> tuple:
     return dT, ang, std
 
 
+def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA, min_points: int = 6) -> dict:
+    """Views whose tracks the calibration mostly rejected, their camera resected from the
+    points triangulated by the other views: a pose error so large that the robust stage
+    dropped the view's tracks leaves the score test nothing to see.
+
+    For each view ``v`` whose fraction of inlier tracks (among those seen in >= 3 views)
+    is below half of the views' median (and below 1/2): its tracks seen in >= 2 other
+    views triangulated from the other views with the
+    calibration's cameras, ``v``'s camera centre and rotation refitted to them (6
+    parameters, soft-L1 loss at 3 sigma), and the centre's move tested against its
+    covariance ``sigma^2 (J^T J)^-1`` (chi-square(3) at ``alpha / n_views``; its
+    Gauss-Newton information from the observations the fit keeps within 7.5 sigma). The
+    most significant view is named.
+
+    Returns
+    -------
+    dict
+        ``flagged`` (views), ``dC (n_views, 3)`` (recorded minus fitted centre, model
+        frame), ``angle_deg (n_views,)``, ``p_value (n_views,)``.
+    """
+    from scipy.optimize import least_squares
+
+    from ..geometry.camera import project
+    from ..geometry.rotation import rotvec_to_matrix
+    from ..geometry.triangulate import triangulate
+
+    n = uv.shape[0]
+    out = {"flagged": [], "dC": np.zeros((n, 3)), "angle_deg": np.zeros(n), "p_value": np.ones(n)}
+    if calibration.inliers is None or not calibration.sigma_px:
+        return out
+    seen = np.isfinite(uv[..., 0])
+    R_cam, C = calibration.camera_poses() if calibration.flange_rotations is not None else (
+        np.broadcast_to(calibration.R, (n, 3, 3)), np.asarray(T, float))
+    sigma, inl = calibration.sigma_px, np.asarray(calibration.inliers, bool)
+    multi = seen.sum(axis=0) >= 3
+    fraction = np.array([inl[seen[v] & multi].mean() if (seen[v] & multi).any() else 1.0 for v in range(n)])
+    for v in np.flatnonzero(fraction < 0.5 * min(1.0, 2 * np.median(fraction))):
+        others = np.delete(np.arange(n), v)
+        tracks = seen[v] & (seen[others].sum(axis=0) >= 2)
+        if tracks.sum() < min_points:
+            continue
+        X = triangulate(calibration.K @ R_cam[others], uv[others][:, tracks], C[others], K=calibration.K,
+                        dist=calibration.dist)
+
+        def residuals(p, X=X, v=v, tracks=tracks):
+            x = project(calibration.K, rotvec_to_matrix(p[:3]) @ R_cam[v], np.nan_to_num(X), (C[v] + p[3:])[None],
+                        calibration.dist)[0]
+            return (uv[v, tracks] - x).ravel()
+
+        ok = np.isfinite(X[:, 0])
+        fit = least_squares(lambda p: np.nan_to_num(residuals(p)[np.repeat(ok, 2)], nan=1e6), np.zeros(6),
+                            loss="soft_l1", f_scale=3 * sigma, x_scale="jac")
+        r = fit.fun.reshape(-1, 2)
+        keep = np.repeat(np.hypot(r[:, 0], r[:, 1]) < 3 * sigma * 2.5, 2)
+        if keep.sum() < 2 * min_points:
+            continue
+        J = fit.jac[keep]
+        cov = sigma**2 * np.linalg.pinv(J.T @ J)[3:, 3:]
+        d = fit.x[3:]
+        stat = float(d @ np.linalg.pinv(cov) @ d)
+        out["dC"][v], out["angle_deg"][v], out["p_value"][v] = -d, np.degrees(np.linalg.norm(fit.x[:3])), \
+            float(chi2_sf(stat, 3))
+    best = int(np.argmin(out["p_value"]))
+    out["flagged"] = [best] if out["p_value"][best] < alpha / n else []  # the one view that stands out
+    return out
+
+
 def check_pose_outliers(uv, T, calibration: Calibration, *, view_ids=None, unit: str = "units",
                         setup: str = "eye-in-hand", R_model=None, alpha: float = POSE_ALPHA) -> list:
     """``pose_outlier`` naming each view whose recorded position its image contradicts,
@@ -209,11 +276,16 @@ def check_pose_outliers(uv, T, calibration: Calibration, *, view_ids=None, unit:
     """
     res = pose_test(uv, T, calibration, alpha=alpha)
     views = res["flagged"]
-    if not views:
-        return []
-    fit = _refit(uv, T, calibration, views)
-    dT = -res["step"][views, :3] if fit is None else -fit[0]  # recorded minus implied
-    ang = np.degrees(np.linalg.norm(res["step"][views, 3:], axis=1)) if fit is None else fit[1]
+    if views:
+        fit = _refit(uv, T, calibration, views)
+        dT = -res["step"][views, :3] if fit is None else -fit[0]  # recorded minus implied
+        ang = np.degrees(np.linalg.norm(res["step"][views, 3:], axis=1)) if fit is None else fit[1]
+    else:  # a view whose tracks the robust stage dropped: resected from the others' points
+        res = resection_test(uv, T, calibration, alpha=alpha)
+        views = res["flagged"]
+        if not views:
+            return []
+        dT, ang = res["dC"][views], res["angle_deg"][views]
     parts = []
     for k, i in enumerate(views):
         d = _robot_frame(dT[k], i, setup, R_model)
