@@ -89,6 +89,9 @@ def _text(result, unit: str) -> str:
         lines.append(f"{v['view']:<12} {rms:>7}   {med:>9}   {v['n_points']:>6}")
     lines.append(f"{'all':<12} {result.rms_px:>7.4f}   {result.median_px:>9.4f}   {result.n_points:>6}"
                  f"   (max {result.max_px:.4g} px)")
+    if result.noise_px is not None:
+        lines.append(f"The new views' tracks by themselves (each view's pose refitted): noise {result.noise_px:.4f} px "
+                     "per coordinate")
     lines.append(f"The calibration's covariance predicts: RMS {result.predicted_rms_px:.4f} px, median "
                  f"{result.predicted_median_px:.4f} px (sign test p = {result.p_value:.2g})")
     for f in result.fitted:
