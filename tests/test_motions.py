@@ -31,6 +31,7 @@ LAYOUTS = {  # simulate options, and the directions of t_X the layout leaves und
     "two coplanar sessions": (["--sessions", "2", "--moves", "xy"], 1),
     "three sessions": (["--sessions", "3"], 0),
     "one session + 5 single views": (["--sessions", "1", "--single-views", "5"], 0),
+    "general motion, 8 views": (["--sessions", "0", "--single-views", "8", "--points", "80"], 0),
 }
 
 
