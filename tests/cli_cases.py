@@ -143,6 +143,12 @@ CASES = [
     C("undistort {notimage}.png --calibration {cal} --out {o}", 2, ("not an image",)),
     C("undistort {board}/v0.png --calibration {cal} --out {board}", 2, ("--out", "holds the input")),
     C("undistort {board}/v0.png {board}/v0.png --calibration {cal} --out {o}", 2, ("same file name",)),
+    # --- validate
+    C("validate --calibration {cal} --tracks {scene}/tracks.csv", 2, ("--poses", "required")),
+    C("validate --calibration {missing} --tracks {scene}/tracks.csv --poses {scene}/poses.csv", 2,
+      ("does not exist",)),
+    C("validate --calibration {cal} --tracks {missing}.csv --poses {scene}/poses.csv", 2, ("does not exist",)),
+    C("validate --calibration {cal} --tracks {scene}/tracks.csv --poses {poses_text}.csv", 2, ("line 3",)),
     # --- plan
     C(f"{P} --box 0,0,0,0,0,0 --views 6 --out {{o}}", 2, ("--box", "xmin must be below xmax")),
     C(f"{P} --box 1,2,3 --views 6 --out {{o}}", 2, ("--box", "6 numbers")),
