@@ -93,6 +93,8 @@ def _session_rotation(rng, look_dir, up) -> np.ndarray:
 def _session_moves(rng, n: int) -> np.ndarray:
     """``(n, 3)`` camera-frame moves in units of the distance: view 0 at 0, then around a
     ring across the optical axis (lateral) with alternating moves along it (axial)."""
+    if n == 0:
+        return np.zeros((0, 3))
     k = np.arange(1, n)
     phi = 2 * np.pi * k / max(n - 1, 1) + rng.uniform(0, 2 * np.pi)
     lateral = rng.uniform(*SESSION_LATERAL, n - 1)
