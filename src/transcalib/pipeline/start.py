@@ -181,7 +181,8 @@ def _from_sessions(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng
     diagnostics = tuple(_orientation_off(i, a, g.tolerance_deg) for i, a in joined.off_views)
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
     return Start(linear, inliers, ["robust" if robust else "linear"], lin.ransac,
-                 FlangeModel(np.transpose(motion.R, (0, 2, 1)), joined.t, obs.determined), left_out, diagnostics,
+                 FlangeModel(np.transpose(motion.R, (0, 2, 1)), joined.t, obs.determined,
+                             inverted=motion.setup == "eye-to-hand"), left_out, diagnostics,
                  notes)
 
 
