@@ -415,6 +415,7 @@ class _Fitter:
         if sigma_px is None:
             data = build_data(pb.uv, mask, idx, pb.T, np.zeros(n_views))
             sigma_px = np.sqrt(sum_sq(state, lay, data) / max(dof, 1))
+        history = {}
         for _ in range(MAX_ROUNDS):
             self.rounds += 1
             w = _robot_weights(sigma_px, sig)
@@ -426,6 +427,8 @@ class _Fitter:
             sse = sum_sq(state, lay, data)
             new_px = pb.opts.sigma_px or float(np.sqrt(sse / max(dof - sum(r.values()), 0.5 * dof, 1)))
             done = all(abs(new[c] - sig[c]) <= RTOL * sig[c] for c in sig) and abs(new_px - sigma_px) <= RTOL * sigma_px
+            if not done:
+                new = _extrapolated(history, new, given)
             sig, sigma_px = new, new_px
             # the data show none after all: the scale collapses while its redundancy vanishes
             dropped = [c for c, v in sig.items() if given.get(c) is None and v <= DROP_FRACTION * start[c]
@@ -483,6 +486,26 @@ DROP_REDUNDANCY = 1.0
 def _robot_weights(sigma_px: float, sig: dict) -> np.ndarray:
     """Prior weights ``sigma_px / sigma_k`` of (rot, pos), 0 for a component left out."""
     return np.array([sigma_px / sig[c] if c in sig else 0.0 for c in COMPONENTS])
+
+
+def _extrapolated(history: dict, new: dict, given: dict) -> dict:
+    """Aitken's extrapolation of the estimated scales' slow (linear) convergence: from
+    three successive values of ``log sigma`` moving the same way by a ratio ``q`` in
+    (0, 0.95), the limit ``x2 + (x2 - x1) q / (1 - q)`` (at most a factor 3 away); then
+    the history starts again. ``history`` (component -> log sigmas) is updated in place."""
+    out = dict(new)
+    for c, v in new.items():
+        if given.get(c) is not None or v <= 0:
+            continue
+        h = history.setdefault(c, [])
+        h.append(np.log(v))
+        if len(h) == 3:
+            d1, d2 = h[1] - h[0], h[2] - h[1]
+            q = d2 / d1 if d1 != 0 else 0.0
+            if 0 < q < 0.95:
+                out[c] = float(np.exp(h[2] + np.clip(d2 * q / (1 - q), -np.log(3), np.log(3))))
+            history[c] = []
+    return out
 
 
 def _component_sigma(state: State, comp: str, r: float) -> float:
