@@ -3,7 +3,7 @@
 Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
 stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
 and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
-:mod:`.points`, :mod:`.tracks`, :mod:`.rotation` (and the start's
+:mod:`.points`, :mod:`.tracks`, :mod:`.rotation`, :mod:`.robot` (and the start's
 ``pose_orientation_off``, :mod:`transcalib.handeye.join`).
 
 =========================  ==============================================================
@@ -25,6 +25,8 @@ code                       meaning
 ``inliers_few``            fewer than half of the tracked points are inliers
 ``threshold_small``        a user inlier threshold too small for the noise the data show
 ``implausible_intrinsics`` intrinsics no real camera has (usually wrong tracks)
+``robot_error_inseparable``  the data barely separate the robot's pose error from the camera (and what would)
+``robot_error_dominates``  the robot's pose error, not the pixel noise, limits fx or cx
 ``check_skipped``          a check that could not run, and why (never silent by omission)
 =========================  ==============================================================
 """
@@ -39,13 +41,14 @@ from ..validate import WEAK_SPAN_RATIO, as_uv_T
 from .common import camera_poses, depths
 from .linear import check_null_space
 from .points import check_outliers, check_points_behind, check_views
+from .robot import check_robot_error
 from .rotation import check_view_rotations, locate_view_rotation, view_rotation_test
 from .tracks import check_inliers, check_intrinsics, check_parallax, check_threshold
 from .translations import check_translations
 
 __all__ = ["diagnose", "check_translations", "check_null_space", "check_points_behind", "check_views",
            "check_outliers", "check_view_rotations", "view_rotation_test", "locate_view_rotation",
-           "skipped"]
+           "check_robot_error", "skipped"]
 
 
 def skipped(check: str, reason) -> Diagnostic:
@@ -91,8 +94,8 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
     -------
     list of Diagnostic
         In the order: translations, null space, points behind, tracks (parallax, inliers,
-        threshold, plausibility), views, outliers, rotation; a ``check_skipped`` entry for
-        each check that could not run.
+        threshold, plausibility), views, outliers, robot pose error, rotation; a
+        ``check_skipped`` entry for each check that could not run.
     """
     uv, T = as_uv_T(uv, T, min_views=2)
     K, X = np.asarray(calibration.K, float), np.asarray(calibration.X, float)
@@ -116,6 +119,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
         out += _track_checks(uv if all_uv is None else all_uv, calibration, sessions)
         out += check_views(uv, calibration.residuals_px, used=calibration.inliers, left_out=views_left_out)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
+        out += check_robot_error(calibration, unit)
         if check_rotation:
             rot_uv, rot_cal = rotation_data if rotation_data is not None else (uv, calibration)
             try:

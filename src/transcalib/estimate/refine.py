@@ -388,6 +388,8 @@ class _Fitter:
             state, sigma_px = out[0], out[4] or pb.opts.sigma_px
             if sigma_px is None:
                 sigma_px = np.sqrt(max(sum_sq(state, self.lay, out[3]), 0.0) / max(dof, 1))
+            if sigma_px <= SIGMA_FLOOR_PX:  # exact data: no robot error to find
+                break
             tests = self._gate(state, idx, mask, sigma_px, sig)
             if not tests:
                 break
@@ -690,7 +692,7 @@ def _hand_eye(lay: Layout, state: State, cov: np.ndarray, initial) -> HandEye:
 def _robot_error(pb: _Problem, fit: _Fit, cov: np.ndarray) -> RobotError | None:
     """The robot pose error found (:class:`RobotError`; None when not in play): scales with
     their std ``sigma / sqrt(2 r)``, each view's error and std from ``cov`` (degrees)."""
-    if not pb.robot_given:
+    if not pb.opts.robot_error or pb.opts.sigma_T is not None:
         return None
     lay, rf, n_views = fit.lay, fit.robot, len(pb.T)
     E = np.zeros((n_views, 6)) if fit.state.E is None else fit.state.E
