@@ -58,7 +58,8 @@ def check_robot_error(calibration, unit: str = "units") -> list:
     if big:
         out.append(Diagnostic("robot_error_dominates", "the robot's pose error, not the pixel noise, limits "
                               + ", ".join(f"{k} (std x{v:.1f} by it)" for k, v in big.items())
-                              + ": more views average it down; " + _MOTION))
+                              + ": more views average it down (each view's error is its own), as does a "
+                              "robot that repeats its poses better"))
     return out
 
 

@@ -70,8 +70,14 @@ def add_parser(sub) -> None:
                    help="known parameters held fixed, e.g. cx=320,cy=240 or principal-point=centre "
                         "(the image centre; needs the image size); names: fx, fy, cx, cy, skew, k1, k2, p1, p2, k3")
     c.add_argument("--square-pixels", action="store_true", help="one focal length: fx = fy")
-    c.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
-                   help="robot translation precision in --unit: treat translations as noisy measurements")
+    c.add_argument("--robot-sigma", "--robot-noise", type=nonnegative_float, metavar="SIGMA",
+                   help="robot pose error: per-axis std of each view's flange position error in --unit "
+                        "(0: exact positions; default: estimated from the data)")
+    c.add_argument("--robot-sigma-deg", type=nonnegative_float, metavar="DEG",
+                   help="robot pose error: per-axis std of each view's flange rotation error in degrees "
+                        "(0: exact orientations; default: estimated from the data)")
+    c.add_argument("--no-robot-error", action="store_true",
+                   help="take the robot's poses as exact (no pose error in the model or the uncertainty)")
     c.add_argument("--loss", choices=["linear", "huber", "cauchy"], help="refinement loss (default linear)")
     c.add_argument("--loss-scale-px", type=positive_float,
                    help="scale of a robust loss in pixels (default: from the estimated pixel noise)")
@@ -161,7 +167,11 @@ def build_options(args, size=None):
 
     fixed = parse_fix(args.fix, size)
     ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
-    given = {"distortion": args.distortion, "sigma_T": args.robot_sigma, "loss": args.loss,
+    if args.no_robot_error and (args.robot_sigma is not None or args.robot_sigma_deg is not None):
+        raise OptionError("--no-robot-error", "contradicts --robot-sigma / --robot-sigma-deg")
+    given = {"distortion": args.distortion, "robot_sigma_pos": args.robot_sigma,
+             "robot_sigma_deg": args.robot_sigma_deg, "robot_error": False if args.no_robot_error else None,
+             "loss": args.loss,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})

@@ -26,7 +26,7 @@ EXIT_INPUT = 2
 #: PlanOptions field -> command-line option, to name the option in error messages.
 _OPTION_OF = {"image_size": "--image-size", "focal_px": "--focal-px", "distance": "--distance",
               "depth_range": "--depth-range", "n_points": "--points", "noise_px": "--noise-px",
-              "view_direction": "--view-direction", "robot_noise": "--robot-noise",
+              "view_direction": "--view-direction", "robot_noise": "--robot-sigma",
               "distortion": "--distortion", "dist": "--dist-coeffs", "criterion": "--criterion", "min_visible": "--min-visible",
               "margin_px": "--margin-px", "n_views": "--views", "box": "--box", "min_separation": "--min-separation"}
 _KEYS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz")
@@ -67,7 +67,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     a("--box", metavar="xmin,xmax,ymin,ymax,zmin,zmax", help="reachable box of the camera (robot units)")
     a("--views", metavar="M", help="number of views to plan (4..50)")
     a("--view-direction", default="-z", help="optical axis in the robot frame: -z, +x, ... or a,b,c (default -z)")
-    a("--robot-noise", default="0", metavar="SIGMA", help="robot precision: std per translation coordinate")
+    a("--robot-sigma", "--robot-noise", dest="robot_noise", default="0", metavar="SIGMA",
+      help="robot pose error: per-axis std of each view's position error (robot units; default 0)")
     a("--distortion", default="none", help="distortion model to be estimated: none, radial1, radial2, opencv5")
     a("--dist-coeffs", default="", metavar="K1,K2,...",
       help="assumed true distortion coefficients, OpenCV order (default none: 0)")
