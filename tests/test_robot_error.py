@@ -197,3 +197,54 @@ def test_pipeline_reports_robot_error_and_warns_for_one_orientation():
     cal = calibrate(rep.uv, rep.T, distortion="none", rng=0)
     assert cal.robot_error.source[1] == "estimated" and abs(cal.robot_error.sigma_pos - 1.5) < 0.5
     assert "robot_error_inseparable" in [d.code for d in cal.diagnostics]
+
+
+def test_covariance_marginalises_the_robot_error_against_a_dense_oracle():
+    """Independent oracle: the whitened Jacobian of every parameter (intrinsics, R_X, t_X,
+    every point, every view's delta and eps) by central differences of
+    ``geometry.camera.project`` on the perturbed poses (robot_error.perturb_poses), the
+    priors as extra residuals; ``sigma_px^2 (J^T J)^-1`` restricted to the camera
+    parameters equals the reported covariance (the nuisance marginalised)."""
+    from transcalib.geometry.camera import project
+
+    sigma_px, s_rot, s_pos = 0.5, 0.1, 1.0
+    opts = RefineOptions(distortion="none", sigma_px=sigma_px, robot_sigma_deg=s_rot, robot_sigma_pos=s_pos)
+    sc = session_scene(21, n_sessions=3, views_per_session=3, n_points=15, noise_px=sigma_px)
+    rep, _ = with_robot_error(sc, s_rot, s_pos, rng=22)
+    flange = FlangeModel(np.transpose(rep.R, (0, 2, 1)), sc.t_X.copy(), np.eye(3))
+    start = Calibration(camera=Camera(sc.K, sc.R_X.T), X=sc.X, residuals_px=np.zeros_like(sc.uv), rms_px=0.0,
+                        T=rep.T)
+    cal = fit_refine(rep.uv, rep.T, start, opts, flange=flange)
+    V, n = rep.uv.shape[:2]
+    seen = np.isfinite(rep.uv[..., 0])
+    re = cal.robot_error
+    theta0 = np.concatenate([[cal.K[0, 0], cal.K[1, 1], cal.K[0, 2], cal.K[1, 2]], np.zeros(3), cal.hand_eye.t,
+                             cal.X.ravel(), np.radians(re.rot_deg).ravel(), re.pos.ravel()])
+
+    def residuals(theta):
+        K = np.array([[theta[0], 0, theta[2]], [0, theta[1], theta[3]], [0, 0, 1.0]])
+        R = rotvec_to_matrix(theta[4:7]) @ cal.R  # the model's R = R_X^T, updated on the left
+        t, X = theta[7:10], theta[10: 10 + 3 * n].reshape(n, 3)
+        E = theta[10 + 3 * n:].reshape(2, V, 3)
+        Ri, Ti = perturb_poses(rep.R, rep.T, np.hstack([E[0], E[1]]))
+        R_cam = R @ np.transpose(Ri, (0, 2, 1))
+        C = Ti + Ri @ t
+        r = (project(K, R_cam, X, C) - rep.uv)[seen].ravel() / sigma_px
+        return np.concatenate([r, E[0].ravel() / np.radians(s_rot), E[1].ravel() / s_pos])
+
+    r_px = residuals(theta0)[: seen.sum() * 2] * sigma_px  # the fitted errors reproduce the fit's residuals
+    assert np.abs(r_px + cal.residuals_px[seen].ravel()).max() < 1e-6
+    J = np.empty((len(residuals(theta0)), len(theta0)))
+    for k in range(len(theta0)):
+        h = 1e-6 * max(1.0, abs(theta0[k]))
+        d = np.zeros_like(theta0)
+        d[k] = h
+        J[:, k] = (residuals(theta0 + d) - residuals(theta0 - d)) / (2 * h)
+    cov = np.linalg.inv(J.T @ J)[:10, :10]
+    cov[4:7, :] *= np.degrees(1.0)
+    cov[:, 4:7] *= np.degrees(1.0)
+    names = ("fx", "fy", "cx", "cy", "rx", "ry", "rz", "t_x", "t_y", "t_z")
+    k = [cal.param_names.index(nm) for nm in names]
+    reported = cal.cov[np.ix_(k, k)]
+    assert np.abs(reported - cov).max() / np.abs(cov).max() < 1e-4
+    assert np.allclose(np.sqrt(np.diag(reported)), np.sqrt(np.diag(cov)), rtol=1e-4)
