@@ -237,7 +237,8 @@ def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: boo
                             singular_values=np.zeros(0), n_used_points=int(used.sum()), used=used, method="general")
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
     return Start(linear, inliers, ["robust" if robust else "linear"], None,
-                 FlangeModel(F, gs.t_X, obs.determined), np.zeros(motion.n_views, bool), (), notes)
+                 FlangeModel(F, gs.t_X, obs.determined, inverted=motion.setup == "eye-to-hand"),
+                 np.zeros(motion.n_views, bool), (), notes)
 
 
 def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -> LinearEstimate:
