@@ -384,13 +384,14 @@ class _Fitter:
             out = self._rounds(state, idx, mask, sig, dof, sigma_px) if sig else None
         else:
             out = plain = self._plain(state, idx, mask, "linear")
+        tried = set(sig)
         while not self.near_solution:  # forward selection: the most significant component next
             state, sigma_px = out[0], out[4] or pb.opts.sigma_px
             if sigma_px is None:
                 sigma_px = np.sqrt(max(sum_sq(state, self.lay, out[3]), 0.0) / max(dof, 1))
             if sigma_px <= SIGMA_FLOOR_PX:  # exact data: no robot error to find
                 break
-            tests = self._gate(state, idx, mask, sigma_px, sig)
+            tests = self._gate(state, idx, mask, sigma_px, tried)
             if not tests:
                 break
             p_values.update({c: t.p_value for c, t in tests.items()})
@@ -398,6 +399,7 @@ class _Fitter:
             if not (tests[c].p_value < GATE_ALPHA and tests[c].sigma2 > 0):
                 break
             sig[c] = float(np.sqrt(tests[c].sigma2))
+            tried.add(c)  # tested once: a component the rounds drop again is not tried twice
             out = self._rounds(state, idx, mask, sig, dof, sigma_px)
             sig = dict(self.robot.sigma)
         if out is None or not sig:
@@ -437,6 +439,10 @@ class _Fitter:
                        and r[c] < DROP_REDUNDANCY]
             if dropped:
                 sig = {c: v for c, v in sig.items() if c not in dropped}
+                E = state.E.copy()
+                for c in dropped:
+                    E[:, slice(0, 3) if c == "rot" else slice(3, 6)] = 0.0
+                state = replace(state, E=E)
                 if not sig:
                     self.robot = _RobotFit({}, {}, {}, given, None)
                     return self._plain(replace(state, E=None), idx, mask, "linear")
@@ -450,14 +456,15 @@ class _Fitter:
             self.system = self.residuals = None
         return state, cost(state, lay, data, "linear", self.c), reason, data, sigma_px
 
-    def _gate(self, state, idx, mask, sigma_px, sig: dict) -> dict:
+    def _gate(self, state, idx, mask, sigma_px, tried) -> dict:
         """Score tests at zero (:func:`.variance_components.score_test`) of the components
-        still to estimate, at the fit ``state`` with the components ``sig`` (their priors
-        in the profiled parameters)."""
+        to estimate not yet ``tried``, at the fit ``state`` with the components of
+        ``self.robot`` (their priors in the profiled parameters)."""
         pb = self.pb
-        comps = tuple(c for c in COMPONENTS if c in pb.robot_given and pb.robot_given[c] is None and c not in sig)
+        comps = tuple(c for c in COMPONENTS if c in pb.robot_given and pb.robot_given[c] is None and c not in tried)
         if not comps:
             return {}
+        sig = {} if self.robot is None else self.robot.sigma
         lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig or c in comps))
         data = build_data(pb.uv, mask, idx, pb.T, np.zeros(len(pb.T)), _robot_weights(sigma_px, sig))
         E = np.zeros((len(pb.T), 6)) if state.E is None else state.E
