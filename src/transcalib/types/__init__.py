@@ -28,5 +28,5 @@ from .results import (Calibration, CalibrationStats, DistortionStep, HandEye, Li
 
 __all__ = ["TranscalibError", "InputError", "DegenerateError", "MirroredError", "Diagnostic", "RansacOptions",
            "RefineOptions", "CalibrateOptions", "LinearEstimate", "Calibration", "CalibrationStats", "RansacStats",
-           "RefineStats", "DistortionStep", "ViewRotations", "RobotError", "HandEye", "Poses", "SETUPS", "Camera", "ProgressEvent",
-           "report", "INTRINSIC_NAMES", "FIXABLE", "LOSSES", "SUBSET_POINTS", "MIN_SUBSET_POINTS"]
+           "RefineStats", "DistortionStep", "ViewRotations", "RobotError", "HandEye", "Poses", "SETUPS", "Camera",
+           "ProgressEvent", "report", "INTRINSIC_NAMES", "FIXABLE", "LOSSES", "SUBSET_POINTS", "MIN_SUBSET_POINTS"]
