@@ -94,11 +94,28 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "",
         if not undetermined.any():
             break
         ok &= ~undetermined
-    evals, evecs = check_identifiable(red.S, lay.names(), hint, red.U_diag)
-    Sinv = (evecs / evals) @ evecs.T
+    Sinv = _checked_inverse(red, lay, hint)
     var_X = red.point_variances(Sinv)
     var_X[~ok] = np.nan
     return Sinv, var_X, ok
+
+
+def _checked_inverse(red: Reduced, lay: Layout, hint) -> np.ndarray:
+    """``S^-1`` after :func:`check_identifiable`. With robot pose errors the check is made
+    on the other parameters with the errors held fixed (the data must determine the
+    camera; the errors' directions are determined by their priors, which a relative
+    eigenvalue test at the data's scale would take for undetermined), and ``S`` is
+    inverted Jacobi-scaled."""
+    names = lay.names()
+    if not lay.i_robot:
+        evals, evecs = check_identifiable(red.S, names, hint, red.U_diag)
+        return (evecs / evals) @ evecs.T
+    keep = np.flatnonzero([not nm.startswith("robot") for nm in names])
+    check_identifiable(red.S[np.ix_(keep, keep)], tuple(names[k] for k in keep), hint, red.U_diag[keep])
+    d = 1.0 / np.sqrt(np.maximum(np.diag(red.S), 1e-300))
+    evals, evecs = np.linalg.eigh(red.S * d[:, None] * d[None, :])
+    evecs = evecs * d[:, None]
+    return (evecs / evals) @ evecs.T
 
 
 def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, fix=None,
