@@ -120,13 +120,14 @@ def _sessions_fit(sigma_rot_deg, sigma_pos, seed, opts=None, noise_px=0.5, setup
     flange = FlangeModel(np.transpose(model.R, (0, 2, 1)), sc.t_X.copy(), np.eye(3), inverted=setup == "eye-to-hand")
     start = Calibration(camera=Camera(sc.K, sc.R_X.T), X=sc.X, residuals_px=np.zeros_like(sc.uv), rms_px=0.0,
                         T=model.T)
-    cal = fit_refine(rep.uv, model.T, start, opts or RefineOptions(distortion="none"), flange=flange)
+    cal = fit_refine(rep.uv, model.T, start, opts or RefineOptions(distortion="none", robot_error=True),
+                     flange=flange)
     return sc, err, cal
 
 
 @pytest.mark.parametrize("setup", ["eye-in-hand", "eye-to-hand"])
 def test_noise_free_exact_with_robot_error_on(setup):
-    """Exact images and poses: the default (robot error estimated) is exact to 1e-9 and
+    """Exact images and poses: with the robot error estimated the fit is exact to 1e-9 and
     finds no robot error."""
     sc, _, cal = _sessions_fit(0.0, 0.0, 5, noise_px=0.0, setup=setup)
     assert np.abs(cal.K - sc.K).max() / sc.K[0, 0] < 1e-9
@@ -194,7 +195,7 @@ def test_pipeline_reports_robot_error_and_warns_for_one_orientation():
     only) folds them and says so (robot_error_inseparable)."""
     sc = session_scene(3, n_sessions=1, views_per_session=12, n_points=60, noise_px=0.5)
     rep, _ = with_robot_error(sc, 0.0, 1.5, rng=4)
-    cal = calibrate(rep.uv, rep.T, distortion="none", rng=0)
+    cal = calibrate(rep.uv, rep.T, distortion="none", refinement=RefineOptions(robot_error=True), rng=0)
     assert cal.robot_error.source[1] == "estimated" and abs(cal.robot_error.sigma_pos - 1.5) < 0.5
     assert "robot_error_inseparable" in [d.code for d in cal.diagnostics]
 

@@ -76,8 +76,11 @@ def add_parser(sub) -> None:
     c.add_argument("--robot-sigma-deg", type=nonnegative_float, metavar="DEG",
                    help="robot pose error: per-axis std of each view's flange rotation error in degrees "
                         "(0: exact orientations; default: estimated from the data)")
+    c.add_argument("--robot-error", action="store_true",
+                   help="estimate each view's robot pose error (rotation and position) with the pixel noise and "
+                        "include it in the uncertainty (on with --robot-sigma / --robot-sigma-deg)")
     c.add_argument("--no-robot-error", action="store_true",
-                   help="take the robot's poses as exact (no pose error in the model or the uncertainty)")
+                   help="take the robot's poses as exact (the default without --robot-error or a robot sigma)")
     c.add_argument("--loss", choices=["linear", "huber", "cauchy"], help="refinement loss (default linear)")
     c.add_argument("--loss-scale-px", type=positive_float,
                    help="scale of a robust loss in pixels (default: from the estimated pixel noise)")
@@ -167,10 +170,12 @@ def build_options(args, size=None):
 
     fixed = parse_fix(args.fix, size)
     ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
-    if args.no_robot_error and (args.robot_sigma is not None or args.robot_sigma_deg is not None):
-        raise OptionError("--no-robot-error", "contradicts --robot-sigma / --robot-sigma-deg")
+    if args.no_robot_error and (args.robot_error or args.robot_sigma is not None
+                                or args.robot_sigma_deg is not None):
+        raise OptionError("--no-robot-error", "contradicts --robot-error / --robot-sigma / --robot-sigma-deg")
     given = {"distortion": args.distortion, "robot_sigma_pos": args.robot_sigma,
-             "robot_sigma_deg": args.robot_sigma_deg, "robot_error": False if args.no_robot_error else None,
+             "robot_sigma_deg": args.robot_sigma_deg,
+             "robot_error": False if args.no_robot_error else True if args.robot_error else None,
              "loss": args.loss,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
              "square_pixels": args.square_pixels or None, "fix": fixed or None}

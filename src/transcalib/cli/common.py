@@ -35,7 +35,7 @@ OPTION_NAMES = {
     "sigma_T": "--robot-sigma",
     "robot_sigma_pos": "--robot-sigma",
     "robot_sigma_deg": "--robot-sigma-deg",
-    "robot_error": "--no-robot-error",
+    "robot_error": "--robot-error",
     "threshold_px": "--threshold-px",
     "loss_scale_px": "--loss-scale-px",
     "inlier_threshold_px": "--inlier-threshold-px",

@@ -168,15 +168,22 @@ def with_robot_scales(opts: RefineOptions, calibration) -> RefineOptions:
     it left out): refits of the same data (tests of extra parameters, every track after a
     subset) keep its error model instead of estimating it again."""
     re = getattr(calibration, "robot_error", None)
-    if re is None or not opts.robot_error or opts.sigma_T is not None:
+    if re is None or not robot_error_on(opts):
         return opts
     return replace(opts, robot_sigma_deg=float(re.sigma_rot_deg), robot_sigma_pos=float(re.sigma_pos))
+
+
+def robot_error_on(opts: RefineOptions) -> bool:
+    """Whether ``opts`` model the robot pose error: ``robot_error=True``, or None with a
+    scale given; never with ``sigma_T``."""
+    given = opts.robot_sigma_deg is not None or opts.robot_sigma_pos is not None
+    return opts.sigma_T is None and (opts.robot_error is True or (opts.robot_error is None and given))
 
 
 def _robot_given(opts: RefineOptions) -> dict:
     """The robot error components in play: known sigma (radians, robot units) or None
     (estimated); a component given as 0, ``robot_error=False`` or ``sigma_T`` leave them out."""
-    if not opts.robot_error or opts.sigma_T is not None:
+    if not robot_error_on(opts):
         return {}
     given = {"rot": None if opts.robot_sigma_deg is None else np.radians(opts.robot_sigma_deg),
              "pos": opts.robot_sigma_pos}
@@ -436,7 +443,7 @@ class _Fitter:
             sig, sigma_px = new, new_px
             # the data show none after all: the scale collapses while its redundancy vanishes
             dropped = [c for c, v in sig.items() if given.get(c) is None and v <= DROP_FRACTION * start[c]
-                       and r[c] < DROP_REDUNDANCY]
+                       and (r[c] < DROP_REDUNDANCY or v <= 0)]
             if dropped:
                 sig = {c: v for c, v in sig.items() if c not in dropped}
                 E = state.E.copy()
@@ -699,7 +706,7 @@ def _hand_eye(lay: Layout, state: State, cov: np.ndarray, initial) -> HandEye:
 def _robot_error(pb: _Problem, fit: _Fit, cov: np.ndarray) -> RobotError | None:
     """The robot pose error found (:class:`RobotError`; None when not in play): scales with
     their std ``sigma / sqrt(2 r)``, each view's error and std from ``cov`` (degrees)."""
-    if not pb.opts.robot_error or pb.opts.sigma_T is not None:
+    if not robot_error_on(pb.opts):
         return None
     lay, rf, n_views = fit.lay, fit.robot, len(pb.T)
     E = np.zeros((n_views, 6)) if fit.state.E is None else fit.state.E

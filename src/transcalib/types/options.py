@@ -91,12 +91,14 @@ class RefineOptions:
         Robot translation precision (user units), one value or one per view: the
         translations become measurements. None: exact translations. (The older model
         of position noise; it turns ``robot_error`` off. Prefer ``robot_sigma_pos``.)
-    robot_error : bool
+    robot_error : bool or None
         Model each view's robot pose error (flange rotation and position,
         :mod:`transcalib.estimate.robot_error`) as nuisance parameters with Gaussian
-        priors (default). A component whose scale is not given is estimated from the data
-        together with the pixel noise (variance components) when a score test at zero
-        finds it (1 %), else it stays off. The covariance then includes it.
+        priors: True, or None (default) when a scale below is given. A component whose
+        scale is not given is estimated from the data together with the pixel noise
+        (variance components) when a score test at zero finds it (1 %), else it stays
+        off. The covariance then includes it. False / None without scales: exact poses
+        (off by default until it is robust on few-view, misfitting data: docs/uncertainty.md).
     robot_sigma_deg : float, optional
         Known per-axis std of each view's flange rotation error (degrees; 0: exact
         orientations). None (default): estimated.
@@ -136,7 +138,7 @@ class RefineOptions:
     max_iterations: int = 100
     tol: float = 1e-6
     estimate_view_rotations: bool | tuple = False
-    robot_error: bool = True
+    robot_error: bool | None = None
     robot_sigma_deg: float | None = None
     robot_sigma_pos: float | None = None
 
@@ -192,16 +194,16 @@ def _check_fix(fix) -> dict:
 
 def _check_robot(o) -> None:
     """The robot pose error options: non-negative scales, not contradicting ``sigma_T``."""
-    if not isinstance(o.robot_error, (bool, np.bool_)):
-        raise InputError(f"robot_error must be True or False, got {o.robot_error!r}")
+    if o.robot_error is not None and not isinstance(o.robot_error, (bool, np.bool_)):
+        raise InputError(f"robot_error must be True, False or None, got {o.robot_error!r}")
     for name in ("robot_sigma_deg", "robot_sigma_pos"):
         v = getattr(o, name)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
                               or not math.isfinite(v) or v < 0):
             raise InputError(f"{name} must be a number >= 0 (0: exact) or None (estimated), got {v!r}")
     given = o.robot_sigma_deg is not None or o.robot_sigma_pos is not None
-    if given and not o.robot_error:
-        raise InputError("robot_sigma_deg / robot_sigma_pos need robot_error=True")
+    if given and o.robot_error is False:
+        raise InputError("robot_sigma_deg / robot_sigma_pos need robot_error=True (or None)")
     if given and o.sigma_T is not None:
         raise InputError("sigma_T (the older position-noise model) and robot_sigma_deg / robot_sigma_pos are two "
                          "models of the same error: give robot_sigma_pos instead of sigma_T")
