@@ -18,7 +18,7 @@ import numpy as np
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
 from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, add_output_options, existing_file, image_size,
-                     import_in_background, positive_float, positive_int, print_json)
+                     import_in_background, nonnegative_float, positive_float, positive_int, print_json)
 from .extract import add_bag_arguments
 
 NAME = "calibrate"
