@@ -279,15 +279,16 @@ def test_sigma_T_noise_free_is_exact_and_keeps_translations():
 
 
 def test_sigma_T_honest_std_and_better_translations():
-    """With 0.3 mm robot noise, fixed translations give overconfident error bars; modelling
-    them gives error bars that match the Monte-Carlo spread, and better translations."""
+    """With 0.3 mm robot noise, fixed translations (robot_error=False) give overconfident
+    error bars; modelling them gives error bars that match the Monte-Carlo spread, and
+    better translations."""
     base = simulate.paper_scene()
     sigma_T = np.array([0.0, 0.3, 0.3, 0.3])  # view 0 is exact in simulate.observe
     fixed, modelled, pred_fixed, pred_mod, err_T, err_meas = [], [], [], [], [], []
     for k in range(120):
         scene = simulate.observe(base, 0.5, robot_noise=0.3, rng=3000 + k)
         start = linear_start(scene)
-        a = refine(scene.uv, scene.T, start)
+        a = refine(scene.uv, scene.T, start, options=RefineOptions(robot_error=False))
         b = refine(scene.uv, scene.T, start, sigma_T=sigma_T)
         fixed.append(_k4(a.K))
         modelled.append(_k4(b.K))

@@ -3,7 +3,7 @@
 Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
 stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
 and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
-:mod:`.points`, :mod:`.tracks`, :mod:`.rotation`, :mod:`.poses`, :mod:`.fixed` (and the start's
+:mod:`.points`, :mod:`.tracks`, :mod:`.rotation`, :mod:`.poses`, :mod:`.fixed`, :mod:`.robot` (and the start's
 ``pose_orientation_off``, :mod:`transcalib.handeye.join`).
 
 =========================  ==============================================================
@@ -29,6 +29,8 @@ code                       meaning
 ``inliers_few``            fewer than half of the tracked points are inliers
 ``threshold_small``        a user inlier threshold too small for the noise the data show
 ``implausible_intrinsics`` intrinsics no real camera has (usually wrong tracks)
+``robot_error_inseparable``  the data barely separate the robot's pose error from the camera (and what would)
+``robot_error_dominates``  the robot's pose error, not the pixel noise, limits fx or cx
 ``check_skipped``          a check that could not run, and why (never silent by omission)
 =========================  ==============================================================
 """
@@ -45,13 +47,14 @@ from .linear import check_null_space
 from .fixed import check_fixed
 from .poses import check_pose_outliers, check_repeated_poses, check_unit
 from .points import check_outliers, check_points_behind, check_views
+from .robot import check_robot_error
 from .rotation import check_view_rotations, locate_view_rotation, view_rotation_test
 from .tracks import check_inliers, check_intrinsics, check_parallax, check_threshold
 from .translations import check_translations
 
 __all__ = ["diagnose", "check_translations", "check_null_space", "check_points_behind", "check_views",
            "check_outliers", "check_view_rotations", "view_rotation_test", "locate_view_rotation",
-           "skipped"]
+           "check_robot_error", "skipped"]
 
 
 def skipped(check: str, reason) -> Diagnostic:
@@ -103,7 +106,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
     list of Diagnostic
         In the order: contradicted fixed parameters, repeated poses, translations, unit,
         null space, points behind, tracks (parallax, inliers, threshold, plausibility),
-        views, outliers, an outlying pose or else the rotation (neither with a
+        views, outliers, robot pose error, an outlying pose or else the rotation (neither with a
         contradicted fixed parameter); a ``check_skipped`` entry for each check that
         could not run.
     """
@@ -133,6 +136,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
         out += _track_checks(uv if all_uv is None else all_uv, calibration, sessions)
         out += check_views(uv, calibration.residuals_px, used=calibration.inliers, left_out=views_left_out)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
+        out += check_robot_error(calibration, unit)
         if check_rotation:
             fit = rotation_data if rotation_data is not None else (uv, calibration)
             fixed = _fixed_check(fit, T)

@@ -28,7 +28,9 @@ def camera_poses(calibration, T):
     """Rotations world -> camera (per view, or one for every view) and centres of a
     Calibration (:meth:`~transcalib.types.Calibration.camera_poses`) or a LinearEstimate
     (one rotation, centres ``T``)."""
-    if hasattr(calibration, "camera_poses") and getattr(calibration, "flange_rotations", None) is not None:
+    robot = getattr(calibration, "robot_error", None)
+    if hasattr(calibration, "camera_poses") and (getattr(calibration, "flange_rotations", None) is not None
+                                                 or (robot is not None and robot.active)):
         return calibration.camera_poses()
     return np.asarray(calibration.R, float), np.asarray(T, float)
 

@@ -56,7 +56,7 @@ import numpy as np
 from ..errors import DegenerateError, Diagnostic
 from ..estimate.covariance import linearise, profile_step
 from ..estimate.distributions import chi2_ppf, f_sf
-from ..estimate.refine import refine
+from ..estimate.refine import refine, with_robot_scales
 from ..types import Calibration, RefineOptions
 from .common import fmt_list
 
@@ -88,7 +88,7 @@ class _Reduced:
 def _refinement(calibration: Calibration) -> RefineOptions:
     """The refinement options of the calibration, with the distortion model it chose."""
     opts = calibration.options.refinement if calibration.options is not None else RefineOptions()
-    return replace(opts, distortion=calibration.dist_model)
+    return with_robot_scales(replace(opts, distortion=calibration.dist_model), calibration)
 
 
 def _reduced_system(uv, T, calibration: Calibration) -> _Reduced:

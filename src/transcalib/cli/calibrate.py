@@ -18,7 +18,7 @@ import numpy as np
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
 from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, add_output_options, existing_file, image_size,
-                     import_in_background, positive_float, positive_int, print_json)
+                     import_in_background, nonnegative_float, positive_float, positive_int, print_json)
 from .extract import add_bag_arguments
 
 NAME = "calibrate"
@@ -98,8 +98,17 @@ def _model(g) -> None:
                         "(the image centre; needs the image size); names: fx, fy, cx, cy, skew, k1, k2, p1, p2, k3 "
                         "(a distortion coefficient needs --distortion with it); each name once")
     g.add_argument("--square-pixels", action="store_true", help="one focal length: fx = fy")
-    g.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
-                   help="robot translation precision in --unit: treat translations as noisy measurements")
+    g.add_argument("--robot-sigma", "--robot-noise", type=nonnegative_float, metavar="SIGMA",
+                   help="robot pose error: per-axis std of each view's flange position error in --unit "
+                        "(0: exact positions; turns the robot error on, the other scale estimated)")
+    g.add_argument("--robot-sigma-deg", type=nonnegative_float, metavar="DEG",
+                   help="robot pose error: per-axis std of each view's flange rotation error in degrees "
+                        "(0: exact orientations; turns the robot error on)")
+    g.add_argument("--robot-error", action="store_true",
+                   help="estimate each view's robot pose error (rotation and position) with the pixel noise and "
+                        "include it in the uncertainty")
+    g.add_argument("--no-robot-error", action="store_true",
+                   help="take the robot's poses as exact (the default without --robot-error or a robot sigma)")
 
 
 def _robust(g) -> None:
@@ -198,7 +207,13 @@ def build_options(args, size=None):
     fixed = parse_fix(args.fix, size)
     _check_refinement_options(args, fixed)
     ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
-    given = {"distortion": args.distortion, "sigma_T": args.robot_sigma, "loss": args.loss,
+    if args.no_robot_error and (args.robot_error or args.robot_sigma is not None
+                                or args.robot_sigma_deg is not None):
+        raise OptionError("--no-robot-error", "contradicts --robot-error / --robot-sigma / --robot-sigma-deg")
+    given = {"distortion": args.distortion, "robot_sigma_pos": args.robot_sigma,
+             "robot_sigma_deg": args.robot_sigma_deg,
+             "robot_error": False if args.no_robot_error else True if args.robot_error else None,
+             "loss": args.loss,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
@@ -216,6 +231,8 @@ def _check_refinement_options(args, fixed: dict) -> None:
     against a fixed skew: errors naming the options."""
     if args.no_refine:
         given = [opt for opt, value in (("--distortion", args.distortion), ("--robot-sigma", args.robot_sigma),
+                                        ("--robot-sigma-deg", args.robot_sigma_deg),
+                                        ("--robot-error", args.robot_error),
                                         ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
                                         ("--estimate-skew", args.estimate_skew),
                                         ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]

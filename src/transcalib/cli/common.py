@@ -35,6 +35,9 @@ EXIT_INTERRUPTED = 130
 #: Python parameter -> the option a user types (messages from the library use the former).
 OPTION_NAMES = {
     "sigma_T": "--robot-sigma",
+    "robot_sigma_pos": "--robot-sigma",
+    "robot_sigma_deg": "--robot-sigma-deg",
+    "robot_error": "--robot-error",
     "threshold_px": "--threshold-px",
     "loss_scale_px": "--loss-scale-px",
     "inlier_threshold_px": "--inlier-threshold-px",
@@ -45,7 +48,7 @@ OPTION_NAMES = {
     "robust=False": "--no-robust",
     "max_trials": "--max-trials",
     "noise_px": "--noise-px",
-    "robot_noise": "--robot-noise",
+    "robot_noise": "--robot-sigma",
     "n_points": "--points",
     "n_views": "--views",
     "rotation_format": "--rotation-format",

@@ -26,7 +26,7 @@ HELP = "plan robot translations with the accuracy predicted, or --evaluate given
 #: PlanOptions field -> command-line option, to name the option in error messages.
 _OPTION_OF = {"image_size": "--image-size", "focal_px": "--focal-px", "distance": "--distance",
               "depth_range": "--depth-range", "n_points": "--points", "noise_px": "--noise-px",
-              "view_direction": "--view-direction", "robot_noise": "--robot-noise",
+              "view_direction": "--view-direction", "robot_noise": "--robot-sigma",
               "distortion": "--distortion", "dist": "--dist-coeffs", "criterion": "--criterion",
               "min_visible": "--min-visible", "margin_px": "--margin-px", "n_views": "--views", "box": "--box",
               "min_separation": "--min-separation"}
@@ -78,8 +78,9 @@ def _camera(m) -> None:
                    help="pixel noise std per coordinate (default 0.5)")
     m.add_argument("--view-direction", default="-z",
                    help="optical axis in the robot frame: -z, +x, ... or a,b,c (default -z)")
-    m.add_argument("--robot-noise", type=nonnegative_float, default=0.0, metavar="SIGMA",
-                   help="robot precision: std per translation coordinate, robot units (default 0)")
+    m.add_argument("--robot-sigma", "--robot-noise", dest="robot_noise", type=nonnegative_float, default=0.0,
+                   metavar="SIGMA", help="robot pose error: per-axis std of each view's position error, robot "
+                                         "units (default 0)")
     m.add_argument("--distortion", default="none", choices=["none", "radial1", "radial2", "opencv5"],
                    help="distortion model to be estimated (default none)")
     m.add_argument("--dist-coeffs", type=numbers, default=(), metavar="K1,K2,...",

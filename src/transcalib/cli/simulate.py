@@ -50,8 +50,12 @@ def add_parser(sub) -> None:
     r = g["robust"]
     r.add_argument("--noise-px", type=nonnegative_float, default=0.0, metavar="PX",
                    help="pixel noise std per coordinate (default 0)")
-    r.add_argument("--robot-noise", type=nonnegative_float, default=0.0, metavar="SIGMA",
-                   help="paper/random preset: robot translation noise std, in mm (default 0)")
+    r.add_argument("--robot-sigma", "--robot-noise", dest="robot_noise", type=nonnegative_float, default=0.0,
+                   metavar="SIGMA", help="robot pose error: per-axis std of each view's recorded position error "
+                                         "(robot units; default 0)")
+    r.add_argument("--robot-sigma-deg", type=nonnegative_float, default=0.0, metavar="DEG",
+                   help="robot preset: per-axis std of each view's recorded flange rotation error (degrees; "
+                        "default 0)")
     o = g["outputs"]
     o.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: tracks, poses.csv, truth.json, manifest.json (written whole or not at all)")
@@ -71,8 +75,9 @@ def _preset_options(args) -> dict:
             flag = "--" + name.replace("_", "-")
             users = [p for p, opts in PRESET_OPTIONS.items() if name in opts]
             raise OptionError(flag, f"applies to --preset {' or '.join(users)} only; add --preset {users[0]}")
-    if args.preset == "robot" and args.robot_noise:
-        raise OptionError("--robot-noise", "applies to the paper and random presets only")
+    if args.preset != "robot" and args.robot_sigma_deg:
+        raise OptionError("--robot-sigma-deg", "applies to --preset robot only (the other presets have no "
+                          "orientations)")
     opts = {name: default if getattr(args, name) is None else getattr(args, name) for name, default in taken.items()}
     if args.preset == "random" and opts["views"] < 4:
         raise OptionError("--views", f"must be at least 4 (the method needs 4 views), got {opts['views']}")
@@ -85,16 +90,20 @@ def _preset_options(args) -> dict:
     return opts
 
 
-def _robot_scene(opts: dict, noise_px: float, seed: int):
-    """``(uv, poses, truth)`` of the robot preset: pixels, the columns of poses.csv, truth.json."""
-    from ..handeye.simulate import session_scene
+def _robot_scene(opts: dict, noise_px: float, seed: int, sigma_rot_deg: float = 0.0, sigma_pos: float = 0.0):
+    """``(uv, poses, truth)`` of the robot preset: pixels, the columns of poses.csv (with the
+    robot's pose errors: the images are those of the true poses), truth.json."""
+    from ..handeye.simulate import session_scene, with_robot_error
 
     sc = session_scene(seed, n_sessions=opts["sessions"], views_per_session=opts["views"], n_points=opts["points"],
                        moves=opts["moves"], single_views=opts["single_views"], setup=opts["setup"],
                        noise_px=noise_px)
+    rep, errors = with_robot_error(sc, sigma_rot_deg, sigma_pos, rng=seed + 1)
     truth = {k: np.asarray(v).tolist() for k, v in sc.truth.items()}
-    truth.update(points=sc.X.tolist(), noise_px=noise_px, units="mm", setup=sc.setup)
-    return sc.uv, dict(T=sc.T, R=sc.R, session=list(sc.session_of_view)), truth
+    truth.update(points=sc.X.tolist(), noise_px=noise_px, units="mm", setup=sc.setup,
+                 robot_sigma_deg=sigma_rot_deg, robot_sigma=sigma_pos,
+                 robot_error_rot_deg=np.degrees(errors[:, :3]).tolist(), robot_error_pos=errors[:, 3:].tolist())
+    return rep.uv, dict(T=rep.T, R=rep.R, session=list(sc.session_of_view)), truth
 
 
 def run(args) -> int:
@@ -105,7 +114,7 @@ def run(args) -> int:
     opts = _preset_options(args)
     check_output_folder(args.out, force=args.force)
     if args.preset == "robot":
-        uv, poses, truth = _robot_scene(opts, args.noise_px, args.seed)
+        uv, poses, truth = _robot_scene(opts, args.noise_px, args.seed, args.robot_sigma_deg, args.robot_noise)
     else:
         if args.preset == "paper":
             scene = simulate.paper_scene(noise_px=args.noise_px, robot_noise=args.robot_noise, rng=args.seed)
@@ -123,8 +132,10 @@ def run(args) -> int:
     if args.json:
         print_json({"status": "ok", "exit_code": 0, "preset": args.preset, "n_points": n_points,
                     "n_views": n_views, "noise_px": args.noise_px, "robot_noise": args.robot_noise,
+                    "robot_sigma_deg": args.robot_sigma_deg,
                     "unit": unit, "outputs": [str(f) for f in files]})
     else:
         print(f"Wrote {', '.join(str(f) for f in files)}: {n_points} points in {n_views} views "
-              f"({args.preset} preset, {args.noise_px} px noise, {args.robot_noise} {unit} robot noise)")
+              f"({args.preset} preset, {args.noise_px} px noise, robot pose error {args.robot_noise} {unit}"
+              f"{'' if args.preset != 'robot' else f' and {args.robot_sigma_deg} deg'} per view)")
     return 0

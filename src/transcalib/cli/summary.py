@@ -76,6 +76,7 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         lines.append(f"  angle to truth: {rotation_angle_deg(cal.R @ np.asarray(truth['R']).T):.4f} deg")
     n_rec = int(np.isfinite(cal.X[:, 0]).sum())
     lines.append(f"Reprojection RMS: {cal.rms_px:.4f} px; {n_rec} points reconstructed [{unit}]")
+    lines += robot_error_lines(cal, unit)
     if cal.inliers is not None:
         tracked, inl = _counts(cal, uv)
         lines.append(f"Inliers: {inl} of {tracked} points seen in 2 or more views")
@@ -91,6 +92,31 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
     return "\n".join(line.rstrip() for line in lines)
 
 
+def robot_error_lines(cal, unit: str) -> list:
+    """The robot's pose error in a few lines: the scales with their std (or why none), the
+    views with the largest errors; [] when the calibration did not model it."""
+    re = cal.robot_error
+    if re is None:
+        return []
+    parts = []
+    for what, s, sd, src, u in (("rotation", re.sigma_rot_deg, re.sigma_rot_std_deg, re.source[0], "deg"),
+                                ("position", re.sigma_pos, re.sigma_pos_std, re.source[1], unit)):
+        if src == "estimated":
+            parts.append(f"{what} {s:.3g} ± {sd:.2g} {u}")
+        elif src == "given":
+            parts.append(f"{what} {s:.3g} {u} (given)")
+        else:
+            p = re.p_values[0 if what == "rotation" else 1]
+            parts.append(f"{what} none" + (f" (p = {p:.2f})" if np.isfinite(p) else f" ({src})"))
+    lines = ["Robot pose error per view (std per axis): " + ", ".join(parts)]
+    if re.active:
+        rot, pos = np.linalg.norm(re.rot_deg, axis=1), np.linalg.norm(re.pos, axis=1)
+        worst = np.argsort(-(rot / max(re.sigma_rot_deg, 1e-300) + pos / max(re.sigma_pos, 1e-300)))[:3]
+        lines.append("  largest: " + "; ".join(f"view {i} {rot[i]:.3g} deg, {pos[i]:.3g} {unit}" for i in worst)
+                     + " (the uncertainties above include the robot error)")
+    return lines
+
+
 def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:
     """The machine-readable summary printed by ``--json``."""
     tracked, inl = _counts(cal, uv)
@@ -100,7 +126,9 @@ def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         "n_points_reconstructed": int(np.isfinite(cal.X[:, 0]).sum()), "unit": unit,
         "image_size": None if cal.image_size is None else list(cal.image_size),
         "K": cal.K, "dist_model": cal.dist_model, "dist": cal.dist, "dist_opencv": cal.dist_opencv,
-        "R_cam_world": cal.R, "rms_px": cal.rms_px, "sigma_px": cal.sigma_px, "std": cal.std,
+        "R_cam_world": cal.R, "rms_px": cal.rms_px, "sigma_px": cal.sigma_px,
+        "std": {k: v for k, v in cal.std.items() if not k.startswith("robot")},
+        "robot_error": _robot_error_json(cal.robot_error),
         "stages": list(cal.stats.stages),
         "diagnostics": [{"code": getattr(d, "code", ""), "message": str(d)} for d in cal.diagnostics],
         "timings_s": dict(cal.stats.timings_s),
@@ -113,3 +141,13 @@ def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         if err is not None and np.isfinite(err).any():
             out["truth_errors"].update(point_median=float(np.nanmedian(err)), point_max=float(np.nanmax(err)))
     return out
+
+
+def _robot_error_json(re) -> dict | None:
+    """The robot's pose error for ``--json``: scales, their std and source, each view's error."""
+    if re is None:
+        return None
+    return {"sigma_rot_deg": re.sigma_rot_deg, "sigma_rot_std_deg": re.sigma_rot_std_deg, "sigma_pos": re.sigma_pos,
+            "sigma_pos_std": re.sigma_pos_std, "source": {"rot": re.source[0], "pos": re.source[1]},
+            "p_values": {"rot": re.p_values[0], "pos": re.p_values[1]}, "view_rot_deg": re.rot_deg,
+            "view_pos": re.pos, "view_rot_std_deg": re.rot_std_deg, "view_pos_std": re.pos_std}

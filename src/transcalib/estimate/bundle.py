@@ -28,7 +28,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..geometry.camera import project_camera_frame
-from . import observations, translation_block
+from . import observations, robot_error, translation_block
 from .layout import Layout, State
 from .observations import Data, build_data
 from .schur import NormalEquations, Reduced, one_blas_thread, schur
@@ -58,8 +58,15 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     """
     if not isinstance(pts, slice) and len(pts) == len(state.X):  # every point, in order: no gather
         pts = slice(None)
-    d = (state.X[pts] - state.T[i]).T  # (3, n)
-    y = d if state.F is None else state.F[i] @ d
+    if lay.i_robot or (state.E is not None and np.any(state.E[i])):  # the view's pose error (robot_error)
+        Xp = state.X[pts].T
+        e = np.zeros(6) if state.E is None else state.E[i]
+        y, M = robot_error.flange_points(Xp, state.T[i], None if state.F is None else state.F[i], e,
+                                         lay.robot_inverted)
+    else:
+        d = (state.X[pts] - state.T[i]).T  # (3, n)
+        y = d if state.F is None else state.F[i] @ d
+        M = state.F[i] if state.F is not None else None
     if lay.t_free or np.any(state.t):
         y = y - state.t[:, None]
     y2 = state.R @ y
@@ -70,7 +77,7 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     if not jacobian:
         return p.pred, xc[2], None, None
     n = y.shape[1]
-    q = lay.n_common + 3 * (i in lay.i_vrot) + 3 * (i in lay.i_T)
+    q = lay.n_common + 3 * (i in lay.i_vrot) + 3 * (i in lay.i_T) + lay.n_robot * (i in lay.i_robot)
     Jg = np.empty((q, 2, n))
     Jg[: lay.n_intr] = p.intrinsic_jacobian(lay.intr_basis)
     if lay.dist_free:
@@ -79,7 +86,7 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
     # R <- exp([w]x) R: d y2 / dw = -[y2]x, and a^T (-[y2]x) = (y2 x a)^T
     _cross_rows(y2, PQ, Jg[lay.i_rot: lay.i_rot + 3])
     PQR = np.einsum("kcn,cd->dkn", PQ, state.R)  # d pred / d y  (3, 2, n)
-    JX = PQR if state.F is None else np.einsum("dkn,de->ekn", PQR, state.F[i])
+    JX = PQR if M is None else np.einsum("dkn,de->ekn", PQR, M)
     if lay.t_free:  # d pred / dp = -PQR B
         Jg[lay.i_t: lay.i_t + lay.n_t] = -np.einsum("dkn,dp->pkn", PQR, lay.t_basis)
     col = lay.n_common
@@ -88,6 +95,10 @@ def predict_view(state: State, lay: Layout, i: int, pts, jacobian: bool = True, 
         col += 3
     if i in lay.i_T:
         Jg[col: col + 3] = -JX
+        col += 3
+    if i in lay.i_robot:
+        robot_error.jacobian(y + state.t[:, None], Xp, PQR, JX, lay.robot_inverted, lay.robot,
+                             Jg[col: col + lay.n_robot])
     return p.pred, xc[2], Jg, JX
 
 
@@ -172,9 +183,14 @@ def _rho_sum(r: np.ndarray, loss: str, c: float) -> float:
 
 
 def _prior_cost(state: State, data: Data) -> float:
-    """``sum_i t_w_i^2 |T_i - T_i^meas|^2`` (twice the translation priors' cost)."""
+    """``sum_i t_w_i^2 |T_i - T_i^meas|^2 + sum_i (w_rot^2 |delta_i|^2 + w_pos^2 |eps_i|^2)``
+    (twice the priors' cost: translations, robot pose errors)."""
     dT = (state.T - data.T_meas) * data.t_weight[:, None]
-    return float(np.sum(dT * dT))
+    total = float(np.sum(dT * dT))
+    if state.E is not None:
+        w = np.repeat(data.robot_weight, 3)
+        total += float(np.sum((state.E * w) ** 2))
+    return total
 
 
 def cost(state: State, lay: Layout, data: Data, loss: str, c: float) -> float:
@@ -300,6 +316,13 @@ def _add_priors(U, bg, state, lay, data) -> None:
         tw2 = data.t_weight[i] ** 2
         U[s: s + 3, s: s + 3] += tw2 * np.eye(3)
         bg[s: s + 3] += tw2 * (data.T_meas[i] - state.T[i])
+    for k, comp in enumerate(lay.robot):  # residual w (0 - e), Jacobian w I
+        w2 = data.robot_weight[robot_error.COMPONENTS.index(comp)] ** 2
+        cols = lay.robot_columns(comp)
+        at = slice(0, 3) if comp == "rot" else slice(3, 6)
+        U[cols.ravel(), cols.ravel()] += w2
+        if state.E is not None:
+            bg[cols.ravel()] -= w2 * state.E[:, at].ravel()
 
 
 def reduced_system(state, lay, data, loss="linear", c=1.0, obs_weight=None, ok=None,

@@ -94,11 +94,28 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "",
         if not undetermined.any():
             break
         ok &= ~undetermined
-    evals, evecs = check_identifiable(red.S, lay.names(), hint, red.U_diag)
-    Sinv = (evecs / evals) @ evecs.T
+    Sinv = _checked_inverse(red, lay, hint)
     var_X = red.point_variances(Sinv)
     var_X[~ok] = np.nan
     return Sinv, var_X, ok
+
+
+def _checked_inverse(red: Reduced, lay: Layout, hint) -> np.ndarray:
+    """``S^-1`` after :func:`check_identifiable`. With robot pose errors the check is made
+    on the other parameters with the errors held fixed (the data must determine the
+    camera; the errors' directions are determined by their priors, which a relative
+    eigenvalue test at the data's scale would take for undetermined), and ``S`` is
+    inverted Jacobi-scaled."""
+    names = lay.names()
+    if not lay.i_robot:
+        evals, evecs = check_identifiable(red.S, names, hint, red.U_diag)
+        return (evecs / evals) @ evecs.T
+    keep = np.flatnonzero([not nm.startswith("robot") for nm in names])
+    check_identifiable(red.S[np.ix_(keep, keep)], tuple(names[k] for k in keep), hint, red.U_diag[keep])
+    d = 1.0 / np.sqrt(np.maximum(np.diag(red.S), 1e-300))
+    evals, evecs = np.linalg.eigh(red.S * d[:, None] * d[None, :])
+    evecs = evecs * d[:, None]
+    return (evecs / evals) @ evecs.T
 
 
 def crlb(scene, *, distortion: str | None = None, estimate_skew: bool = False, fix=None,
@@ -234,16 +251,32 @@ def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Lineari
     sigma_px = calibration.sigma_px or max(calibration.rms_px / np.sqrt(2), 1e-6)
     tw = np.where(t_sigma > 0, sigma_px / np.where(t_sigma > 0, t_sigma, 1.0), 0.0)
     T_start = np.asarray(calibration.T, float) if t_sigma.any() else T
+    layout, E, robot_w = _robot_model(calibration, layout, sigma_px)
     state = State(calibration.camera.intrinsics, calibration.camera.dist5, np.array(calibration.R),
                   np.tile(np.eye(3), (n_views, 1, 1)), T_start.copy(), X[idx].copy(),
-                  None if flange is None else flange.F, np.zeros(3) if flange is None else np.array(flange.t0, float))
-    data = build_data(uv, seen, idx, T, tw)
+                  None if flange is None else flange.F, np.zeros(3) if flange is None else np.array(flange.t0, float),
+                  E)
+    data = build_data(uv, seen, idx, T, tw, robot_w)
     dof = layout.residual_dof(data.n_obs, len(idx))
     if dof <= 3:
         raise DegenerateError(f"too few observations ({data.n_obs}) for a test of extra parameters")
     if polish:
         state = levenberg_marquardt(BundleProblem(layout, data), state, max_iterations=polish, tol=1e-9).state
     return Linearised(state, layout, data, int(dof), float(sigma_px))
+
+
+def _robot_model(calibration, layout: Layout, sigma_px: float):
+    """``layout`` with the robot pose error of ``calibration`` (its components with a
+    positive scale, the side of eq. 2 as the calibration fitted it), the errors ``E
+    (n_views, 6)`` (None without) and the priors' weights ``(2,)``."""
+    re = getattr(calibration, "robot_error", None)
+    if re is None or not re.active:
+        return layout, None, np.zeros(2)
+    sig = np.array([np.radians(re.sigma_rot_deg), re.sigma_pos])
+    layout = replace(layout, robot=tuple(c for c, s in zip(("rot", "pos"), sig) if s > 0),
+                     robot_inverted=bool(re.scene_side))
+    E = np.hstack([np.radians(np.asarray(re.rot_deg, float)), np.asarray(re.pos, float)])
+    return layout, E, np.where(sig > 0, sigma_px / np.where(sig > 0, sig, 1.0), 0.0)
 
 
 def profile_step(S: np.ndarray, b: np.ndarray, test: np.ndarray, nuisance: np.ndarray):

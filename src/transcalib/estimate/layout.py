@@ -3,8 +3,10 @@
 The global parameters ``g`` are laid out as: the free intrinsics (``fix``, square pixels,
 skew), the free distortion coefficients, the camera rotation ``R`` (local update ``R <-
 exp([dw]x) R``), the free directions of the offset ``t`` (the hand-eye translation), then a
-rotation ``w_i`` per view that has one (the rotation test) and a translation ``T_i`` per
-view that is a measurement (robot noise). The points follow, 3 each.
+rotation ``w_i`` per view that has one (the rotation test), a translation ``T_i`` per
+view that is a measurement (robot noise, ``sigma_T``), then each view's robot pose error
+(:mod:`transcalib.estimate.robot_error`: a flange rotation error ``delta_i`` and a position
+error ``eps_i``, 3 each for the components estimated). The points follow, 3 each.
 :meth:`Layout.from_options` is the one place where options become a layout, and
 :meth:`Layout.residual_dof` the one count of the residual degrees of freedom.
 """
@@ -100,6 +102,12 @@ class Layout:
         Free directions of the offset ``t`` (the hand-eye translation): ``dt = B dp``;
         None (or k = 0): ``t`` is fixed. Directions the data cannot determine (a rotation
         axis shared by every session) are left out, so ``t`` keeps its value there.
+    robot : tuple of str
+        Components of the robot pose error estimated for every view, a subset of
+        ``("rot", "pos")`` in that order (:mod:`transcalib.estimate.robot_error`).
+    robot_inverted : bool
+        The views' poses are inverted robot poses (eye-to-hand): the error acts on the
+        scene side (:func:`transcalib.estimate.robot_error.apply`).
     """
 
     n_views: int
@@ -109,8 +117,11 @@ class Layout:
     rot_views: tuple = ()
     T_views: tuple = ()
     t_basis: np.ndarray | None = None
+    robot: tuple = ()
+    robot_inverted: bool = False
     i_vrot: dict = field(init=False)
     i_T: dict = field(init=False)
+    i_robot: dict = field(init=False)
 
     def __post_init__(self):
         self.n_intr = self.intr_basis.shape[1]
@@ -122,13 +133,18 @@ class Layout:
         self.t_free = self.n_t > 0
         self.n_common = self.i_t + self.n_t
         start = self.n_common
-        self.i_vrot, self.i_T = {}, {}
+        self.i_vrot, self.i_T, self.i_robot = {}, {}, {}
         for i in self.rot_views:
             self.i_vrot[int(i)] = start
             start += 3
         for i in self.T_views:
             self.i_T[int(i)] = start
             start += 3
+        self.n_robot = 3 * len(self.robot)  # per view
+        if self.n_robot:
+            for i in range(self.n_views):
+                self.i_robot[i] = start
+                start += self.n_robot
         self.size = start
 
     @classmethod
@@ -145,8 +161,13 @@ class Layout:
 
     @property
     def n_global_no_T(self) -> int:
-        """Parameters other than the translations (these have priors)."""
-        return self.size - 3 * len(self.i_T)
+        """Parameters other than the translations and robot pose errors (these have priors)."""
+        return self.size - 3 * len(self.i_T) - self.n_robot * len(self.i_robot)
+
+    def robot_columns(self, component: str) -> np.ndarray:
+        """Global indices ``(n_views, 3)`` of one robot error component (``"rot"`` or ``"pos"``)."""
+        k = 3 * self.robot.index(component)
+        return np.array([[s + k + a for a in range(3)] for s in self.i_robot.values()], dtype=int).reshape(-1, 3)
 
     def residual_dof(self, n_obs: int, n_points: int) -> int:
         """Residual degrees of freedom of ``n_obs`` observations (2 residuals each) of
@@ -161,6 +182,8 @@ class Layout:
             cols += range(self.i_vrot[i], self.i_vrot[i] + 3)
         if i in self.i_T:
             cols += range(self.i_T[i], self.i_T[i] + 3)
+        if i in self.i_robot:
+            cols += range(self.i_robot[i], self.i_robot[i] + self.n_robot)
         return np.array(cols)
 
     def names(self) -> tuple:
@@ -170,6 +193,9 @@ class Layout:
             names += [f"view{i}_rx", f"view{i}_ry", f"view{i}_rz"]
         for i in self.i_T:
             names += [f"T{i}_x", f"T{i}_y", f"T{i}_z"]
+        for i in self.i_robot:
+            for c in self.robot:
+                names += [f"robot{i}_{c}_{a}" for a in "xyz"]
         return tuple(names)
 
     def rotation_mask(self) -> np.ndarray:
@@ -178,6 +204,8 @@ class Layout:
         m[self.i_rot: self.i_rot + 3] = True
         for s in self.i_vrot.values():
             m[s: s + 3] = True
+        if "rot" in self.robot:
+            m[self.robot_columns("rot").ravel()] = True
         return m
 
 
@@ -193,10 +221,11 @@ class State:
     X: np.ndarray  # (n_used, 3)
     F: np.ndarray | None = None  # (n_views, 3, 3) known per-view rotations (sessions)
     t: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) offset (hand-eye)
+    E: np.ndarray | None = None  # (n_views, 6) robot pose errors (delta rad, eps unit); None: zero
 
     def copy(self) -> "State":
         return State(self.intr.copy(), self.dist5.copy(), self.R.copy(), self.Q.copy(), self.T.copy(),
-                     self.X.copy(), self.F, self.t.copy())
+                     self.X.copy(), self.F, self.t.copy(), None if self.E is None else self.E.copy())
 
     def moved(self, lay: Layout, dg: np.ndarray, dX: np.ndarray) -> "State":
         """The state moved by ``dg`` (global, ``lay``'s order) and ``dX (3, n)``."""
@@ -210,6 +239,12 @@ class State:
             new.Q[i] = rotvec_to_matrix(dg[s: s + 3]) @ self.Q[i]
         for i, s in lay.i_T.items():
             new.T[i] += dg[s: s + 3]
+        if lay.i_robot:
+            new.E = np.zeros((lay.n_views, 6)) if new.E is None else new.E
+            at = [0, 1, 2] if lay.robot[0] == "rot" else [3, 4, 5]
+            at += [3, 4, 5] if len(lay.robot) == 2 else []
+            starts = np.array(list(lay.i_robot.values()))
+            new.E[:, at] += dg[starts[:, None] + np.arange(lay.n_robot)[None, :]]
         new.X += dX.T
         return new
 
@@ -234,6 +269,7 @@ class FlangeModel:
     F: np.ndarray
     t0: np.ndarray
     t_basis: np.ndarray
+    inverted: bool = False
 
     @classmethod
     def of(cls, calibration) -> "FlangeModel | None":
@@ -245,7 +281,8 @@ class FlangeModel:
         he = calibration.hand_eye
         undetermined = np.zeros((3, 0)) if he is None else np.asarray(he.undetermined).reshape(3, -1)
         t0 = np.zeros(3) if he is None else np.asarray(he.t, dtype=float)
-        return cls(np.transpose(R_i, (0, 2, 1)).copy(), t0.copy(), complement(undetermined))
+        inverted = he is not None and he.setup == "eye-to-hand"
+        return cls(np.transpose(R_i, (0, 2, 1)).copy(), t0.copy(), complement(undetermined), inverted)
 
 
 def complement(U: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ and scattering per accumulated quantity.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,6 +32,7 @@ class Data:
     n_points: int  # used points
     full_uv: list  # of (2, n) float (0 where unseen) or None
     full_seen: list  # of (n,) bool or None
+    robot_weight: np.ndarray = field(default_factory=lambda: np.zeros(2))  # sigma_px / (sigma_rot, sigma_pos), 0 off
 
     @property
     def n_obs(self) -> int:
@@ -43,7 +44,7 @@ class Data:
         return Data(pts=[p[a:b] - lo for p, (a, b) in zip(self.pts, cuts)],
                     uv=[u[:, a:b] for u, (a, b) in zip(self.uv, cuts)], T_meas=self.T_meas, t_weight=self.t_weight,
                     n_points=hi - lo, full_uv=[None if f is None else f[:, lo:hi] for f in self.full_uv],
-                    full_seen=[None if f is None else f[lo:hi] for f in self.full_seen])
+                    full_seen=[None if f is None else f[lo:hi] for f in self.full_seen], robot_weight=self.robot_weight)
 
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
         """Every view's observations over all points: ``uv (2, n_views, n)`` (0 where
@@ -64,8 +65,10 @@ class Data:
         return out
 
 
-def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
-    """Group the observations ``seen (V, n_all)`` of the points ``used_idx`` by view."""
+def build_data(uv, seen, used_idx, T_meas, t_weight, robot_weight=(0.0, 0.0)) -> Data:
+    """Group the observations ``seen (V, n_all)`` of the points ``used_idx`` by view;
+    ``robot_weight``: the priors' weights ``sigma_px / sigma_rot``, ``sigma_px / sigma_pos``
+    of the robot pose errors (:mod:`transcalib.estimate.robot_error`)."""
     pts, obs, full_uv, full_seen = [], [], [], []
     n = len(used_idx)
     for i in range(uv.shape[0]):
@@ -82,4 +85,4 @@ def build_data(uv, seen, used_idx, T_meas, t_weight) -> Data:
         full_uv.append(full if partial else None)
         full_seen.append(mask if partial else None)
     return Data(pts=pts, uv=obs, T_meas=T_meas, t_weight=t_weight, n_points=n, full_uv=full_uv,
-                full_seen=full_seen)
+                full_seen=full_seen, robot_weight=np.asarray(robot_weight, float))

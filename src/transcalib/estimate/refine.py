@@ -22,19 +22,21 @@ from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
 from ..geometry.rotation import matrix_to_rotvec
 from ..types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, HandEye, LinearEstimate,
-                     RefineOptions, RefineStats, ViewRotations)
+                     RefineOptions, RefineStats, RobotError, ViewRotations)
 from ..types.options import check_fixed_distortion
 from ..validate import as_uv_T
 from .bundle import BundleProblem, all_residuals, cost, sum_sq
-from .covariance import covariance, linearise, profile_step
+from .covariance import covariance, linearise, profile_step, reduced_information
 from .degeneracy import identifiability_hint
 from .distributions import f_sf
 from .layout import FlangeModel, Layout, State, complement, dist_indices, robot_sigma
 from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
+from .robot_error import COMPONENTS
 from .solvers import gauss_newton, levenberg_marquardt
+from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, redundancy, score_test
 
-__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb"]
+__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "with_robot_scales"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
 
@@ -52,6 +54,7 @@ class _Problem:
     start: State
     t_sigma: np.ndarray  # (V,) robot precision, 0 where exact
     opts: RefineOptions
+    robot_given: dict  # robot error component -> known sigma (rad, unit), None: estimated; absent: off
 
 
 def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, options: RefineOptions | None = None,
@@ -142,6 +145,7 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
                               "front of the camera); refinement needs at least 2. Track more points.")
     t_sigma = robot_sigma(opts.sigma_T, n_views)
     lay = Layout.from_options(opts, n_views, None if flange is None else flange.t_basis)
+    lay.robot_inverted = flange is not None and flange.inverted
     intr = _start_intrinsics(K0, opts)
     dist5 = pad_dist(getattr(initial, "dist", ()) if isinstance(initial, Calibration) else ())
     keep = np.zeros(5, bool)
@@ -157,7 +161,35 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
         raise DegenerateError(f"too few observations: {2 * n_obs} residuals for {lay.n_global_no_T + 3 * len(used_idx)} "
                               f"unknowns ({len(used_idx)} points, {lay.n_global_no_T} camera parameters). Track more "
                               "points, use more views, or a simpler distortion model.")
-    return _Problem(uv, T, seen, used_idx, int(np.sum(usable & ~in_front)), lay, start, t_sigma, opts)
+    return _Problem(uv, T, seen, used_idx, int(np.sum(usable & ~in_front)), lay, start, t_sigma, opts,
+                    _robot_given(opts))
+
+
+def with_robot_scales(opts: RefineOptions, calibration) -> RefineOptions:
+    """``opts`` with the robot error scales ``calibration`` found given (0 for a component
+    it left out): refits of the same data (tests of extra parameters, every track after a
+    subset) keep its error model instead of estimating it again."""
+    re = getattr(calibration, "robot_error", None)
+    if re is None or not robot_error_on(opts):
+        return opts
+    return replace(opts, robot_sigma_deg=float(re.sigma_rot_deg), robot_sigma_pos=float(re.sigma_pos))
+
+
+def robot_error_on(opts: RefineOptions) -> bool:
+    """Whether ``opts`` model the robot pose error: ``robot_error=True``, or None with a
+    scale given; never with ``sigma_T``."""
+    given = opts.robot_sigma_deg is not None or opts.robot_sigma_pos is not None
+    return opts.sigma_T is None and (opts.robot_error is True or (opts.robot_error is None and given))
+
+
+def _robot_given(opts: RefineOptions) -> dict:
+    """The robot error components in play: known sigma (radians, robot units) or None
+    (estimated); a component given as 0, ``robot_error=False`` or ``sigma_T`` leave them out."""
+    if not robot_error_on(opts):
+        return {}
+    given = {"rot": None if opts.robot_sigma_deg is None else np.radians(opts.robot_sigma_deg),
+             "pos": opts.robot_sigma_pos}
+    return {c: v for c, v in given.items() if v is None or v > 0}
 
 
 def _check_initial(initial, n_points: int):
@@ -307,7 +339,16 @@ class _Fitter:
 
     def __call__(self, state, idx, mask, loss):
         """Fit the points ``idx`` on the observations ``mask``: ``(state, cost, reason,
-        data, pixel sigma used for the translation priors or None)``."""
+        data, pixel sigma used for the priors or None)``; the layout fitted is
+        ``self.lay`` (with the robot error components found), ``self.robot`` the robot
+        error's scales (:class:`_RobotFit`)."""
+        self.lay, self.robot = self.pb.lay, None
+        if self.pb.robot_given and loss == "linear":
+            return self._with_robot(state, idx, mask)
+        return self._plain(state, idx, mask, loss)
+
+    def _plain(self, state, idx, mask, loss):
+        """:meth:`__call__` without robot pose errors."""
         pb, lay = self.pb, self.pb.lay
         n_views = len(pb.T)
         if not lay.i_T:
@@ -335,6 +376,167 @@ class _Fitter:
         self.system = self.residuals = None  # linearised with other prior weights than the final data's
         return state, cost(state, lay, data, loss, self.c), reason, data, sigma
 
+    def _with_robot(self, state, idx, mask):
+        """:meth:`__call__` with the robot pose error: the fit without it, the score test
+        of each component whose scale is not given, then rounds of fit and
+        variance-component update (:mod:`.variance_components`) of the scales found and
+        the pixel noise. Near the solution (scales given by the fit of a subset) one round."""
+        pb, n_views = self.pb, len(self.pb.T)
+        given, p_values, sig = pb.robot_given, {c: np.nan for c in COMPONENTS}, {}
+        state = replace(state, E=None)
+        dof = pb.lay.residual_dof(int(mask[:, idx].sum()), len(idx))
+        plain, sigma_px = None, pb.opts.sigma_px
+        self.rounds = 0
+        sig.update({c: float(v) for c, v in given.items() if v is not None})
+        out = None
+        if sig or self.near_solution:
+            out = self._rounds(state, idx, mask, sig, dof, sigma_px) if sig else None
+        else:
+            out = plain = self._plain(state, idx, mask, "linear")
+        tried = set(sig)
+        while not self.near_solution:  # forward selection: the most significant component next
+            state, sigma_px = out[0], out[4] or pb.opts.sigma_px
+            if sigma_px is None:
+                sigma_px = np.sqrt(max(sum_sq(state, self.lay, out[3]), 0.0) / max(dof, 1))
+            if sigma_px <= SIGMA_FLOOR_PX:  # exact data: no robot error to find
+                break
+            tests = self._gate(state, idx, mask, sigma_px, tried)
+            if not tests:
+                break
+            p_values.update({c: t.p_value for c, t in tests.items()})
+            c = min(tests, key=lambda k: tests[k].p_value)
+            if not (tests[c].p_value < GATE_ALPHA and tests[c].sigma2 > 0):
+                break
+            sig[c] = float(np.sqrt(tests[c].sigma2))
+            tried.add(c)  # tested once: a component the rounds drop again is not tried twice
+            out = self._rounds(state, idx, mask, sig, dof, sigma_px)
+            sig = dict(self.robot.sigma)
+        if out is None or not sig:
+            self.lay = pb.lay
+            self.robot = _RobotFit({}, {}, p_values, given, None)
+            return out if out is not None and plain is not None and out is plain else self._plain(
+                replace(state, E=None), idx, mask, "linear")
+        self.robot = replace(self.robot, p_values=p_values)
+        return out
+
+    def _rounds(self, state, idx, mask, sig, dof, sigma_px):
+        """Fit and variance-component updates until the scales settle (:meth:`_with_robot`)."""
+        pb, n_views, given = self.pb, len(self.pb.T), self.pb.robot_given
+        start = dict(sig)
+        lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig))
+        state = replace(state, E=np.zeros((n_views, 6)) if state.E is None else state.E)
+        if sigma_px is None:
+            data = build_data(pb.uv, mask, idx, pb.T, np.zeros(n_views))
+            sigma_px = np.sqrt(sum_sq(state, lay, data) / max(dof, 1))
+        history = {}
+        for _ in range(MAX_ROUNDS):
+            self.rounds += 1
+            w = _robot_weights(sigma_px, sig)
+            data = build_data(pb.uv, mask, idx, pb.T, np.zeros(n_views), w)
+            state, f, reason = self._lm(state, lay, data, "linear")
+            Sinv = _inverse(reduced_information(state, lay, data).S)
+            r = {c: redundancy(Sinv, lay.robot_columns(c), w[COMPONENTS.index(c)]) for c in lay.robot}
+            new = {c: (v if given.get(c) is not None else _component_sigma(state, c, r[c])) for c, v in sig.items()}
+            sse = sum_sq(state, lay, data)
+            new_px = pb.opts.sigma_px or float(np.sqrt(sse / max(dof - sum(r.values()), 0.5 * dof, 1)))
+            done = all(abs(new[c] - sig[c]) <= RTOL * sig[c] for c in sig) and abs(new_px - sigma_px) <= RTOL * sigma_px
+            if not done:
+                new = _extrapolated(history, new, given)
+            sig, sigma_px = new, new_px
+            # the data show none after all: the scale collapses while its redundancy vanishes
+            dropped = [c for c, v in sig.items() if given.get(c) is None and v <= DROP_FRACTION * start[c]
+                       and (r[c] < DROP_REDUNDANCY or v <= 0)]
+            if dropped:
+                sig = {c: v for c, v in sig.items() if c not in dropped}
+                E = state.E.copy()
+                for c in dropped:
+                    E[:, slice(0, 3) if c == "rot" else slice(3, 6)] = 0.0
+                state = replace(state, E=E)
+                if not sig:
+                    self.robot = _RobotFit({}, {}, {}, given, None)
+                    return self._plain(replace(state, E=None), idx, mask, "linear")
+                lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig))
+                continue
+            if done or self.near_solution:
+                break
+        self.lay = lay
+        self.robot = _RobotFit(sig, r, {}, given, sigma_px)
+        if not self.near_solution:
+            self.system = self.residuals = None
+        return state, cost(state, lay, data, "linear", self.c), reason, data, sigma_px
+
+    def _gate(self, state, idx, mask, sigma_px, tried) -> dict:
+        """Score tests at zero (:func:`.variance_components.score_test`) of the components
+        to estimate not yet ``tried``, at the fit ``state`` with the components of
+        ``self.robot`` (their priors in the profiled parameters)."""
+        pb = self.pb
+        comps = tuple(c for c in COMPONENTS if c in pb.robot_given and pb.robot_given[c] is None and c not in tried)
+        if not comps:
+            return {}
+        sig = {} if self.robot is None else self.robot.sigma
+        lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig or c in comps))
+        data = build_data(pb.uv, mask, idx, pb.T, np.zeros(len(pb.T)), _robot_weights(sigma_px, sig))
+        E = np.zeros((len(pb.T), 6)) if state.E is None else state.E
+        red = reduced_information(replace(state, E=E), lay, data)
+        test = {c: lay.robot_columns(c).ravel() for c in comps}
+        others = np.setdiff1d(np.arange(lay.size), np.concatenate(list(test.values())))
+        return {c: score_test(red.S, red.rhs, t, others, sigma_px) for c, t in test.items()}
+
+
+@dataclass(frozen=True)
+class _RobotFit:
+    """Scales of the robot error components found (``sigma``: rad / unit), their
+    redundancies, the score tests' p-values, what was given, and the pixel noise."""
+
+    sigma: dict
+    r: dict
+    p_values: dict
+    given: dict
+    sigma_px: float | None
+
+
+#: A robot error component estimated while fitting is dropped again when its scale falls
+#: below this fraction of its start while its redundancy falls below ``DROP_REDUNDANCY``.
+DROP_FRACTION = 0.05
+DROP_REDUNDANCY = 1.0
+
+
+def _robot_weights(sigma_px: float, sig: dict) -> np.ndarray:
+    """Prior weights ``sigma_px / sigma_k`` of (rot, pos), 0 for a component left out."""
+    return np.array([sigma_px / sig[c] if c in sig else 0.0 for c in COMPONENTS])
+
+
+def _extrapolated(history: dict, new: dict, given: dict) -> dict:
+    """Aitken's extrapolation of the estimated scales' slow (linear) convergence: from
+    three successive values of ``log sigma`` moving the same way by a ratio ``q`` in
+    (0, 0.95), the limit ``x2 + (x2 - x1) q / (1 - q)`` (at most a factor 3 away); then
+    the history starts again. ``history`` (component -> log sigmas) is updated in place."""
+    out = dict(new)
+    for c, v in new.items():
+        if given.get(c) is not None or v <= 0:
+            continue
+        h = history.setdefault(c, [])
+        h.append(np.log(v))
+        if len(h) == 3:
+            d1, d2 = h[1] - h[0], h[2] - h[1]
+            q = d2 / d1 if d1 != 0 else 0.0
+            if 0 < q < 0.95:
+                out[c] = float(np.exp(h[2] + np.clip(d2 * q / (1 - q), -np.log(3), np.log(3))))
+            history[c] = []
+    return out
+
+
+def _component_sigma(state: State, comp: str, r: float) -> float:
+    """``sqrt(|e_k|^2 / r_k)`` of a component's estimated errors (0 without redundancy)."""
+    e = state.E[:, :3] if comp == "rot" else state.E[:, 3:]
+    return float(np.sqrt(np.sum(e * e) / r)) if r > 1e-9 else 0.0
+
+
+def _inverse(S: np.ndarray) -> np.ndarray:
+    """``S^-1`` of a symmetric positive (semi-)definite ``S``, Jacobi-scaled."""
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    return np.linalg.pinv(S * d[:, None] * d[None, :], rcond=1e-14, hermitian=True) * d[:, None] * d[None, :]
+
 
 @dataclass
 class _Fit:
@@ -346,8 +548,10 @@ class _Fit:
     idx: np.ndarray
     mask: np.ndarray
     data: object
-    sigma_T_mode: float | None  # pixel sigma of the translation priors
+    sigma_T_mode: float | None  # pixel sigma of the priors (translations, robot errors)
     inliers: np.ndarray | None  # robust loss: inlier points
+    lay: Layout | None = None  # the layout fitted last (with the robot error components found)
+    robot: "_RobotFit | None" = None
 
 
 def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
@@ -360,7 +564,7 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
         fit.set_scale(_robust_sigma(pb, state))
     state, fit.cost, fit.reason, data, sigma_T_mode = fit(state, pb.used_idx, pb.seen, pb.opts.loss)
     if pb.opts.loss == "linear":
-        return _Fit(state, state, pb.used_idx, pb.seen, data, sigma_T_mode, None)
+        return _Fit(state, state, pb.used_idx, pb.seen, data, sigma_T_mode, None, fit.lay, fit.robot)
     if pb.opts.loss_scale_px is None:
         sigma = _robust_sigma(pb, state)
         if abs(sigma * LOSS_SCALE[pb.opts.loss] / fit.c - 1) > 0.1:  # the start's residuals misled the scale
@@ -382,7 +586,7 @@ def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
     obs_in = _inlier_observations(pb, state, fit.thr)
     inliers = np.zeros(pb.uv.shape[1], bool)
     inliers[pb.used_idx] = np.all(obs_in[:, pb.used_idx] | ~pb.seen[:, pb.used_idx], axis=0)
-    return _Fit(state, last, idx, mask, data, sigma_T_mode, inliers)
+    return _Fit(state, last, idx, mask, data, sigma_T_mode, inliers, fit.lay, fit.robot)
 
 
 def _robust_sigma(pb: _Problem, state: State) -> float:
@@ -406,7 +610,7 @@ def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
 
 def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calibration:
     """Covariance at the solution and the :class:`Calibration`."""
-    lay, n_views, n_points = pb.lay, *pb.uv.shape[:2]
+    lay, n_views, n_points = fit.lay, *pb.uv.shape[:2]
     Sinv, var_X, ok = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T),
                                  system=fitter.system)
     dof_fit = lay.residual_dof(int(fit.mask[:, fit.idx].sum()), len(fit.idx))
@@ -438,6 +642,7 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
         inliers=fit.inliers, T_std=T_std, view_rotations=_view_rotations(lay, fit.state, cov, n_views),
         flange_rotations=None if fit.state.F is None else np.transpose(fit.state.F, (0, 2, 1)),
         hand_eye=None if fit.state.F is None else _hand_eye(lay, fit.state, cov, initial),
+        robot_error=_robot_error(pb, fit, cov),
         options=CalibrateOptions(robust=False, refinement=pb.opts),
         stats=CalibrationStats(stages=("refine",), refine=_stats(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)))
 
@@ -493,10 +698,38 @@ def _hand_eye(lay: Layout, state: State, cov: np.ndarray, initial) -> HandEye:
     R_std = np.sqrt(np.diag(cov)[lay.i_rot: lay.i_rot + 3])
     before = getattr(initial, "hand_eye", None)
     if before is None:
-        before = HandEye("eye-in-hand", np.eye(3), np.zeros(3), np.zeros(3), np.zeros((3, 3)), np.eye(3),
+        setup = "eye-to-hand" if lay.robot_inverted else "eye-in-hand"
+        before = HandEye(setup, np.eye(3), np.zeros(3), np.zeros(3), np.zeros((3, 3)), np.eye(3),
                          np.zeros(lay.n_views, int), ("0",))
     return replace(before, R=state.R.T.copy(), t=state.t.copy(), R_std_deg=R_std, t_cov=t_cov,
                    undetermined=complement(B))
+
+
+def _robot_error(pb: _Problem, fit: _Fit, cov: np.ndarray) -> RobotError | None:
+    """The robot pose error found (:class:`RobotError`; None when not in play): scales with
+    their std ``sigma / sqrt(2 r)``, each view's error and std from ``cov`` (degrees)."""
+    if not robot_error_on(pb.opts):
+        return None
+    lay, rf, n_views = fit.lay, fit.robot, len(pb.T)
+    E = np.zeros((n_views, 6)) if fit.state.E is None else fit.state.E
+    std = np.zeros((n_views, 6))
+    for k, comp in enumerate(COMPONENTS):
+        if comp in lay.robot:
+            std[:, 3 * k: 3 * k + 3] = np.sqrt(np.diag(cov)[lay.robot_columns(comp)])
+    sigma, sd, source = [], [], []
+    for comp in COMPONENTS:
+        s = rf.sigma.get(comp, 0.0) if rf is not None else 0.0
+        r = rf.r.get(comp, 0.0) if rf is not None else 0.0
+        given = pb.robot_given.get(comp, 0.0)
+        source.append("off" if comp not in pb.robot_given else "given" if given is not None
+                      else "estimated" if s > 0 else "not detected")
+        sigma.append(s)
+        sd.append(s / np.sqrt(2 * r) if source[-1] == "estimated" and r > 0 else 0.0)
+    p = np.array([np.nan, np.nan]) if rf is None else np.array([rf.p_values[c] for c in COMPONENTS])
+    r = np.zeros(2) if rf is None else np.array([rf.r.get(c, 0.0) for c in COMPONENTS])
+    return RobotError(float(np.degrees(sigma[0])), float(sigma[1]), float(np.degrees(sd[0])), float(sd[1]),
+                      tuple(source), np.degrees(E[:, :3]), E[:, 3:].copy(), std[:, :3], std[:, 3:], r, p,
+                      bool(lay.robot_inverted))
 
 
 def _view_rotations(lay, state, cov, n_views) -> ViewRotations | None:

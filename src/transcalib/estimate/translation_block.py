@@ -37,10 +37,10 @@ __all__ = ["applies", "normal_equations", "residuals"]
 
 def applies(state, lay) -> bool:
     """Whether :func:`normal_equations` can assemble ``lay``'s system at ``state``: one
-    pure-translation session (no flange rotations, no offset, no per-view rotations or
-    translations among the parameters)."""
+    pure-translation session (no flange rotations, no offset, no per-view rotations,
+    translations or robot pose errors among the parameters or in the state)."""
     return (state.F is None and not lay.rot_views and not lay.i_T and not lay.t_free
-            and not np.any(state.t))
+            and not np.any(state.t) and not lay.i_robot and (state.E is None or not np.any(state.E)))
 
 
 def normal_equations(state, lay, uv: np.ndarray, seen: np.ndarray, weight, loss: str, c: float, loss_weights):

@@ -228,3 +228,17 @@ def _single_view(rng, centre, distance_mm: float, R_X, t_X, tilt_deg: float):
     R = look.T @ R_X.T
     C = centre - distance_mm * rng.uniform(0.9, 1.1) * down
     return R, C - R @ t_X
+
+
+def with_robot_error(scene: SessionScene, sigma_rot_deg: float, sigma_pos: float, rng=None):
+    """The scene as a robot with pose errors reports it: the images stay those of the true
+    poses, the recorded poses become ``R_i exp(-[delta_i]x)``, ``T_i - eps_i`` (so the true
+    pose is the reported one times the error, :mod:`transcalib.estimate.robot_error`), with
+    ``delta_i`` (rad) of per-axis std ``sigma_rot_deg`` degrees and ``eps_i`` of per-axis
+    std ``sigma_pos`` (mm), independent per view. Eye-to-hand the error is the flange's
+    (the recorded robot poses). Returns ``(scene, errors (n_views, 6))``."""
+    from ..estimate.robot_error import perturb_poses, sample_errors
+
+    errors = sample_errors(len(scene.T), sigma_rot_deg, sigma_pos, rng)
+    R_rep = np.einsum("vab,vbc->vac", scene.R, rotvec_to_matrix(-errors[:, :3]))
+    return replace(scene, R=R_rep, T=scene.T - errors[:, 3:]), errors

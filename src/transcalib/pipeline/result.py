@@ -36,4 +36,13 @@ def with_motion(cal: Calibration, motion: Motion, notes: tuple = ()) -> Calibrat
     R_std = np.array([cal.std.get(k, np.nan) for k in ("rx", "ry", "rz")])
     hand_eye = HandEye(R=(cal.R @ R0).T, t=np.zeros(3), R_std_deg=R_std, t_cov=np.zeros((3, 3)),
                        undetermined=np.eye(3), **sessions, notes=(ONE_ORIENTATION, *notes))
-    return replace(cal, camera=replace(cal.camera, R=cal.R @ R0), flange_rotations=motion.R, hand_eye=hand_eye)
+    return replace(cal, camera=replace(cal.camera, R=cal.R @ R0), flange_rotations=motion.R, hand_eye=hand_eye,
+                   robot_error=_in_flange_axes(cal.robot_error, R0))
+
+
+def _in_flange_axes(re, R0: np.ndarray):
+    """The rotation errors of a fit of one orientation (robot axes) in the flange axes
+    ``R0^T delta`` (their std rotated as independent axes)."""
+    if re is None:
+        return None
+    return replace(re, rot_deg=re.rot_deg @ R0, rot_std_deg=np.sqrt(re.rot_std_deg**2 @ R0**2))

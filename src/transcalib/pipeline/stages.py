@@ -14,7 +14,7 @@ import numpy as np
 
 from ..estimate.layout import FlangeModel, complement
 from ..estimate.noise import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
-from ..estimate.refine import climb_distortion, fit_refine
+from ..estimate.refine import climb_distortion, fit_refine, with_robot_scales
 from ..geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from ..geometry.triangulate import triangulate
 from ..types import INTRINSIC_NAMES, CalibrateOptions, Calibration, CalibrationStats, HandEye, LinearEstimate, report
@@ -68,8 +68,9 @@ def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOption
     if inliers is not None:
         inliers = inlier_rule(track_sse(uv, cal, X_all), k, rule_sigma(cal, opts), opts.ransac.false_rejection)
     start = replace(cal, X=X_all if inliers is None else np.where(inliers[:, None], X_all, np.nan))
-    step = replace(opts.refinement, distortion=cal.dist_model, max_iterations=GAUSS_NEWTON_STEPS)
-    full = fit_refine(uv, T, start, step, near_solution=True)  # outliers have no X: not used
+    step = with_robot_scales(replace(opts.refinement, distortion=cal.dist_model, max_iterations=GAUSS_NEWTON_STEPS),
+                             cal)  # the subset's robot error scales: one model for both fits
+    full = _as_estimated(fit_refine(uv, T, start, step, near_solution=True), cal)  # outliers have no X: not used
     if full.inliers is not None:  # the robust loss classified points too
         inliers = full.inliers if inliers is None else inliers & full.inliers
     if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
@@ -84,6 +85,17 @@ def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOption
     stats = replace(full.stats, refine=refined, subset=subset, distortion_selection=cal.stats.distortion_selection)
     report(progress, "all tracks", points=refined.n_points_used, rms_px=full.rms_px)
     return replace(full, options=replace(full.options, refinement=opts.refinement), stats=stats), inliers
+
+
+def _as_estimated(full: Calibration, subset: Calibration) -> Calibration:
+    """``full``'s robot error (fitted with the scales of ``subset`` given) reported as the
+    subset estimated them: sources, the scales' std, redundancies and p-values."""
+    a, b = full.robot_error, subset.robot_error
+    if a is None or b is None:
+        return full
+    return replace(full, robot_error=replace(a, source=b.source, sigma_rot_std_deg=b.sigma_rot_std_deg,
+                                             sigma_pos_std=b.sigma_pos_std, redundancy=b.redundancy,
+                                             p_values=b.p_values))
 
 
 def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress, flange: FlangeModel | None = None):

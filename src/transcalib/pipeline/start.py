@@ -191,7 +191,8 @@ def _from_sessions(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng
     diagnostics = tuple(_orientation_off(i, a, g.tolerance_deg) for i, a in joined.off_views)
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
     return Start(linear, inliers, ["robust" if robust else "linear"], lin.ransac,
-                 FlangeModel(np.transpose(motion.R, (0, 2, 1)), joined.t, obs.determined), left_out, diagnostics,
+                 FlangeModel(np.transpose(motion.R, (0, 2, 1)), joined.t, obs.determined,
+                             inverted=motion.setup == "eye-to-hand"), left_out, diagnostics,
                  notes)
 
 
@@ -240,7 +241,8 @@ def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: boo
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
     diagnostics = tuple(_orientation_off(v, a, g.tolerance_deg) for v, a in gs.off_views)
     return Start(linear, inliers, ["robust" if robust else "linear"], None,
-                 FlangeModel(F, gs.t_X, obs.determined), left_out, diagnostics, notes)
+                 FlangeModel(F, gs.t_X, obs.determined, inverted=motion.setup == "eye-to-hand"), left_out,
+                 diagnostics, notes)
 
 
 def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -> LinearEstimate:

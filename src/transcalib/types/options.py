@@ -89,7 +89,22 @@ class RefineOptions:
         One focal length: ``fx = fy``.
     sigma_T : float or tuple of float, optional
         Robot translation precision (user units), one value or one per view: the
-        translations become measurements. None: exact translations.
+        translations become measurements. None: exact translations. (The older model
+        of position noise; it turns ``robot_error`` off. Prefer ``robot_sigma_pos``.)
+    robot_error : bool or None
+        Model each view's robot pose error (flange rotation and position,
+        :mod:`transcalib.estimate.robot_error`) as nuisance parameters with Gaussian
+        priors: True, or None (default) when a scale below is given. A component whose
+        scale is not given is estimated from the data together with the pixel noise
+        (variance components) when a score test at zero finds it (1 %), else it stays
+        off. The covariance then includes it. False / None without scales: exact poses
+        (off by default until it is robust on few-view, misfitting data: docs/uncertainty.md).
+    robot_sigma_deg : float, optional
+        Known per-axis std of each view's flange rotation error (degrees; 0: exact
+        orientations). None (default): estimated.
+    robot_sigma_pos : float, optional
+        Known per-axis std of each view's flange position error (robot units; 0: exact
+        positions). None (default): estimated.
     loss : {"linear", "huber", "cauchy"}
         Loss of the residual norm; ``loss_scale_px`` its scale.
     loss_scale_px : float, optional
@@ -123,6 +138,9 @@ class RefineOptions:
     max_iterations: int = 100
     tol: float = 1e-6
     estimate_view_rotations: bool | tuple = False
+    robot_error: bool | None = None
+    robot_sigma_deg: float | None = None
+    robot_sigma_pos: float | None = None
 
     def __post_init__(self):
         if self.distortion not in ("auto", *DIST_MODELS):
@@ -149,6 +167,7 @@ class RefineOptions:
             object.__setattr__(self, "estimate_view_rotations", rot)
         if self.estimate_skew and "skew" in self.fix:
             raise InputError("estimate_skew=True contradicts fix['skew']: the skew cannot be both free and known")
+        _check_robot(self)
 
     def __hash__(self):
         return hash((self.distortion, tuple(self.fix.items()), self.sigma_T, self.loss))
@@ -196,6 +215,23 @@ def _check_fix(fix) -> dict:
             raise InputError(f"fix: {name} = {value!r} is not a valid value")
         out[name] = v
     return out
+
+
+def _check_robot(o) -> None:
+    """The robot pose error options: non-negative scales, not contradicting ``sigma_T``."""
+    if o.robot_error is not None and not isinstance(o.robot_error, (bool, np.bool_)):
+        raise InputError(f"robot_error must be True, False or None, got {o.robot_error!r}")
+    for name in ("robot_sigma_deg", "robot_sigma_pos"):
+        v = getattr(o, name)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                              or not math.isfinite(v) or v < 0):
+            raise InputError(f"{name} must be a number >= 0 (0: exact) or None (estimated), got {v!r}")
+    given = o.robot_sigma_deg is not None or o.robot_sigma_pos is not None
+    if given and o.robot_error is False:
+        raise InputError("robot_sigma_deg / robot_sigma_pos need robot_error=True (or None)")
+    if given and o.sigma_T is not None:
+        raise InputError("sigma_T (the older position-noise model) and robot_sigma_deg / robot_sigma_pos are two "
+                         "models of the same error: give robot_sigma_pos instead of sigma_T")
 
 
 def _check_sigma_T(sigma_T):

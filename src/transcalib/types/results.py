@@ -231,6 +231,71 @@ class ViewRotations:
 
 
 @dataclass(frozen=True, eq=False)
+class RobotError:
+    """The robot's pose error as the refinement found it (:attr:`Calibration.robot_error`).
+
+    Each view's true flange pose is the reported one times a small error: a rotation
+    ``delta_i`` in the flange frame and a position error ``eps_i`` in the base frame, with
+    per-axis standard deviations ``sigma_rot_deg`` and ``sigma_pos``
+    (:mod:`transcalib.estimate.robot_error`; docs/uncertainty.md).
+
+    Attributes
+    ----------
+    sigma_rot_deg, sigma_pos : float
+        Per-axis std of the flange rotation error (degrees) and position error (robot
+        units); 0 when the component is off or the data show none.
+    sigma_rot_std_deg, sigma_pos_std : float
+        Their standard deviations (``sigma / sqrt(2 r)``, ``r`` the component's redundancy);
+        0 when given or off.
+    source : tuple of str
+        For ``(rot, pos)``: ``"estimated"``, ``"given"``, ``"not detected"`` (the score
+        test at zero did not find it, p-value in ``p_values``) or ``"off"``.
+    rot_deg : (n_views, 3) float
+        Each view's estimated rotation error ``delta_i`` (degrees, flange frame; one
+        orientation: the camera's rotation error in the robot axes).
+    pos : (n_views, 3) float
+        Each view's estimated position error ``eps_i`` (robot units, base frame; one
+        orientation: the camera centre's).
+    rot_std_deg, pos_std : (n_views, 3) float
+        Their standard deviations.
+    redundancy : (2,) float
+        Redundancy (share of the residual degrees of freedom) of the two priors.
+    p_values : (2,) float
+        p-values of the score tests of ``sigma = 0`` (NaN where not tested).
+    scene_side : bool
+        The errors act as eye-to-hand (eq. 2 of :mod:`transcalib.estimate.robot_error`:
+        the flange carries the scene) rather than on the camera (eq. 1).
+    """
+
+    sigma_rot_deg: float
+    sigma_pos: float
+    sigma_rot_std_deg: float
+    sigma_pos_std: float
+    source: tuple
+    rot_deg: np.ndarray
+    pos: np.ndarray
+    rot_std_deg: np.ndarray
+    pos_std: np.ndarray
+    redundancy: np.ndarray
+    p_values: np.ndarray
+    scene_side: bool = False
+
+    def __post_init__(self):
+        _freeze(self, arrays=("rot_deg", "pos", "rot_std_deg", "pos_std", "redundancy", "p_values"),
+                sequences=("source",))
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, RobotError) and _same_fields(self, other)
+
+    __hash__ = None
+
+    @property
+    def active(self) -> bool:
+        """Whether the calibration modelled a robot pose error."""
+        return self.sigma_rot_deg > 0 or self.sigma_pos > 0
+
+
+@dataclass(frozen=True, eq=False)
 class HandEye:
     """The camera's pose relative to the robot (:attr:`Calibration.hand_eye`).
 
@@ -343,6 +408,8 @@ class Calibration:
         eye-to-hand: base -> flange ``R_i^T``); None without orientations in the poses.
     hand_eye : HandEye or None
         The camera relative to the robot (with orientations in the poses).
+    robot_error : RobotError or None
+        The robot's pose error: its scales and each view's error (refined runs).
     options : CalibrateOptions or None
         What the calibration was asked to do.
     stats : CalibrationStats
@@ -369,6 +436,7 @@ class Calibration:
     view_rotations: ViewRotations | None = None
     flange_rotations: np.ndarray | None = None
     hand_eye: HandEye | None = None
+    robot_error: RobotError | None = None
     options: CalibrateOptions | None = None
     stats: CalibrationStats = field(default_factory=CalibrationStats)
     info: Mapping = field(default_factory=dict)
@@ -421,11 +489,33 @@ class Calibration:
         zero without orientations: the points are then relative to the camera centre at
         ``T = 0``)."""
         R = np.asarray(self.R)
+        re = self.robot_error
+        if re is not None and re.active:
+            return self._camera_poses_with_robot_error(R, re)
         if self.flange_rotations is None:
             return np.broadcast_to(R, (self.n_views, 3, 3)).copy(), np.array(self.T, dtype=float)
         Ri = np.asarray(self.flange_rotations)
         t = np.zeros(3) if self.hand_eye is None else np.asarray(self.hand_eye.t)
         return R @ np.transpose(Ri, (0, 2, 1)), self.T + Ri @ t
+
+    def _camera_poses_with_robot_error(self, R: np.ndarray, re: "RobotError"):
+        """:meth:`camera_poses` of the true poses, the reported ones times the estimated
+        errors (:mod:`transcalib.estimate.robot_error`): on the camera side ``R_cam = R
+        exp(-[delta]x) R_i^T``, ``C = T + eps + R_i exp([delta]x) t``; on the scene side
+        ``R_cam = R R_i^T exp([delta]x)``, ``C = exp(-[delta]x) (T + R_i t - R_i eps)``."""
+        from ..geometry.rotation import rotvec_to_matrix
+
+        n = self.n_views
+        Ri = np.tile(np.eye(3), (n, 1, 1)) if self.flange_rotations is None else np.asarray(self.flange_rotations)
+        t = np.zeros(3) if self.hand_eye is None else np.asarray(self.hand_eye.t, float)
+        H = rotvec_to_matrix(np.radians(np.asarray(re.rot_deg, float)))
+        Rt = np.transpose(Ri, (0, 2, 1))
+        eps = np.asarray(re.pos, float)
+        T = np.asarray(self.T, float)
+        if re.scene_side:
+            C = np.einsum("vba,vb->va", H, T + Ri @ t - np.einsum("vab,vb->va", Ri, eps))
+            return R @ Rt @ H, C
+        return R @ np.transpose(H, (0, 2, 1)) @ Rt, T + eps + np.einsum("vab,vbc,c->va", Ri, H, t)
 
     @property
     def n_points(self) -> int:

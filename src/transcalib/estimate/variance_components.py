@@ -1,0 +1,107 @@
+"""Scales of the pixel noise and of the robot's pose error, estimated together from the data.
+
+The bundle adjustment with robot pose errors (:mod:`transcalib.estimate.robot_error`) has
+three groups of observations with unknown scales: the pixels (``sigma_px``), the priors
+``0 = delta_i`` (``sigma_rot``) and ``0 = eps_i`` (``sigma_pos``). Förstner's
+variance-component estimate divides each group's weighted squared residuals by its
+redundancy ``r_k`` (its share of the residual degrees of freedom) ::
+
+    sigma_k^2 = |v_k|^2 / r_k,      r_k = n_k - w_k^2 tr((S^-1)_kk),      r_px = dof - sum_k r_k
+
+with ``S`` the reduced normal matrix in pixel units (points eliminated), ``w_k =
+sigma_px / sigma_k`` the prior's weight and ``n_k = 3 n_views``; iterated with the fit to
+its fixed point (an unbiased estimate at convergence). ``Var(sigma_k^2) = 2 sigma_k^4 /
+r_k``, so ``std(sigma_k) = sigma_k / sqrt(2 r_k)``.
+
+A component that is absent would drift towards zero only slowly, so first a **score test
+at zero** decides whether the data show it: at the fit without it, its parameters' profiled
+gradient ``g`` (pixel units; the other parameters and the points profiled out) has
+``Cov(g) = sigma_px^2 I + sigma_k^2 I^2`` with ``I`` their profiled information, so ::
+
+    q = |g|^2 / sigma_px^2  ~  c chi2(nu)  at sigma_k = 0,  c = tr I^2 / tr I,  nu = (tr I)^2 / tr I^2
+
+(Satterthwaite), and ``sigma_k^2 = (|g|^2 - sigma_px^2 tr I) / tr I^2`` is the moment
+estimate that starts the iteration. Random robot errors spread over the views; one view
+that alone departs from its pose is a model violation (the rotation test names it), not a
+scale. So the test is also made without each view in turn (its parameters profiled out
+as well, free), and the component is modelled when the p-values with every view and
+without the view that explains most are both below ``GATE_ALPHA`` (the larger is
+reported; the moment estimate is the one without that view).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .distributions import chi2_sf
+
+__all__ = ["GATE_ALPHA", "MAX_ROUNDS", "RTOL", "ScoreTest", "score_test", "redundancy"]
+
+#: False-alarm rate of the score test that switches a robot error component on.
+GATE_ALPHA = 0.01
+#: Most rounds of fit + variance-component update.
+MAX_ROUNDS = 40
+#: The rounds stop when every scale moves by less than this fraction.
+RTOL = 1e-3
+
+
+@dataclass(frozen=True)
+class ScoreTest:
+    """Score test of a variance component at zero: ``p_value`` and the moment estimate
+    ``sigma2`` of its variance (0 when not positive)."""
+
+    p_value: float
+    sigma2: float
+
+
+def score_test(S: np.ndarray, b: np.ndarray, test: np.ndarray, others: np.ndarray, sigma_px: float) -> ScoreTest:
+    """The score test (module docstring) of the parameters ``test`` (3 per view, by view)
+    at zero, profiling ``others``; also without the view of the largest excess.
+
+    Parameters
+    ----------
+    S : (p, p) float
+        Reduced normal matrix (pixel units, points eliminated) with the test parameters at
+        zero and no prior on them.
+    b : (p,) float
+        Its right-hand side ``J^T r`` at the fit without the test parameters.
+    test, others : int arrays
+        Indices into ``S``.
+    sigma_px : float
+        Pixel noise per coordinate.
+    """
+    S_to = S[np.ix_(test, others)]
+    S_oo_inv = np.linalg.pinv(S[np.ix_(others, others)], rcond=1e-13, hermitian=True)
+    info = S[np.ix_(test, test)] - S_to @ S_oo_inv @ S_to.T
+    g = b[test] - S_to @ (S_oo_inv @ b[others])
+    s2 = sigma_px**2
+    without = max((_without_view(g, info, s2, m) for m in range(len(test) // 3)), key=lambda t: t.p_value)
+    return ScoreTest(max(_moments(g, info, s2).p_value, without.p_value), without.sigma2)
+
+
+def _without_view(g: np.ndarray, info: np.ndarray, s2: float, m: int) -> ScoreTest:
+    """:func:`_moments` with view ``m``'s parameters free (profiled out too): its own
+    departure then no longer leaks into the other views through the shared parameters."""
+    keep = np.repeat(np.arange(len(g) // 3) != m, 3)
+    I_km = info[np.ix_(keep, ~keep)]
+    I_mm_inv = np.linalg.pinv(info[np.ix_(~keep, ~keep)], rcond=1e-13, hermitian=True)
+    return _moments(g[keep] - I_km @ (I_mm_inv @ g[~keep]), info[np.ix_(keep, keep)] - I_km @ I_mm_inv @ I_km.T, s2)
+
+
+def _moments(g: np.ndarray, info: np.ndarray, s2: float) -> ScoreTest:
+    """Satterthwaite's p-value of ``|g|^2`` at zero and the moment estimate (module docstring)."""
+    tr1, tr2 = float(np.trace(info)), float(np.sum(info * info))
+    if tr1 <= 0 or tr2 <= 0:
+        return ScoreTest(1.0, 0.0)
+    q = float(g @ g)
+    c, nu = tr2 / tr1, tr1**2 / tr2
+    return ScoreTest(float(chi2_sf(q / (s2 * c), nu)), max((q - s2 * tr1) / tr2, 0.0))
+
+
+def redundancy(Sinv: np.ndarray, cols: np.ndarray, weight: float) -> float:
+    """Redundancy ``n_k - w_k^2 tr((S^-1)_kk)`` of a prior group on the parameters ``cols``
+    with weight ``w_k`` (pixel units)."""
+    cols = np.asarray(cols).ravel()
+    return float(len(cols) - weight**2 * np.trace(Sinv[np.ix_(cols, cols)]))
