@@ -20,7 +20,7 @@ import numpy as np
 
 from ..geometry.camera import undistort
 
-__all__ = ["sample_rays", "surface_hits", "on_surface", "render_view"]
+__all__ = ["sample_rays", "surface_hits", "on_surface", "nearest_hits", "render_view"]
 
 
 def sample_rays(K, R, dist, image_size, S):
@@ -83,6 +83,23 @@ def on_surface(sf, z, s, t) -> np.ndarray:
     """bool mask: the hit ``(z, s, t)`` of :func:`surface_hits` lies in front of the
     camera and inside the rectangle ``[0, size[0]] x [0, size[1]]``."""
     return (z > 0) & (s >= 0) & (s <= sf.size[0]) & (t >= 0) & (t <= sf.size[1])
+
+
+def nearest_hits(surfaces, d, C) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest surface along every ray ``C + z d``: depth ``z`` (inf where no surface
+    is hit; camera z when ``d`` has unit camera z) and the index into ``surfaces`` of the
+    surface hit (-1: none), each ``d[0].shape`` - the z-buffer of :func:`render_view`
+    without its crops, for the exact truth of every pixel."""
+    best = np.full(np.shape(d[0]), np.inf)
+    owner = np.full(np.shape(d[0]), -1, dtype=np.int32)
+    for k, sf in enumerate(surfaces):  # a loop over surfaces, vectorised over the rays
+        if sf.cull_back and np.dot(sf.normal, C - sf.origin) <= 0:
+            continue
+        z, s, t = surface_hits(sf, d, C)
+        hit = on_surface(sf, z, s, t) & (z < best)
+        best[hit] = z[hit]
+        owner[hit] = k
+    return best, owner
 
 
 def render_view(surfaces, d, C, S, background, K, R, dist, image_size):

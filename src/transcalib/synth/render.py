@@ -31,8 +31,8 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.camera import pixels_to_rays, project
 from .degrade import Degradations, degrade_view, draw_view_effects, overlay_box
-from .raycast import on_surface, render_view, sample_rays, surface_hits
-from .presets import SCENE_KINDS, default_camera, preset_scene, robot_translations
+from .raycast import nearest_hits, on_surface, render_view, sample_rays, surface_hits
+from .presets import SCENE_KINDS, default_camera, preset_scene, ring_translations, robot_translations
 from .simulate import Scene
 from .surfaces import Surface, box, checker_board, paper_board, plane
 from .textures import Checker, Constant, Noise, Squares, Tiled
@@ -53,6 +53,7 @@ __all__ = [
     "Rendered",
     "render_scene",
     "robot_translations",
+    "ring_translations",
     "SCENE_KINDS",
 ]
 
@@ -212,6 +213,25 @@ class Rendered:
         X[~np.isfinite(best)] = np.nan
         return (X, which) if return_surface else X
 
+    def depth_map(self, view: int, return_surface: bool = False):
+        """The exact depth of every pixel of ``view``: ``(height, width)`` float, the
+        camera z (along the optical axis, world units) of the scene point seen at the
+        pixel's centre (through the lens, distortion included), NaN where no surface is
+        hit - the truth of dense reconstruction.
+
+        With ``return_surface``, also ``(height, width)`` int: the index into
+        ``surfaces`` of the surface seen (-1: none). The images are not touched.
+        """
+        d = sample_rays(self.K, self.R, self.dist, self.image_size, 1)  # unit camera z
+        z, owner = nearest_hits(self.surfaces, d, self.T[view])
+        z = np.where(np.isfinite(z), z, np.nan)
+        return (z, owner) if return_surface else z
+
+    def textured(self) -> np.ndarray:
+        """``(n_surfaces,)`` bool: the surface has a texture (anything but
+        :class:`~transcalib.synth.textures.Constant`)."""
+        return np.array([not isinstance(sf.texture, Constant) for sf in self.surfaces], bool)
+
     def track_truth(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ground truth of tracks ``uv (n_views, n, 2)``: the world point ``(n, 3)`` seen at
         each track's first observation, and ``(n,)`` bool, True where that observation is
@@ -289,13 +309,16 @@ def render_scene(
 
     Parameters
     ----------
-    kind : {"checker", "natural", "board", "mixed", "repetitive"}
+    kind : {"checker", "natural", "board", "mixed", "repetitive", "workspace"}
         ``checker``: a large checkerboard and a checkered box in front of a plain wall;
         ``natural``: a noise-textured wall and two textured boxes at other depths;
         ``board``: the paper's six black squares on a white board in front of a textured
         wall; ``mixed``: textured wall, checkerboard, paper board and a textured box;
         ``repetitive``: a wall of identical tiles, a tilted tiled panel in front of it
-        and a small textured box (descriptors match the wrong tile easily).
+        and a small textured box (descriptors match the wrong tile easily);
+        ``workspace``: surfaces from 0.5 to 1.5 ``distance`` (a textured wall, a
+        slanted textured table top, three textured boxes, one untextured panel) for
+        dense reconstruction, whose truth is :meth:`Rendered.depth_map`.
     n_views : int
         Number of views (>= 2).
     image_size : (width, height)

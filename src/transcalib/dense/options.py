@@ -1,0 +1,217 @@
+"""Options and results of dense reconstruction: frozen dataclasses.
+
+:class:`DenseOptions` says how :func:`transcalib.dense` matches; :class:`DepthMap` is the
+result for one reference view (depth, confidence, standard deviation on the view's
+original pixel grid) and :class:`DenseResult` gathers the maps and the fused metric
+point cloud in the robot frame.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry.camera import Camera
+
+__all__ = ["DenseOptions", "DepthMap", "DenseResult", "default_best_k"]
+
+
+def default_best_k(n_sources: int) -> int:
+    """Views whose costs are summed at each pixel when ``best_k`` is None: about 60 %
+    of the ``n_sources`` other views (3 of 5, 2 of 2 or 3), at least 1."""
+    return max(1, min(n_sources, int(np.ceil(0.6 * n_sources))))
+
+
+@dataclass(frozen=True)
+class DenseOptions:
+    """How :func:`transcalib.dense` matches (every field has a default).
+
+    Attributes
+    ----------
+    n_depths : int
+        Depth hypotheses, uniform in inverse depth between the depth limits (>= 3).
+    window_px : int
+        Side of the square matching window (odd, >= 3).
+    best_k : int or None
+        At each pixel and hypothesis, the costs of the ``best_k`` best-matching other
+        views are summed (occlusions: a view that does not see the point is left out;
+        Kang, Szeliski & Chai 2001). None: :func:`default_best_k`.
+    min_texture : float
+        A pixel whose window's grey-level standard deviation is below ``min_texture``
+        times the image noise (estimated from the reference image) is untextured: left
+        unknown.
+    min_confidence : float
+        Pixels whose confidence (0-1) is below this are left unknown.
+    consistency_rel : float
+        With several reference views: two depths agree when they differ by at most
+        this fraction of the depth (the fused cloud keeps what no other reference view
+        contradicts).
+    threads : int or None
+        Threads of the sweep (None: ``min(2, os.cpu_count())``).
+    """
+
+    n_depths: int = 256
+    window_px: int = 7
+    best_k: int | None = None
+    min_texture: float = 3.0
+    min_confidence: float = 0.5
+    consistency_rel: float = 0.01
+    threads: int | None = None
+
+    def __post_init__(self):
+        bad = []
+        if not isinstance(self.n_depths, (int, np.integer)) or self.n_depths < 3:
+            bad.append(f"n_depths must be an integer >= 3, got {self.n_depths!r}")
+        if not isinstance(self.window_px, (int, np.integer)) or self.window_px < 3 or self.window_px % 2 == 0:
+            bad.append(f"window_px must be an odd integer >= 3, got {self.window_px!r}")
+        if self.best_k is not None and (not isinstance(self.best_k, (int, np.integer)) or self.best_k < 1):
+            bad.append(f"best_k must be None or an integer >= 1, got {self.best_k!r}")
+        if not (np.isfinite(self.min_texture) and self.min_texture >= 0):
+            bad.append(f"min_texture must be a number >= 0, got {self.min_texture!r}")
+        if not 0 <= self.min_confidence < 1:
+            bad.append(f"min_confidence must be in [0, 1), got {self.min_confidence!r}")
+        if not 0 < self.consistency_rel < 1:
+            bad.append(f"consistency_rel must be in (0, 1), got {self.consistency_rel!r}")
+        if self.threads is not None and (not isinstance(self.threads, (int, np.integer)) or self.threads < 1):
+            bad.append(f"threads must be None or an integer >= 1, got {self.threads!r}")
+        if bad:
+            raise InputError("DenseOptions: " + "; ".join(bad))
+
+    def n_threads(self) -> int:
+        return int(self.threads) if self.threads is not None else max(1, min(2, os.cpu_count() or 1))
+
+
+def _frozen(a):
+    if a is None:
+        return None
+    view = np.asarray(a).view()
+    view.setflags(write=False)
+    return view
+
+
+@dataclass(frozen=True, eq=False)
+class DepthMap:
+    """Dense depth of one reference view on its original pixel grid.
+
+    Attributes
+    ----------
+    view : str
+        The reference view's id (as in the poses file).
+    index : int
+        Its index in the views given.
+    depth : (height, width) float32
+        Depth along the optical axis (camera z) of the scene point seen at each pixel's
+        centre, robot units; NaN where unknown.
+    confidence : (height, width) float32
+        0-1: the best-k views' normalised correlation at the depth found times its
+        distinctness (``1 - c_1 / c_2``, ``c_2`` the best cost away from the minimum);
+        0 where unknown.
+    depth_std : (height, width) float32
+        Standard deviation of ``depth`` (robot units): from the matching cost's
+        curvature, and the calibration's covariance where the calibration has one;
+        NaN where unknown.
+    depth_std_calibration : (height, width) float32 or None
+        The calibration's part of ``depth_std`` (None without a covariance).
+    camera : Camera
+        The reference view's camera: ``K``, distortion and ``R`` (world -> camera).
+    centre : (3,) float
+        Its centre in the robot frame (relative to the camera centre at ``T = 0``).
+    image : (height, width, 3) uint8
+        The reference image (RGB), for the cloud's colours.
+    sources : tuple of str
+        Ids of the other views matched.
+    depth_limits : (2,) float
+        Near and far depth searched (robot units).
+    best_k : int
+        Views summed at each pixel.
+    info : mapping
+        Figures of the run (``noise_dn``, ``time_s``, ``known_fraction``, ...).
+    """
+
+    view: str
+    index: int
+    depth: np.ndarray
+    confidence: np.ndarray
+    depth_std: np.ndarray
+    depth_std_calibration: np.ndarray | None
+    camera: Camera
+    centre: np.ndarray
+    image: np.ndarray
+    sources: tuple
+    depth_limits: tuple
+    best_k: int
+    info: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        for name in ("depth", "confidence", "depth_std", "depth_std_calibration", "centre", "image"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+        object.__setattr__(self, "info", MappingProxyType(dict(self.info)))
+        object.__setattr__(self, "sources", tuple(self.sources))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape)
+
+    def points(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """World points ``(n, 3)`` of the known pixels (row-major order), or of ``mask``:
+        ``X = C + z R^T [x, y, 1]`` with ``[x, y, 1]`` the pixel's ray (lens included)."""
+        mask = np.isfinite(self.depth) if mask is None else mask
+        v, u = np.nonzero(mask)
+        rays = self.camera.pixels_to_rays(np.column_stack([u, v]).astype(float))
+        return self.centre + (rays * self.depth[v, u, None].astype(float)) @ self.camera.R
+
+
+@dataclass(frozen=True, eq=False)
+class DenseResult:
+    """What :func:`transcalib.dense` returns.
+
+    Attributes
+    ----------
+    maps : tuple of DepthMap
+        One per reference view, in the order asked for.
+    points : (n, 3) float
+        The fused metric point cloud in the robot frame (robot units, relative to the
+        camera centre at ``T = 0``, as the calibration's points).
+    colors : (n, 3) uint8
+        RGB of each point (its reference image).
+    point_view : (n,) int
+        Index into ``maps`` of the map each point comes from.
+    point_confidence, point_std : (n,) float32
+        Confidence and depth standard deviation of each point.
+    n_rejected : int
+        Points left out of the cloud because another reference view contradicted them.
+    unit : str or None
+        Length unit of the robot positions (None: not named).
+    options : DenseOptions
+    timings_s : mapping of str to float
+    """
+
+    maps: tuple
+    points: np.ndarray
+    colors: np.ndarray
+    point_view: np.ndarray
+    point_confidence: np.ndarray
+    point_std: np.ndarray
+    n_rejected: int
+    unit: str | None
+    options: DenseOptions
+    timings_s: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        for name in ("points", "colors", "point_view", "point_confidence", "point_std"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+        object.__setattr__(self, "maps", tuple(self.maps))
+        object.__setattr__(self, "timings_s", MappingProxyType(dict(self.timings_s)))
+
+    def map(self, view) -> DepthMap:
+        """The :class:`DepthMap` of reference view ``view`` (its id)."""
+        for m in self.maps:
+            if m.view == str(view):
+                return m
+        raise InputError(f"view {view!r} is not a reference view of this result; it has "
+                         f"{', '.join(m.view for m in self.maps)}")
