@@ -11,11 +11,10 @@ minimum (``1 - c1 / c2``: how distinct the minimum is; a repeated or flat textur
 
 **Standard deviation from the cost's curvature**: near the minimum the mean cost is
 ``E(i) = c1 + E'' (i - i*)^2 / 2``. Least squares over ``N`` residual samples of
-variance ``s^2 = c1 N / (N - 1)`` gives ``var(i) = 2 s^2 / (N E'')``. Two corrections
-count what is not independent: the reference's pixels enter every view's residual
-(a factor ``(k + 1) / 2`` for ``k`` views summed), and neighbouring pixels are
-correlated by the optics and the interpolation (``N = k A / 2`` for a window of ``A``
-pixels). Then ``sigma_rho = sqrt(var(i)) d`` and ``sigma_z = sigma_rho z^2``.
+variance ``s^2 = c1 N / (N - 1)`` (``N = k A``: ``k`` views summed, windows of ``A``
+pixels) gives ``var(i) = 2 s^2 / (N E'')``, times ``(k + 1) / 2`` because the
+reference's pixels enter every view's residual (the ``k`` residuals of a pixel are not
+independent). Then ``sigma_rho = sqrt(var(i)) d`` and ``sigma_z = sigma_rho z^2``.
 
 A pixel is **unknown** (NaN) when its window is untextured (local standard deviation
 below ``min_texture`` times the image noise), its minimum lies at an end of the range,
@@ -69,7 +68,7 @@ def depth_from_sweep(res: SweepResult, rho: np.ndarray, local_std: np.ndarray, n
         conf = np.where(np.isfinite(conf), conf, 0.0)
         textured = local_std >= options.min_texture * noise
         known = np.isfinite(r) & (r > 0) & textured & (conf >= options.min_confidence)
-        n = best_k * options.window_px**2 / 2.0
+        n = float(best_k * options.window_px**2)
         var_i = 2.0 * res.c1 * (n / (n - 1.0)) / (n * res.curvature) * (best_k + 1) / 2.0
         z = np.where(known, 1.0 / r, np.nan)
         std = np.sqrt(var_i) * step * z * z

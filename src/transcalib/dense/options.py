@@ -22,9 +22,10 @@ __all__ = ["DenseOptions", "DepthMap", "DenseResult", "default_best_k"]
 
 
 def default_best_k(n_sources: int) -> int:
-    """Views whose costs are summed at each pixel when ``best_k`` is None: about 60 %
-    of the ``n_sources`` other views (3 of 5, 2 of 2 or 3), at least 1."""
-    return max(1, min(n_sources, int(np.ceil(0.6 * n_sources))))
+    """Views whose costs are summed at each pixel when ``best_k`` is None: half of the
+    ``n_sources`` other views, rounded down, at least 1 (2 of 5): a pixel near an
+    occluding edge or the image border is seen by about half of the views."""
+    return max(1, n_sources // 2)
 
 
 @dataclass(frozen=True)

@@ -257,7 +257,7 @@ def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> t
     """Inverse depths to search when no limits are given: a coarse sweep over every
     hypothesis that moves the image by up to ``COARSE_MAX_DISPARITY`` of its width (in
     front of every source camera), then the 1st-99th percentile of what it finds,
-    widened by 15 % of that range and two coarse steps on each side."""
+    widened by 5 % of that range and one and a half coarse steps on each side."""
     h, w = ref_n.shape
     s = COARSE_FACTOR
     rate = _disparity_rate(e, canvas, (w, h))
@@ -277,5 +277,5 @@ def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> t
         raise DegenerateError("could not find the depth range of the scene (too little texture, or no overlap "
                               "between the views); give depth_limits (--depth-limits NEAR,FAR)")
     lo, hi = np.percentile(res.index[ok] * step, [1.0, 99.0])
-    pad = 0.15 * (hi - lo) + 2.0 * step
+    pad = 0.05 * (hi - lo) + 1.5 * step
     return max(lo - pad, 0.0), hi + pad

@@ -13,7 +13,7 @@ plus the canvas offset, and the warp is affine (``cv2.warpAffine``); with distor
 ``u~`` is computed once per pixel and the warp is a remap.
 
 The cost of a hypothesis at a pixel is, for each source view, the sum over the window of
-the truncated squared difference of the locally normalised images (``min(d^2, 4)``:
+the truncated squared difference of the locally normalised images (``min(d^2, 2)``:
 about ``2 (1 - ZNCC)`` per pixel, robust to exposure and vignetting); the ``best_k``
 smallest of the views' costs are summed (occlusion handling). Hypotheses stream through
 a band of rows at a time, so the cost volume is never held: per pixel we keep the best
@@ -36,7 +36,7 @@ from ..types.progress import report
 __all__ = ["SweepInput", "SweepResult", "sweep", "TRUNCATION"]
 
 #: Truncation of the squared difference of normalised intensities (per pixel).
-TRUNCATION = 4.0
+TRUNCATION = 2.0
 #: Rows of a band (plus the window's halo).
 BAND_ROWS = 64
 _INF = np.float32(np.inf)
@@ -109,26 +109,33 @@ def _warp(src: np.ndarray, inp: SweepInput, j: int, rho: float, a0: int, rows: i
 
 
 def _hypothesis_cost(inp: SweepInput, rho: float, a0: int, rows: int, bufs) -> np.ndarray:
-    """Sum of the ``best_k`` smallest windowed costs over the sources ``(rows, W)``:
-    the total minus the ``n - best_k`` largest (kept sorted as they stream in)."""
+    """Sum of the ``best_k`` smallest windowed costs over the sources ``(rows, W)``: the
+    ``best_k`` smallest kept sorted as they stream in, or, when fewer are left out, the
+    total minus the ``n - best_k`` largest (whichever needs fewer operations)."""
     w, win = inp.ref.shape[1], inp.window
     ref = inp.ref[a0:a0 + rows]
     drop = len(inp.sources) - inp.best_k
-    total, tops = None, [None] * drop
+    keep_small = inp.best_k <= drop
+    slots, total = [None] * (inp.best_k if keep_small else drop), None
+    first, second = (cv2.min, cv2.max) if keep_small else (cv2.max, cv2.min)
     for j, src in enumerate(inp.sources):  # a loop over the few source views
         d = cv2.subtract(ref, _warp(src, inp, j, rho, a0, rows, w, bufs))
         d = cv2.min(cv2.multiply(d, d), TRUNCATION)
         c = cv2.boxFilter(d, -1, (win, win), normalize=False, borderType=cv2.BORDER_REFLECT)
-        total = c if total is None else cv2.add(total, c)
-        for t in range(drop):
-            if tops[t] is None:
-                tops[t] = c
+        if not keep_small:
+            total = c if total is None else cv2.add(total, c)
+        for t in range(len(slots)):
+            if slots[t] is None:
+                slots[t] = c
                 break
-            hi = cv2.max(tops[t], c)
-            c = cv2.min(tops[t], c)
-            tops[t] = hi
-    for top in tops:
-        total = cv2.subtract(total, top)
+            slots[t], c = first(slots[t], c), second(slots[t], c)
+    if keep_small:
+        total = slots[0]
+        for s in slots[1:]:
+            total = cv2.add(total, s)
+        return total
+    for s in slots:
+        total = cv2.subtract(total, s)
     return total
 
 

@@ -16,7 +16,6 @@ trilinearly to every pixel.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from ..geometry.camera import DIST_NAMES, Camera, pixels_to_rays, project_camera_frame
 from ..geometry.rotation import rotvec_to_matrix
@@ -108,8 +107,25 @@ def calibration_depth_std(calibration, camera: Camera, t: np.ndarray, rho_range,
     rel = np.sqrt(np.maximum(np.einsum("kg,kl,lg->g", G, S, G), 0.0)) / rho0
     grid = rel.reshape(GRID[2], GRID[1], GRID[0])
     v, u = np.nonzero(np.isfinite(rho))
-    coords = np.stack([(rho[v, u] - gr[0]) / (gr[-1] - gr[0]) * (GRID[2] - 1),
-                       v / max(h - 1, 1) * (GRID[1] - 1), u / max(w - 1, 1) * (GRID[0] - 1)])
+    coords = [(rho[v, u] - gr[0]) / (gr[-1] - gr[0]) * (GRID[2] - 1), v / max(h - 1, 1) * (GRID[1] - 1),
+              u / max(w - 1, 1) * (GRID[0] - 1)]
     out = np.full(shape, np.nan, np.float32)
-    out[v, u] = map_coordinates(grid, coords, order=1, mode="nearest")
+    out[v, u] = _trilinear(grid, coords)
+    return out
+
+
+def _trilinear(grid: np.ndarray, coords) -> np.ndarray:
+    """Values of ``grid (n0, n1, n2)`` at fractional indices ``coords`` (three ``(n,)``
+    arrays; clamped to the grid)."""
+    idx, frac = [], []
+    for c, n in zip(coords, grid.shape):
+        c = np.clip(c, 0.0, n - 1.0)
+        i = np.minimum(np.floor(c).astype(int), n - 2)
+        idx.append(i)
+        frac.append(c - i)
+    out = np.zeros(len(coords[0]))
+    for corner in range(8):  # the eight corners of each cell
+        b = [(corner >> k) & 1 for k in range(3)]
+        weight = np.prod([f if bit else 1.0 - f for f, bit in zip(frac, b)], axis=0)
+        out += weight * grid[idx[0] + b[0], idx[1] + b[1], idx[2] + b[2]]
     return out

@@ -57,6 +57,8 @@ def cloud_picture(points: np.ndarray, colors: np.ndarray, camera, centre, size=(
     img = np.zeros((h, w, 3), np.uint8)
     if len(points) == 0:
         return img
+    stride = max(1, len(points) // 300_000)  # enough for a picture; a fixed subset
+    points, colors = points[::stride], colors[::stride]
     xc = (points - centre) @ camera.R.T
     pivot = np.median(xc, axis=0)
     turn = rotvec_to_matrix(np.radians([15.0, 0.0, 0.0])) @ rotvec_to_matrix(np.radians([0.0, 25.0, 0.0]))
