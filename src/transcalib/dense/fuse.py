@@ -3,16 +3,22 @@
 Every known pixel of a reference view gives a point ``X = C + z R^T r`` in the robot
 frame. With several reference views each point is checked against every other
 reference view's depth map: projected there (depth ``z'``, nearest pixel, depth ``z_b``
-seen there), it **agrees** when ``|z' - z_b| <= tol z_b``, **conflicts** when it lies in
-front of what that view sees (``z' < (1 - tol) z_b``: the view would have seen it), and
-is not judged when it is hidden behind that surface, outside the image, or the view has
-no depth there. A point is kept unless it conflicts with more views than it agrees with.
+seen there, margin ``m = max(tol z_b, 3 sqrt(s^2 + s_b^2))`` with ``s``, ``s_b`` the two
+depth standard deviations), it **agrees** when ``|z' - z_b| <= m``, **conflicts** when
+it lies in front of what that view sees (``z' < min z_b - m``, the least depth of the
+3 x 3 pixels around, so that a point beside an occluding edge is not judged by the
+surface behind it: the view would have seen it),
+and is not judged when it is hidden behind that surface, outside the image, or the view
+has no depth there. A point is kept unless it conflicts with more views than it agrees
+with. (With two reference views a contradiction cannot say which of the two is wrong:
+the point in front of the other's surface goes.)
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..geometry.camera import project_camera_frame
@@ -33,8 +39,13 @@ class Cloud:
     n_rejected: int
 
 
-def _votes(points: np.ndarray, other, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(agree, conflict)`` bool ``(n,)`` of world ``points`` against depth map ``other``."""
+#: Standard deviations of two depths that still agree.
+N_SIGMA = 3.0
+
+
+def _votes(points: np.ndarray, std: np.ndarray, other, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(agree, conflict)`` bool ``(n,)`` of world ``points`` (depth std ``std (n,)``)
+    against depth map ``other``."""
     cam = other.camera
     xc = cam.R @ (points - other.centre).T  # (3, n)
     z = xc[2]
@@ -43,11 +54,15 @@ def _votes(points: np.ndarray, other, tol: float) -> tuple[np.ndarray, np.ndarra
     h, w = other.depth.shape
     u, v = np.rint(uv[0]), np.rint(uv[1])
     inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    zb = np.full(len(z), np.nan)
-    zb[inside] = other.depth[v[inside].astype(int), u[inside].astype(int)]
+    zb, sb, zmin = (np.full(len(z), np.nan) for _ in range(3))
+    vi, ui = v[inside].astype(int), u[inside].astype(int)
+    nearest = cv2.erode(np.where(np.isfinite(other.depth), other.depth, np.inf).astype(np.float32),
+                        np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    zb[inside], sb[inside], zmin[inside] = other.depth[vi, ui], other.depth_std[vi, ui], nearest[vi, ui]
     with np.errstate(invalid="ignore"):
-        agree = np.abs(z - zb) <= tol * zb
-        conflict = z < (1.0 - tol) * zb
+        margin = np.maximum(tol * zb, N_SIGMA * np.hypot(std, sb))
+        agree = np.abs(z - zb) <= margin
+        conflict = z < zmin - margin
     return agree, conflict
 
 
@@ -59,10 +74,11 @@ def fuse(maps, tol: float) -> Cloud:
     for a, m in enumerate(maps):  # a loop over the few reference views
         known = np.isfinite(m.depth)
         X = m.points(known)
+        std = m.depth_std[known].astype(float)
         agree, conflict = np.zeros(len(X), int), np.zeros(len(X), int)
         for b, other in enumerate(maps):
             if b != a:
-                ag, co = _votes(X, other, tol)
+                ag, co = _votes(X, std, other, tol)
                 agree += ag
                 conflict += co
         keep = conflict <= agree

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..types.progress import report
 
-__all__ = ["SweepInput", "SweepResult", "sweep", "TRUNCATION"]
+__all__ = ["SweepInput", "SweepResult", "sweep", "warp_matrix", "TRUNCATION"]
 
 #: Truncation of the squared difference of normalised intensities (per pixel).
 TRUNCATION = 2.0
@@ -90,18 +90,27 @@ class SweepResult:
     curvature: np.ndarray
 
 
+def warp_matrix(e: np.ndarray, rho: float, offset, row0: int = 0) -> np.ndarray:
+    """``M`` (2, 3): the canvas position of the hypothesis ``rho`` of reference pixel
+    ``(u, v)`` (row ``v - row0`` of a band starting at ``row0``) in the source with
+    epipole ``e = K_c t`` is ``M [u, v - row0, 1]`` - the module docstring's
+    ``(u~ - rho e) / (1 - rho e_z)`` with ``u~ = pixel + offset`` (a lens without
+    distortion)."""
+    s = 1.0 / (1.0 - rho * e[2])
+    return np.array([[s, 0.0, (offset[0] - rho * e[0]) * s], [0.0, s, (offset[1] + row0 - rho * e[1]) * s]])
+
+
 def _warp(src: np.ndarray, inp: SweepInput, j: int, rho: float, a0: int, rows: int, w: int, buf) -> np.ndarray:
     """Source ``j`` sampled at hypothesis ``rho`` for reference rows ``a0 .. a0 + rows``
     (out of its canvas: 0, the truncation makes it the worst match)."""
     e = inp.epipoles[j]
     if 1.0 - rho * e[2] < 0.05:  # the hypothesis is behind (or at) the source camera: nothing to see
         return np.full((rows, w), 1e3, np.float32)
-    s = 1.0 / (1.0 - rho * e[2])
     if inp.ref_canvas is None:
-        ox, oy = inp.offset
-        M = np.array([[s, 0.0, (ox - rho * e[0]) * s], [0.0, s, (oy + a0 - rho * e[1]) * s]])
-        return cv2.warpAffine(src, M, (w, rows), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=1e3)
+        return cv2.warpAffine(src, warp_matrix(e, rho, inp.offset, a0), (w, rows),
+                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=1e3)
+    s = 1.0 / (1.0 - rho * e[2])
     mx, my = buf
     cv2.addWeighted(inp.ref_canvas[0, a0:a0 + rows], s, inp.ref_canvas[0, a0:a0 + rows], 0.0, -rho * e[0] * s, mx)
     cv2.addWeighted(inp.ref_canvas[1, a0:a0 + rows], s, inp.ref_canvas[1, a0:a0 + rows], 0.0, -rho * e[1] * s, my)
@@ -186,11 +195,17 @@ def sweep(inp: SweepInput, threads: int = 1, progress=None, stage: str = "dense:
     H, W = inp.ref.shape
     bands = [(r0, min(r0 + BAND_ROWS, H)) for r0 in range(0, H, BAND_ROWS)]
     out = {name: np.empty((H, W), np.float32) for name in ("c1", "c2", "best", "left", "right")}
-    with np.errstate(invalid="ignore", over="ignore"), ThreadPoolExecutor(max(1, threads)) as pool:
-        for done, (r0, *parts) in enumerate(pool.map(lambda b: _band(inp, *b), bands), start=1):
-            for name, part in zip(("c1", "c2", "best", "left", "right"), parts):
-                out[name][r0:r0 + len(part)] = part
-            report(progress, stage, done, len(bands))
+    pool = ThreadPoolExecutor(max(1, threads))
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):
+            for done, (r0, *parts) in enumerate(pool.map(lambda b: _band(inp, *b), bands), start=1):
+                for name, part in zip(("c1", "c2", "best", "left", "right"), parts):
+                    out[name][r0:r0 + len(part)] = part
+                report(progress, stage, done, len(bands))
+    except BaseException:  # an interrupt: drop the bands not started, do not wait for them
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     return _refine_minimum(out, len(inp.rho), inp.best_k * inp.window**2)
 
 

@@ -1,0 +1,510 @@
+"""Dense reconstruction: the renderer's depth truth, the sweep's geometry (exact), depth on
+rendered scenes, confidence and uncertainty, fusion, the views' poses, the command's
+outputs and bad inputs, and the complete-or-absent output folder."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import transcalib
+from transcalib.dense import DenseOptions, dense
+from transcalib.dense.fuse import fuse
+from transcalib.dense.images import make_canvas
+from transcalib.dense.sweep import warp_matrix
+from transcalib.dense.views import central_view, view_cameras
+from transcalib.errors import DegenerateError, InputError
+from transcalib.geometry.camera import Camera, K_from_params, project_camera_frame
+from transcalib.io import write_poses_csv
+from transcalib.io.folders import MANIFEST, check_output_folder, output_folder, read_manifest
+from transcalib.synth import render
+from transcalib.synth.degrade import Degradations
+from transcalib.types import Calibration
+
+SIZE = (256, 192)
+LIGHT = Degradations(vignetting=0.3, exposure=0.2, read_noise_dn=1.5)  # a real camera without JPEG or overlay
+
+
+def _calibration(camera, T, cov=None, names=()):
+    n = len(T)
+    return Calibration(camera=camera, X=np.zeros((0, 3)), residuals_px=np.zeros((n, 0, 2)), rms_px=0.0,
+                       T=np.asarray(T, float), cov=cov, param_names=tuple(names))
+
+
+def _scene(rng=0, n_views=5, size=SIZE, degrade=LIGHT, dist=()):
+    R = Rotation.from_euler("xyz", [170, 20, -30], degrees=True).as_matrix()
+    T = render.ring_translations(n_views, 60.0, R, rng)
+    return render.render_scene("workspace", n_views=n_views, image_size=size, R=R, T=T, distance=800.0,
+                               degrade=degrade, rng=rng, noise_std=0.0, supersample=1, dist=dist)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene()
+
+
+@pytest.fixture(scope="module")
+def result(scene):
+    return dense(Camera(scene.K, scene.R, image_size=scene.image_size), list(scene.images), scene.T,
+                 reference_views=["0"], depth_limits=(380, 1300))
+
+
+def _errors(scene, depth, view=0):
+    truth, surface = scene.depth_map(view, return_surface=True)
+    textured = scene.textured()[surface] & (surface >= 0)
+    return np.abs(depth - truth) / truth, textured
+
+
+# --------------------------------------------------------------------------- the renderer's truth
+
+
+def test_depth_map_is_the_exact_truth_of_every_pixel():
+    r = render.render_scene("workspace", n_views=2, image_size=(120, 90), rng=4, supersample=1,
+                            dist=(-0.1, 0.02))
+    z, surface = r.depth_map(1, return_surface=True)
+    assert z.shape == (90, 120) and np.isfinite(z).all() and (surface >= 0).all()
+    rng = np.random.default_rng(0)
+    v, u = rng.integers(0, 90, 40), rng.integers(0, 120, 40)
+    X = r.backproject(1, np.column_stack([u, v]).astype(float))
+    assert np.allclose((X - r.T[1]) @ r.R.T[:, 2], z[v, u], rtol=1e-12)  # camera z of the point seen
+    assert np.allclose(r.project(X)[1], np.column_stack([u, v]), atol=1e-7)  # through the lens
+
+
+def test_workspace_scene_spans_the_benchmark_depths():
+    r = render.render_scene("workspace", n_views=1, image_size=(160, 120), distance=800.0, rng=1, supersample=1)
+    z, surface = r.depth_map(0, return_surface=True)
+    assert 0.5 * 800 <= np.nanmin(z) and np.nanmax(z) <= 1.5 * 800
+    textured = r.textured()
+    assert textured.sum() == len(textured) - 1 and not textured[surface].all()  # one untextured panel, in view
+
+
+# --------------------------------------------------------------------------- exact geometry
+
+
+def test_warp_lands_exactly_on_the_projection():
+    K = K_from_params(700.0, 720.0, 330.2, 241.7, skew=0.8)
+    cam = Camera(K, Rotation.from_euler("xyz", [10, -20, 5], degrees=True).as_matrix(), image_size=(640, 480))
+    canvas = make_canvas(cam, (640, 480))
+    rng = np.random.default_rng(2)
+    uv = rng.uniform([0, 0], [639, 479], (50, 2))
+    for t in ([55.0, -3.0, 8.0], [-20.0, 40.0, -30.0]):
+        e = canvas.K @ np.array(t)
+        for rho in (1 / 400.0, 1 / 1300.0):
+            x = cam.pixels_to_rays(uv) / rho - t  # the hypothesis in the source's camera frame
+            expected = project_camera_frame(cam.intrinsics, cam.dist5, x.T).pred.T
+            M = warp_matrix(e, rho, canvas.offset, row0=17)
+            got = np.column_stack([uv[:, 0], uv[:, 1] - 17, np.ones(50)]) @ M.T
+            assert np.abs(got - expected).max() < 1e-9
+
+
+def test_canvas_of_a_lens_with_distortion_is_exact():
+    cam = Camera(K_from_params(300.0, 310.0, 160.4, 121.1), dist=[-0.2, 0.05], dist_model="radial2",
+                 image_size=(320, 240))
+    canvas = make_canvas(cam, (320, 240))
+    rng = np.random.default_rng(3)
+    uv = rng.integers([0, 0], [320, 240], (50, 2))
+    pin = cam.pixels_to_rays(uv.astype(float)) @ canvas.K.T
+    assert np.abs(canvas.ref[:, uv[:, 1], uv[:, 0]].T - pin[:, :2]).max() < 1e-3  # float32 maps
+    q = rng.integers([0, 0], list(canvas.size), (50, 2))
+    ray = np.linalg.solve(canvas.K, np.column_stack([q, np.ones(50)]).T)
+    src = project_camera_frame(cam.intrinsics, cam.dist5, ray).pred.T
+    assert np.abs(canvas.maps[:, q[:, 1], q[:, 0]].T - src).max() < 1e-3
+    assert canvas.size[0] > 320 and canvas.size[1] > 240  # barrel distortion: the whole image kept
+
+
+def test_points_reproject_onto_their_pixel_centres(result):
+    m = result.maps[0]
+    known = np.isfinite(m.depth)
+    X = m.points(known)
+    v, u = np.nonzero(known)
+    uv = m.camera.project(X, m.centre[None])[0]
+    assert np.abs(uv - np.column_stack([u, v])).max() < 1e-6
+    assert len(result.points) == known.sum() and np.array_equal(result.points, X)
+
+
+@pytest.mark.parametrize("dist", [(), (-0.2, 0.05)])
+def test_noise_free_plane_to_a_small_fraction_of_a_pixel(dist):
+    K = K_from_params(300.0, 310.0, 161.3, 118.2)
+    tex = render.Noise(1000 / 300 * 1.4, (2000, 2000), 3)
+    plane = render.plane([0, 0, 1000.0], Rotation.from_euler("xy", [15, -10], degrees=True).as_matrix(),
+                         (2000, 2000), tex)
+    T = np.array([[0, 0, 0], [60, 0, 0], [-60, 5, 0], [0, 60, 3], [3, -60, -4]], float)
+    img = render.render([plane], K, np.eye(3), T, (320, 240), dist=dist, rng=0)
+    cam = Camera(K, dist=np.array(dist, float), dist_model="radial2" if dist else "none", image_size=(320, 240))
+    res = dense(cam, list(img), T, reference_views=["0"], depth_limits=(700, 1500))
+    z = res.maps[0].depth
+    r = render.Rendered(images=img, K=K, R=np.eye(3), dist=np.array(dist, float), T=T, surfaces=[plane],
+                        corners=np.zeros((0, 3)), corner_kind=np.zeros(0), image_size=(320, 240))
+    signed = (z - r.depth_map(0)) / r.depth_map(0)
+    rel = np.abs(signed)
+    known = np.isfinite(z)
+    inner = np.zeros_like(known)
+    inner[10:-10, 10:-10] = True
+    disparity_px = 300 * 60 / 1000.0  # 18 px at the longest baseline
+    assert known[inner].mean() > 0.95
+    assert np.median(rel[known]) * disparity_px < 0.025  # px of disparity (noise-free 8-bit images: 0.011-0.017)
+    assert abs(np.mean(signed[known & inner])) * disparity_px < 0.005  # no bias (measured 0.001 px)
+    assert np.percentile(rel[known & inner], 99) < 0.005
+
+
+# --------------------------------------------------------------------------- depth on rendered scenes
+
+
+def test_textured_surfaces_accurate_and_untextured_unknown(scene, result):
+    m = result.maps[0]
+    rel, textured = _errors(scene, m.depth)
+    known = np.isfinite(m.depth)
+    assert (known & textured).sum() / textured.sum() > 0.85
+    assert np.median(rel[known & textured]) < 0.005  # 0.5 % of depth at 256 x 192 (f = 243 px)
+    assert known[~textured].mean() < 0.15  # the untextured panel: unknown, not guessed
+    assert m.depth.dtype == np.float32 and m.confidence.min() >= 0 and m.confidence.max() <= 1
+    assert np.all(m.confidence[~known] == 0) and np.isnan(m.depth_std[~known]).all()
+    assert (m.depth_std[known] > 0).all() and m.info["known_fraction"] == pytest.approx(known.mean())
+
+
+def test_confidence_ranks_errors_and_std_is_calibrated(scene, result):
+    m = result.maps[0]
+    rel, _ = _errors(scene, m.depth)
+    known = np.isfinite(m.depth)
+    big = rel[known] > 0.02
+    low = m.confidence[known] <= np.quantile(m.confidence[known], 0.1)
+    assert big.sum() > 10 and (big & low).sum() / big.sum() > 0.5  # the least confident 10 % hold most
+    truth = scene.depth_map(0)
+    ratio = np.abs(m.depth - truth)[known] / m.depth_std[known]
+    assert 0.35 < np.median(ratio) < 1.2  # 0.674 for a calibrated Gaussian
+
+
+def test_exposure_changes_and_occlusions(scene):
+    cam = Camera(scene.K, scene.R, image_size=scene.image_size)
+    wild = _scene(degrade=Degradations(vignetting=0.3, exposure=0.45, read_noise_dn=1.5))
+    base = dense(cam, list(scene.images), scene.T, reference_views=["0"], depth_limits=(380, 1300))
+    exp = dense(cam, list(wild.images), wild.T, reference_views=["0"], depth_limits=(380, 1300))
+    everyone = dense(cam, list(scene.images), scene.T, reference_views=["0"], depth_limits=(380, 1300),
+                     options=DenseOptions(best_k=4))
+    rel0, tex = _errors(scene, base.maps[0].depth)
+    rel1, _ = _errors(wild, exp.maps[0].depth)
+    assert np.nanmedian(rel1[tex]) < 1.5 * np.nanmedian(rel0[tex])  # gains of 0.55-1.45 between views
+    assert np.isfinite(exp.maps[0].depth[tex]).mean() > 0.9 * np.isfinite(base.maps[0].depth[tex]).mean()
+    # occlusion: near depth edges the best-2 views keep pixels that all four views lose
+    truth = scene.depth_map(0)
+    grad = np.hypot(*np.gradient(truth))
+    edge = cv2.dilate((grad > 20).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool) & tex
+    assert np.isfinite(base.maps[0].depth[edge]).mean() > np.isfinite(everyone.maps[0].depth[edge]).mean() + 0.05
+
+
+def test_calibration_covariance_enters_depth_std():
+    K = K_from_params(300.0, 300.0, 160.0, 120.0)
+    tex = render.Noise(1000 / 300 * 1.4, (2000, 2000), 5)
+    plane = render.plane([0, 0, 1000.0], np.eye(3), (2000, 2000), tex)
+    T = np.array([[0, 0, 0], [60, 0, 0], [-60, 0, 0]], float)  # baselines along x: z = fx b / d
+    img = render.render([plane], K, np.eye(3), T, (320, 240), rng=1)
+    sf = 3.0  # px
+    cal = _calibration(Camera(K, image_size=(320, 240)), T, cov=np.diag([sf**2, 1.0, 1.0]),
+                       names=("fx", "cy", "t_x"))
+    m = dense(cal, list(img), T, reference_views=["0"], depth_limits=(700, 1500)).maps[0]
+    known = np.isfinite(m.depth)
+    rel = m.depth_std_calibration[known] / m.depth[known]
+    assert np.allclose(rel, sf / 300.0, rtol=0.02)  # sigma_z / z = sigma_fx / fx; cy and t_x do not enter
+    assert np.all(m.depth_std[known] >= m.depth_std_calibration[known])
+
+
+def test_several_reference_views_are_fused_with_a_consistency_check(scene):
+    cam = Camera(scene.K, scene.R, image_size=scene.image_size)
+    res = dense(cam, list(scene.images), scene.T, reference_views=["0", "2"], depth_limits=(380, 1300))
+    a, b = res.maps
+    assert (a.view, b.view) == ("0", "2") and set(np.unique(res.point_view)) == {0, 1}
+    assert res.n_rejected < 0.05 * len(res.points)
+    # a map that puts part of the scene 20 % nearer is contradicted by the other view there
+    bad = np.array(a.depth)
+    bad[60:120, 80:160] *= 0.8
+    from dataclasses import replace
+
+    region = np.isfinite(bad[60:120, 80:160]).sum()
+
+    def rejected_from_first(depth):
+        cloud = fuse([replace(a, depth=depth), b], 0.01)
+        return np.isfinite(depth).sum() - np.sum(cloud.view == 0)
+
+    assert rejected_from_first(bad) > 0.8 * region
+    assert rejected_from_first(a.depth) < 0.02 * np.isfinite(a.depth).sum()
+
+
+def test_default_reference_view_is_the_most_central():
+    T = np.array([[50.0, 0, 0], [0, 50, 0], [-50, 0, 0], [0, 0, 0], [0, -50, 0]])
+    cams = view_cameras(Camera(np.eye(3) * 500 + np.diag([0, 0, -499])), T)
+    assert central_view(cams) == 3
+
+
+# --------------------------------------------------------------------------- the views' poses
+
+
+def test_orientations_that_differ_from_each_other_are_refused():
+    cam = Camera(K_from_params(500, 500, 320, 240))
+    T = np.zeros((4, 3)) + np.arange(4)[:, None] * [10.0, 0, 0]
+    Rf = np.repeat(Rotation.from_euler("z", 30, degrees=True).as_matrix()[None], 4, axis=0)
+    cams = view_cameras(cam, T, Rf, ["a", "b", "c", "d"])  # one orientation, whatever it is: accepted
+    assert np.allclose(cams.R, cam.R) and np.allclose(cams.C, T)
+    Rf[2] = Rotation.from_euler("z", 35, degrees=True).as_matrix()
+    with pytest.raises(InputError, match=r"view c at 5 deg.*calibration's orientation"):
+        view_cameras(cam, T, Rf, ["a", "b", "c", "d"])
+
+
+def test_hand_eye_calibration_places_every_view():
+    R_X = Rotation.from_euler("xyz", [90, 0, 10], degrees=True).as_matrix()  # camera -> flange
+    t_X = np.array([5.0, -2.0, 80.0])
+    cal = Calibration(camera=Camera(K_from_params(500, 500, 320, 240), R_X.T), X=np.zeros((0, 3)),
+                      residuals_px=np.zeros((4, 0, 2)), rms_px=0.0, T=np.zeros((4, 3)), t_flange_camera=t_X)
+    Rf = Rotation.from_euler("xyz", [[0, 0, 0], [0, 0, 0], [20, 0, 0], [20, 0, 0]], degrees=True).as_matrix()
+    T = np.array([[0, 0, 0], [30, 0, 0], [0, 0, 0], [0, 30, 0]], float)
+    cams = view_cameras(cal, T, Rf)
+    assert cams.session.tolist() == [0, 0, 1, 1]
+    for i in range(4):
+        assert np.allclose(cams.R[i], (Rf[i] @ R_X).T) and np.allclose(cams.C[i], T[i] + Rf[i] @ t_X)
+    with pytest.raises(InputError, match="orientation of every view"):
+        view_cameras(cal, T)
+
+
+# --------------------------------------------------------------------------- bad input in Python
+
+
+def test_bad_inputs_raise_clear_errors(scene):
+    cam = Camera(scene.K, scene.R, image_size=scene.image_size)
+    imgs = list(scene.images)
+    with pytest.raises(InputError, match="5 images but 4 poses"):
+        dense(cam, imgs, scene.T[:4])
+    with pytest.raises(InputError, match="calibrated at 256x192"):
+        dense(cam, [cv2.resize(i, (128, 96)) for i in imgs], scene.T)
+    with pytest.raises(InputError, match="different sizes"):
+        dense(Camera(scene.K, scene.R), imgs[:4] + [imgs[4][:100]], scene.T)
+    with pytest.raises(InputError, match="reference view"):
+        dense(cam, imgs, scene.T, reference_views=["7"])
+    with pytest.raises(InputError, match="near < far"):
+        dense(cam, imgs, scene.T, depth_limits=(900, 500))
+    with pytest.raises(InputError, match="window_px"):
+        DenseOptions(window_px=4)
+    with pytest.raises(InputError, match="8- or 16-bit"):
+        dense(cam, [i.astype(np.float32) for i in imgs], scene.T)
+    with pytest.raises(DegenerateError, match="no baseline"):
+        dense(cam, imgs, np.zeros((5, 3)))
+    with pytest.raises(TypeError):
+        DenseOptions(n_depth=10)  # a misspelt option fails loudly
+
+
+def test_package_is_callable_whatever_was_imported_first(scene):
+    import transcalib.dense.views  # noqa: F401 - the submodule import must not hide the function
+
+    assert callable(transcalib.dense) and transcalib.DenseOptions is DenseOptions
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "transcalib.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=300)
+
+
+def assert_clean_error(r, *words, code=2):
+    assert r.returncode == code, (r.returncode, r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert lines[-1].startswith("transcalib: error:") and "Traceback" not in r.stderr, r.stderr
+    assert [line for line in lines if "error" in line.lower()] == lines[-1:], r.stderr
+    for w in words:
+        assert w in lines[-1], (w, lines[-1])
+
+
+@pytest.fixture(scope="module")
+def files(scene, tmp_path_factory):
+    d = tmp_path_factory.mktemp("dense")
+    transcalib.save(_calibration(Camera(scene.K, scene.R, image_size=scene.image_size), scene.T), d / "cal")
+    for i, img in enumerate(scene.images):
+        cv2.imwrite(str(d / f"view{i}.png"), img)
+    write_poses_csv(d / "poses.csv", scene.T)
+    return d
+
+
+def _args(d, out, *extra):
+    return ["dense", "--calibration", d / "cal", "--images", *[d / f"view{i}.png" for i in range(5)],
+            "--poses", d / "poses.csv", "--out", out, "--depth-limits", "380,1300", *extra]
+
+
+def test_command_outputs_and_their_formats(files, scene, result):
+    from plyfile import PlyData
+
+    out = files / "out"
+    r = run(*_args(files, out, "--reference-view", "0"))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((out / "dense.json").read_text())
+    names = {p.name for p in out.iterdir()}
+    assert names == {"depth_0.npy", "confidence_0.npy", "depth_std_0.npy", "depth_0.png", "dense.ply", "dense.json",
+                     "report.html", MANIFEST}
+    depth, conf, std = (np.load(out / f"{k}_0.npy") for k in ("depth", "confidence", "depth_std"))
+    assert depth.dtype == conf.dtype == std.dtype == np.float32 and depth.shape == (192, 256)
+    assert np.array_equal(depth, result.maps[0].depth, equal_nan=True)  # the command is the library
+    png = cv2.imread(str(out / "depth_0.png"), cv2.IMREAD_UNCHANGED)
+    scale = doc["reference_views"][0]["depth_png_scale"]
+    assert png.dtype == np.uint16 and np.array_equal(png == 0, np.isnan(depth))
+    assert np.nanmax(np.abs(png * scale - depth)) <= scale / 2 + 1e-6 * np.nanmax(depth)
+    ply = PlyData.read(str(out / "dense.ply"))["vertex"]
+    assert ply.count == doc["cloud"]["points"] == np.isfinite(depth).sum()
+    assert {"x", "y", "z", "red", "green", "blue", "confidence", "depth_std", "view"} <= set(ply.data.dtype.names)
+    assert np.allclose(np.column_stack([ply["x"], ply["y"], ply["z"]]), result.points)
+    manifest = read_manifest(out)
+    import hashlib
+
+    listed = {f["path"]: f for f in manifest["files"]}
+    assert set(listed) == names - {MANIFEST} and manifest["command"] == "dense"
+    for name, f in listed.items():
+        data = (out / name).read_bytes()
+        assert f["bytes"] == len(data) and f["sha256"] == hashlib.sha256(data).hexdigest()
+    assert "<img" in (out / "report.html").read_text() and "view 0" in r.stdout
+
+
+def test_command_fuses_several_reference_views(files):
+    out = files / "two"
+    r = run(*_args(files, out, "--reference-view", "0", "--reference-view", "03", "--json", "--no-report"))
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)
+    assert [v["view"] for v in summary["reference_views"]] == ["0", "3"]
+    assert (out / "depth_3.npy").exists() and not (out / "report.html").exists()
+
+
+@pytest.mark.parametrize("case, words", [
+    ("no-calibration", ["--calibration"]),
+    ("count", ["--images", "4 images but 5 poses"]),
+    ("not-an-image", ["--images", "not an image"]),
+    ("size", ["--images", "calibrated at 256x192"]),
+    ("no-poses", ["--poses", "does not exist"]),
+    ("reference", ["--reference-view", "9"]),
+    ("limits", ["--depth-limits"]),
+    ("window", ["--window"]),
+    ("orientation", ["--poses", "orientation"]),
+    ("out-file", ["--out", "existing file"]),
+    ("out-foreign", ["--out", "not a transcalib run", "--force"]),
+    ("out-input", ["--out", "holds the input"]),
+])
+def test_command_bad_input_one_line_exit_2(files, tmp_path, case, words):
+    d = files
+    args = _args(d, tmp_path / "out")
+    if case == "no-calibration":
+        args[args.index("--calibration") + 1] = tmp_path / "nothing"
+    elif case == "count":
+        args.remove(d / "view4.png")
+    elif case == "not-an-image":
+        (tmp_path / "view4.png").write_text("text")
+        args[args.index(d / "view4.png")] = tmp_path / "view4.png"
+    elif case == "size":
+        cv2.imwrite(str(tmp_path / "small.png"), np.zeros((10, 12), np.uint8))
+        args[args.index(d / "view4.png")] = tmp_path / "small.png"
+    elif case == "no-poses":
+        args[args.index("--poses") + 1] = tmp_path / "none.csv"
+    elif case == "reference":
+        args += ["--reference-view", "9"]
+    elif case == "limits":
+        args[args.index("--depth-limits") + 1] = "900,100"
+    elif case == "window":
+        args += ["--window", "4"]
+    elif case == "orientation":
+        Rf = np.repeat(np.eye(3)[None], 5, axis=0)
+        Rf[3] = Rotation.from_euler("x", 3, degrees=True).as_matrix()
+        T = np.loadtxt(d / "poses.csv", delimiter=",", skiprows=1)[:, 1:]
+        write_poses_csv(tmp_path / "poses.csv", T, R=Rf)
+        args[args.index("--poses") + 1] = tmp_path / "poses.csv"
+    elif case == "out-file":
+        (tmp_path / "out").write_text("x")
+    elif case == "out-foreign":
+        (tmp_path / "out").mkdir()
+        (tmp_path / "out" / "notes.txt").write_text("mine")
+    elif case == "out-input":
+        args[args.index("--out") + 1] = d
+    r = run(*args)
+    assert_clean_error(r, *words)
+    if case == "out-foreign":
+        assert (tmp_path / "out" / "notes.txt").read_text() == "mine"
+
+
+# --------------------------------------------------------------------------- complete or absent
+
+
+def test_output_folder_rule_in_python(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError):
+        with output_folder(out, command="test") as f:
+            f.file("a.txt").write_text("partial")
+            raise RuntimeError("failed half way")
+    assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing left, not even the temporary folder
+    with output_folder(out, command="test") as f:
+        f.file("a.txt").write_text("one")
+        f.file("sub/b.txt").write_text("two")
+    assert read_manifest(out)["files"][1]["path"] == "sub/b.txt"
+    (out / "stray.txt").write_text("left by hand")
+    with output_folder(out, command="test") as f:  # an earlier run: replaced whole
+        f.file("c.txt").write_text("three")
+    assert sorted(p.name for p in out.iterdir()) == ["c.txt", MANIFEST]
+    with pytest.raises(InputError):
+        with output_folder(out, command="test") as f:  # failure: the earlier run stays as it was
+            f.file("d.txt").write_text("four")
+            raise InputError("bad")
+    assert sorted(p.name for p in out.iterdir()) == ["c.txt", MANIFEST]
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("precious")
+    with pytest.raises(InputError, match="not a transcalib run"):
+        check_output_folder(foreign)
+    with output_folder(foreign, command="test", force=True) as f:
+        f.file("e.txt").write_text("five")
+    assert sorted(p.name for p in foreign.iterdir()) == ["e.txt", MANIFEST]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    check_output_folder(empty)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+@pytest.mark.parametrize("earlier", [False, True])
+def test_interrupted_command_leaves_nothing(files, tmp_path, earlier):
+    out = tmp_path / "out"
+    if earlier:
+        assert run(*_args(files, out, "--no-report")).returncode == 0
+        before = (out / MANIFEST).read_bytes()
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([sys.executable, "-m", "transcalib.cli", *map(str, _args(files, out, "--depths", "3000"))],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    for line in p.stderr:  # wait until the sweep has started writing its progress
+        if "dense: sweep" in line:
+            break
+    p.send_signal(signal.SIGTERM)
+    p.communicate(timeout=60)
+    assert p.returncode == 130
+    assert sorted(x.name for x in tmp_path.iterdir()) == (["out"] if earlier else [])  # no temporary folder
+    if earlier:
+        assert (out / MANIFEST).read_bytes() == before and (out / "depth_0.npy").exists()
+
+
+def test_command_replaces_an_earlier_run_and_forces_a_foreign_folder(files, tmp_path):
+    out = tmp_path / "out"
+    assert run(*_args(files, out, "--no-report")).returncode == 0
+    (out / "stray.txt").write_text("x")
+    assert run(*_args(files, out, "--no-report")).returncode == 0
+    assert not (out / "stray.txt").exists() and read_manifest(out) is not None
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    r = run(*_args(files, foreign, "--no-report", "--force"))
+    assert r.returncode == 0, r.stderr
+    assert not (foreign / "notes.txt").exists() and (foreign / "depth_0.npy").exists()
+
+
+def test_default_depth_limits_bracket_the_scene(scene):
+    m = dense(Camera(scene.K, scene.R, image_size=scene.image_size), list(scene.images), scene.T).maps[0]
+    assert m.view == "0"  # the ring's centre is the most central view
+    truth = scene.depth_map(0)
+    near, far = m.depth_limits
+    assert near <= np.nanpercentile(truth, 1) and far >= np.nanpercentile(truth, 99)
+    assert far < 3 * np.nanmax(truth)  # found, not every depth to infinity
