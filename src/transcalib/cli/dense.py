@@ -153,7 +153,6 @@ def _work(args, plan, progress: Progress, t0: float) -> int:
     t_read = time.perf_counter()
     result = dense(cal, imgs, plan["poses"], reference_views=plan["references"], depth_limits=args.depth_limits,
                    options=plan["options"], progress=progress)
-    result = _with_unit(result, plan["saved"].document.get("unit"))
     t_dense = time.perf_counter()
     inputs = {"calibration": str(args.calibration), "poses": str(args.poses),
               "images": [str(p) for p in plan["images"]], "view_ids": list(plan["poses"].views)}
@@ -176,14 +175,5 @@ def _work(args, plan, progress: Progress, t0: float) -> int:
         print(f"\nWrote {len(written)} files to {args.out} in {timings['total_s']:.2f} s (read "
               f"{timings['read_s']:.2f} s, dense {timings['dense_s']:.2f} s, write {timings['write_s']:.2f} s)")
     return 0
-
-
-def _with_unit(result, unit):
-    """``result`` with the calibration's unit when the poses did not name one."""
-    if result.unit is not None or unit is None:
-        return result
-    from dataclasses import replace
-
-    return replace(result, unit=unit)
 
 

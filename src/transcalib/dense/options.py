@@ -187,7 +187,8 @@ class DenseResult:
     n_rejected : int
         Points left out of the cloud because another reference view contradicted them.
     unit : str or None
-        Length unit of the robot positions (None: not named).
+        Length unit of the robot positions: the poses' (``Poses.unit``), else the
+        calibration's (``options.unit``); None when neither names one.
     options : DenseOptions
     timings_s : mapping of str to float
     """

@@ -80,6 +80,7 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
     if not isinstance(opts, DenseOptions):
         raise InputError(f"options must be a DenseOptions, got {type(opts).__name__}")
     T, R, ids, unit = _poses(poses)
+    unit = unit or getattr(getattr(calibration, "options", None), "unit", None)
     imgs = _images(images, len(T), getattr(calibration, "camera", calibration))
     cams = view_cameras(calibration, T, R, ids)
     refs = _references(reference_views, ids, cams)
