@@ -83,7 +83,7 @@ class Canvas:
     size : (width, height)
     maps : (2, Hc, Wc) float32 or None
         Source pixel of every canvas pixel (None: no distortion, the canvas is the image).
-    ref : (2, H, W) float32 or None
+    ref : (H, W, 2) float32 or None
         ``u~ = K_c r`` of every reference pixel (None without distortion: pixel + offset).
     """
 
@@ -127,5 +127,4 @@ def make_canvas(camera: Camera, size: tuple[int, int]) -> Canvas:
     src = project_camera_frame(camera.intrinsics, camera.dist5, np.stack([x, y, np.ones_like(x)])).pred
     uu, vv = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     ref = _pinhole(camera, np.stack([uu, vv], axis=-1)) + offset
-    return Canvas(K=Kc, offset=offset, size=(wc, hc), maps=src.astype(np.float32),
-                  ref=np.ascontiguousarray(np.moveaxis(ref, -1, 0)).astype(np.float32))
+    return Canvas(K=Kc, offset=offset, size=(wc, hc), maps=src.astype(np.float32), ref=ref.astype(np.float32))

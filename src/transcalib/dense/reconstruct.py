@@ -268,7 +268,7 @@ def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> t
     rho = np.linspace(0.0, rho_max, COARSE_DEPTHS)
     small = lambda a: cv2.resize(a, (max(a.shape[1] // s, 8), max(a.shape[0] // s, 8)), interpolation=cv2.INTER_AREA)  # noqa: E731
     A = np.array([[1 / s, 0, 0.5 / s - 0.5], [0, 1 / s, 0.5 / s - 0.5], [0, 0, 1]])
-    ref_canvas = None if canvas.ref is None else np.stack([small(c) / s + (0.5 / s - 0.5) for c in canvas.ref])
+    ref_canvas = None if canvas.ref is None else small(canvas.ref) / s + np.float32(0.5 / s - 0.5)
     inp = SweepInput(ref=small(ref_n), sources=[small(x) for x in src], epipoles=e @ A.T, offset=canvas.offset / s,
                      ref_canvas=ref_canvas, rho=rho, window=opts.window_px, best_k=k, exclusion=2)
     res = _run_sweep(inp, opts, progress, "dense: depth range")

@@ -56,7 +56,7 @@ class SweepInput:
         ``e_j = K_c t_j`` of each source.
     offset : (2,) float
         Canvas offset: ``u~ = pixel + offset`` when ``ref_canvas`` is None.
-    ref_canvas : (2, H, W) float32 or None
+    ref_canvas : (H, W, 2) float32 or None
         ``u~`` of every reference pixel (a lens with distortion).
     rho : (n_depths,) float
         Inverse depths, increasing.
@@ -110,11 +110,8 @@ def _warp(src: np.ndarray, inp: SweepInput, j: int, rho: float, a0: int, rows: i
         return cv2.warpAffine(src, warp_matrix(e, rho, inp.offset, a0), (w, rows),
                               flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
                               borderValue=1e3)
-    s = 1.0 / (1.0 - rho * e[2])
-    mx, my = buf
-    cv2.addWeighted(inp.ref_canvas[0, a0:a0 + rows], s, inp.ref_canvas[0, a0:a0 + rows], 0.0, -rho * e[0] * s, mx)
-    cv2.addWeighted(inp.ref_canvas[1, a0:a0 + rows], s, inp.ref_canvas[1, a0:a0 + rows], 0.0, -rho * e[1] * s, my)
-    return cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1e3)
+    maps = cv2.transform(inp.ref_canvas[a0:a0 + rows], warp_matrix(e, rho, (0.0, 0.0)), buf)  # s u~ - rho s e
+    return cv2.remap(src, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1e3)
 
 
 def _hypothesis_cost(inp: SweepInput, rho: float, a0: int, rows: int, bufs) -> np.ndarray:
@@ -155,7 +152,7 @@ def _band(inp: SweepInput, r0: int, r1: int) -> tuple:
     a0, a1 = max(r0 - halo, 0), min(r1 + halo, H)
     keep = slice(r0 - a0, r0 - a0 + (r1 - r0))
     shape = (r1 - r0, W)
-    bufs = (np.empty((a1 - a0, W), np.float32), np.empty((a1 - a0, W), np.float32))
+    bufs = np.empty((a1 - a0, W, 2), np.float32)
     c1, c2, left, right = (np.full(shape, _INF, np.float32) for _ in range(4))
     best = np.full(shape, -1.0, np.float32)  # index of c1
     running = np.full(shape, _INF, np.float32)  # min of the costs so far
