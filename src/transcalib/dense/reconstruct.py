@@ -180,8 +180,10 @@ def _limits(depth_limits):
 
 
 def _prepared(imgs, view: int, canvas, window: int, cache: dict):
-    """``(normalised, local_std, noise)`` of ``view`` on its own grid and its normalised
-    canvas image (cached)."""
+    """``(normalised, local_std, noise, canvas)`` of ``view``: the normalised image and
+    its local grey-level std on the view's own grid, the image noise (grey levels), and
+    the normalised image on the pinhole canvas (the same array without distortion);
+    cached by view."""
     if view not in cache:
         g = grey(imgs[view])
         noise = max(noise_std(g), 0.25)
@@ -193,6 +195,7 @@ def _prepared(imgs, view: int, canvas, window: int, cache: dict):
 
 def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limits, opts: DenseOptions, cache,
                       progress) -> DepthMap:
+    """The :class:`DepthMap` of reference view ``ref`` (module docstring)."""
     t0 = time.perf_counter()
     camera = getattr(calibration, "camera", calibration)
     session = cams.session_of(ref)
