@@ -229,8 +229,8 @@ def calibrate_from_images(folder: Path):
 
 
 def table(rows) -> str:
-    header = ["scene", "method", "median err %", "complete %", "> 1 % err %", "large errors in least confident 10 % (%)",
-              "median err/std", "time s (CPU s)"]
+    header = ["scene", "method", "median err %", "complete %", "> 1 % err %",
+              "large errors in least confident 10 % (%)", "median err/std", "time s (CPU s)"]
     body = [[s, m, x["median_pct"], x["complete_pct"], x["over1_pct"], x["share10"], x["err_over_std"],
              f"{w:.2f} ({c:.2f})"] for s, m, x, w, c in rows]
     return md_table(header, body)

@@ -467,8 +467,9 @@ def test_output_folder_rule_in_python(tmp_path):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
-@pytest.mark.parametrize("earlier", [False, True])
-def test_interrupted_command_leaves_nothing(files, tmp_path, earlier):
+@pytest.mark.parametrize("earlier, sig", [(False, signal.SIGINT), (True, signal.SIGTERM)])
+def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
+    """Ctrl-C or kill during the sweep: exit 130, no temporary folder, an earlier run intact."""
     out = tmp_path / "out"
     if earlier:
         assert run(*_args(files, out, "--no-report")).returncode == 0
@@ -479,7 +480,7 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier):
     for line in p.stderr:  # wait until the sweep has started writing its progress
         if "dense: sweep" in line:
             break
-    p.send_signal(signal.SIGTERM)
+    p.send_signal(sig)
     p.communicate(timeout=60)
     assert p.returncode == 130
     assert sorted(x.name for x in tmp_path.iterdir()) == (["out"] if earlier else [])  # no temporary folder

@@ -13,6 +13,8 @@ import argparse
 import math
 import time
 
+import numpy as np
+
 from .common import OptionError, Progress, existing_file, positive_int, print_json
 
 NAME = "dense"
@@ -171,6 +173,10 @@ def _work(args, plan, progress: Progress, t0: float) -> int:
         for m in result.maps:
             print(f"view {m.view}: {m.info['known_fraction'] * 100:.1f} % of pixels with depth, range "
                   f"{m.depth_limits[0]:.4g}-{m.depth_limits[1]:.4g} {unit}, matched with views {', '.join(m.sources)}")
+            step = m.info["hypothesis_step_px"]
+            if step > 1.0:
+                print(f"  note: neighbouring depth hypotheses are {step:.2g} px apart in the view with the longest "
+                      f"baseline; give --depths {int(np.ceil(args.depths * step))} (or narrower --depth-limits)")
         print(f"cloud: {len(result.points):,} points ({result.n_rejected:,} rejected by the consistency check)")
         print(f"\nWrote {len(written)} files to {args.out} in {timings['total_s']:.2f} s (read "
               f"{timings['read_s']:.2f} s, dense {timings['dense_s']:.2f} s, write {timings['write_s']:.2f} s)")

@@ -112,8 +112,9 @@ def make_canvas(camera: Camera, size: tuple[int, int]) -> Canvas:
     w, h = size
     if not np.any(camera.dist5):
         return Canvas(K=camera.K.copy(), offset=np.zeros(2), size=(w, h), maps=None, ref=None)
-    edge = np.concatenate([np.column_stack([np.linspace(-0.5, w - 0.5, 64), np.full(64, y)]) for y in (-0.5, h - 0.5)]
-                          + [np.column_stack([np.full(64, x), np.linspace(-0.5, h - 0.5, 64)]) for x in (-0.5, w - 0.5)])
+    along_u, along_v = np.linspace(-0.5, w - 0.5, 64), np.linspace(-0.5, h - 0.5, 64)
+    edge = np.concatenate([np.column_stack([along_u, np.full(64, y)]) for y in (-0.5, h - 0.5)]
+                          + [np.column_stack([np.full(64, x), along_v]) for x in (-0.5, w - 0.5)])
     p = _pinhole(camera, edge)
     lo = np.maximum(np.floor(p.min(0)), [-(MAX_CANVAS - 1) / 2 * w, -(MAX_CANVAS - 1) / 2 * h])
     hi = np.minimum(np.ceil(p.max(0)), [(MAX_CANVAS + 1) / 2 * w, (MAX_CANVAS + 1) / 2 * h])

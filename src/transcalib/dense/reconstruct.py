@@ -105,7 +105,8 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
 def _poses(poses):
     """``(T, rotations or None, view ids, unit)`` of a Poses-like object or an array."""
     if hasattr(poses, "T") and hasattr(poses, "views"):
-        T, R, ids, unit = poses.T, getattr(poses, "R", None), [str(v) for v in poses.views], getattr(poses, "unit", None)
+        T, R, unit = poses.T, getattr(poses, "R", None), getattr(poses, "unit", None)
+        ids = [str(v) for v in poses.views]
     else:
         T, R, ids, unit = poses, None, None, None
     try:
@@ -269,7 +270,10 @@ def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> t
     if np.any(e[:, 2] > 0):
         rho_max = min(rho_max, 0.9 / e[:, 2].max())
     rho = np.linspace(0.0, rho_max, COARSE_DEPTHS)
-    small = lambda a: cv2.resize(a, (max(a.shape[1] // s, 8), max(a.shape[0] // s, 8)), interpolation=cv2.INTER_AREA)  # noqa: E731
+
+    def small(a):
+        return cv2.resize(a, (max(a.shape[1] // s, 8), max(a.shape[0] // s, 8)), interpolation=cv2.INTER_AREA)
+
     A = np.array([[1 / s, 0, 0.5 / s - 0.5], [0, 1 / s, 0.5 / s - 0.5], [0, 0, 1]])
     ref_canvas = None if canvas.ref is None else small(canvas.ref) / s + np.float32(0.5 / s - 0.5)
     inp = SweepInput(ref=small(ref_n), sources=[small(x) for x in src], epipoles=e @ A.T, offset=canvas.offset / s,
