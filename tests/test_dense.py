@@ -166,7 +166,7 @@ def test_textured_surfaces_accurate_and_untextured_unknown(scene, result):
     assert known[~textured].mean() < 0.15  # the untextured panel: unknown, not guessed
     assert m.depth.dtype == np.float32 and m.confidence.min() >= 0 and m.confidence.max() <= 1
     assert np.all(m.confidence[~known] == 0) and np.isnan(m.depth_std[~known]).all()
-    assert (m.depth_std[known] > 0).all() and m.info["known_fraction"] == pytest.approx(known.mean())
+    assert (m.depth_std[known] > 0).all() and m.stats.known_fraction == pytest.approx(known.mean())
 
 
 def test_confidence_ranks_errors_and_std_is_calibrated(scene, result):

@@ -165,15 +165,15 @@ def _work(args, plan, progress: Progress, t0: float) -> int:
                "write_s": t_end - t_dense, "total_s": t_end - t0}
     if args.json:
         print_json({"status": "ok", "exit_code": 0, "outputs": [str(p) for p in written], "run_timings_s": timings,
-                    "reference_views": [{"view": m.view, "known_fraction": m.info["known_fraction"],
+                    "reference_views": [{"view": m.view, "known_fraction": m.stats.known_fraction,
                                          "depth_limits": list(m.depth_limits)} for m in result.maps],
                     "points": len(result.points), "rejected": result.n_rejected, "unit": result.unit})
     else:
         unit = result.unit or "units"
         for m in result.maps:
-            print(f"view {m.view}: {m.info['known_fraction'] * 100:.1f} % of pixels with depth, range "
+            print(f"view {m.view}: {m.stats.known_fraction * 100:.1f} % of pixels with depth, range "
                   f"{m.depth_limits[0]:.4g}-{m.depth_limits[1]:.4g} {unit}, matched with views {', '.join(m.sources)}")
-            step = m.info["hypothesis_step_px"]
+            step = m.stats.hypothesis_step_px
             if step > 1.0:
                 print(f"  note: neighbouring depth hypotheses are {step:.2g} px apart in the view with the longest "
                       f"baseline; give --depths {int(np.ceil(args.depths * step))} (or narrower --depth-limits)")

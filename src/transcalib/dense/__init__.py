@@ -16,10 +16,10 @@ sweep in inverse depth), ``depth`` (depth, confidence, matching uncertainty),
 import sys
 import types
 
-from .options import DenseOptions, DenseResult, DepthMap
+from .options import DenseOptions, DenseResult, DepthMap, DepthStats
 from .reconstruct import dense
 
-__all__ = ["dense", "DenseOptions", "DenseResult", "DepthMap"]
+__all__ = ["dense", "DenseOptions", "DenseResult", "DepthMap", "DepthStats"]
 
 
 class _CallablePackage(types.ModuleType):

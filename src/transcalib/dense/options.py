@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.camera import Camera
 
-__all__ = ["DenseOptions", "DepthMap", "DenseResult", "default_best_k"]
+__all__ = ["DenseOptions", "DepthStats", "DepthMap", "DenseResult", "default_best_k"]
 
 
 def default_best_k(n_sources: int) -> int:
@@ -95,6 +95,34 @@ def _frozen(a):
     return view
 
 
+@dataclass(frozen=True)
+class DepthStats:
+    """How the depth map of one reference view was obtained (:attr:`DepthMap.stats`).
+
+    Attributes
+    ----------
+    known_fraction : float
+        Pixels with a depth (0-1).
+    textured_fraction : float
+        Pixels whose window has texture (0-1).
+    noise_dn : float
+        Noise of the reference image (grey levels, 0-255 units).
+    hypothesis_step_px : float
+        Image motion between neighbouring hypotheses in the view with the longest
+        baseline (pixels): above 1, minima can fall between hypotheses.
+    exclusion : int
+        Hypotheses on each side of the best that the distinctness ``c2`` skips.
+    time_s : float
+    """
+
+    known_fraction: float
+    textured_fraction: float
+    noise_dn: float
+    hypothesis_step_px: float
+    exclusion: int
+    time_s: float
+
+
 @dataclass(frozen=True, eq=False)
 class DepthMap:
     """Dense depth of one reference view on its original pixel grid.
@@ -130,8 +158,8 @@ class DepthMap:
         Near and far depth searched (robot units).
     best_k : int
         Views summed at each pixel.
-    info : mapping
-        Figures of the run (``noise_dn``, ``time_s``, ``known_fraction``, ...).
+    stats : DepthStats
+        How it was obtained.
     """
 
     view: str
@@ -146,12 +174,11 @@ class DepthMap:
     sources: tuple
     depth_limits: tuple
     best_k: int
-    info: Mapping = field(default_factory=dict)
+    stats: DepthStats
 
     def __post_init__(self):
         for name in ("depth", "confidence", "depth_std", "depth_std_calibration", "centre", "image"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
-        object.__setattr__(self, "info", MappingProxyType(dict(self.info)))
         object.__setattr__(self, "sources", tuple(self.sources))
 
     @property

@@ -21,7 +21,7 @@ from ..types.progress import report
 from .depth import depth_from_sweep
 from .fuse import fuse
 from .images import grey, make_canvas, noise_std, normalise, rgb
-from .options import DenseOptions, DenseResult, DepthMap, default_best_k
+from .options import DenseOptions, DenseResult, DepthMap, DepthStats, default_best_k
 from .sweep import SweepInput, sweep
 from .uncertainty import calibration_depth_std
 from .views import ViewCameras, central_view, check_baselines, view_cameras
@@ -90,7 +90,7 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
     t_fuse = time.perf_counter()
     cloud = fuse(maps, opts.consistency_rel)
     report(progress, "dense: cloud", points=len(cloud.points), rejected=cloud.n_rejected)
-    timings = {f"view_{m.view}_s": m.info["time_s"] for m in maps}
+    timings = {f"view_{m.view}_s": m.stats.time_s for m in maps}
     timings.update(fuse_s=time.perf_counter() - t_fuse, total_s=time.perf_counter() - t0)
     return DenseResult(maps=tuple(maps), points=cloud.points, colors=cloud.colors, point_view=cloud.view,
                        point_confidence=cloud.confidence, point_std=cloud.std, n_rejected=cloud.n_rejected,
@@ -217,9 +217,9 @@ def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limit
         (0.0 if np.isinf(limits[1]) else 1.0 / limits[1], 1.0 / limits[0])
     rho = np.linspace(rho_range[0], rho_range[1], opts.n_depths)
     step_px = (rho[1] - rho[0]) * _disparity_rate(e, canvas, (w, h))
+    exclusion = int(np.clip(np.ceil(EXCLUSION_PX / max(step_px, 1e-9)), 1, opts.n_depths // 4))
     inp = SweepInput(ref=ref_n, sources=src, epipoles=e, offset=canvas.offset, ref_canvas=canvas.ref, rho=rho,
-                     window=opts.window_px, best_k=k,
-                     exclusion=int(np.clip(np.ceil(EXCLUSION_PX / max(step_px, 1e-9)), 1, opts.n_depths // 4)))
+                     window=opts.window_px, best_k=k, exclusion=exclusion)
     res = _run_sweep(inp, opts, progress, f"dense: sweep view {ids[ref]}")
     est = depth_from_sweep(res, rho, local, noise, opts, k)
     ref_camera = type(camera)(camera.K, cams.R[ref], camera.dist, camera.dist_model, (w, h))
@@ -227,14 +227,14 @@ def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limit
     std_cal = None if rel is None else (rel * est.depth).astype(np.float32)
     std = est.std if std_cal is None else np.sqrt(est.std**2 + std_cal**2).astype(np.float32)
     near, far = 1.0 / rho_range[1], (np.inf if rho_range[0] <= 0 else 1.0 / rho_range[0])
-    known = float(np.isfinite(est.depth).mean())
-    info = {"noise_dn": noise, "hypothesis_step_px": float(step_px), "known_fraction": known,
-            "textured_fraction": float(est.textured.mean()), "time_s": time.perf_counter() - t0}
-    report(progress, f"dense: view {ids[ref]}", known=round(known, 4), near=near, far=far,
-           seconds=round(info["time_s"], 2))
+    stats = DepthStats(known_fraction=float(np.isfinite(est.depth).mean()),
+                       textured_fraction=float(est.textured.mean()), noise_dn=float(noise),
+                       hypothesis_step_px=float(step_px), exclusion=exclusion, time_s=time.perf_counter() - t0)
+    report(progress, f"dense: view {ids[ref]}", known=round(stats.known_fraction, 4), near=near, far=far,
+           seconds=round(stats.time_s, 2))
     return DepthMap(view=ids[ref], index=ref, depth=est.depth, confidence=est.confidence, depth_std=std,
                     depth_std_calibration=std_cal, camera=ref_camera, centre=cams.C[ref], image=rgb(imgs[ref]),
-                    sources=tuple(ids[j] for j in sources), depth_limits=(near, far), best_k=k, info=info)
+                    sources=tuple(ids[j] for j in sources), depth_limits=(near, far), best_k=k, stats=stats)
 
 
 def _run_sweep(inp: SweepInput, opts: DenseOptions, progress, stage: str):

@@ -75,8 +75,8 @@ def dense_document(result, files: dict, inputs: dict | None = None) -> dict:
             "depth_limits": [m.depth_limits[0], None if math.isinf(m.depth_limits[1]) else m.depth_limits[1]],
             "sources": list(m.sources), "best_k": m.best_k, "K": cam.K.tolist(), "R_cam_world": cam.R.tolist(),
             "dist": cam.dist.tolist(), "dist_model": cam.dist_model, "centre": list(map(float, m.centre)),
-            "known_fraction": m.info.get("known_fraction"), "noise_dn": m.info.get("noise_dn"),
-            "hypothesis_step_px": m.info.get("hypothesis_step_px"),
+            "known_fraction": m.stats.known_fraction, "noise_dn": m.stats.noise_dn,
+            "hypothesis_step_px": m.stats.hypothesis_step_px,
             "calibration_std": m.depth_std_calibration is not None})
     opts = result.options
     return {"kind": "transcalib dense", "schema": SCHEMA_VERSION, "software": software_version(),

@@ -92,8 +92,8 @@ def _view_section(m, unit: str) -> str:
             ("colour scale", f"{near:.4g} (red) to {far:.4g} (blue) {unit}"),
             ("median depth std", f"{rel * 100:.3g} % of depth"),
             ("views matched", f"{', '.join(m.sources)} (best {m.best_k} at each pixel)"),
-            ("image noise", f"{m.info.get('noise_dn', math.nan):.3g} grey levels"),
-            ("time", f"{m.info.get('time_s', math.nan):.2f} s")]
+            ("image noise", f"{m.stats.noise_dn:.3g} grey levels"),
+            ("time", f"{m.stats.time_s:.2f} s")]
     return (f"<h2>Reference view {html.escape(m.view)}</h2>" + _table(rows) +
             f"<figure><img alt='depth of view {html.escape(m.view)}' src='{_data_uri(_shrink(depth_img))}'>"
             "<figcaption>depth (unknown: black)</figcaption></figure>"
