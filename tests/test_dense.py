@@ -385,6 +385,8 @@ def test_command_fuses_several_reference_views(files):
     ("reference", ["--reference-view", "9"]),
     ("limits", ["--depth-limits"]),
     ("window", ["--window"]),
+    ("depths", ["--depths", "n_depths"]),
+    ("confidence", ["--min-confidence"]),
     ("orientation", ["--poses", "orientation"]),
     ("out-file", ["--out", "existing file"]),
     ("out-foreign", ["--out", "not a transcalib run", "--force"]),
@@ -411,6 +413,10 @@ def test_command_bad_input_one_line_exit_2(files, tmp_path, case, words):
         args[args.index("--depth-limits") + 1] = "900,100"
     elif case == "window":
         args += ["--window", "4"]
+    elif case == "depths":
+        args += ["--depths", "2"]
+    elif case == "confidence":
+        args += ["--min-confidence", "1.5"]
     elif case == "orientation":
         Rf = np.repeat(np.eye(3)[None], 5, axis=0)
         Rf[3] = Rotation.from_euler("x", 3, degrees=True).as_matrix()
