@@ -12,7 +12,6 @@ from transcalib.check import (
     check_null_space,
     check_outliers,
     check_points_behind,
-    check_pose_orientations,
     check_translations,
     check_view_rotations,
     check_views,
@@ -21,7 +20,8 @@ from transcalib.check import (
 )
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
-from transcalib.types import Diagnostic, InputError, RefineOptions
+from transcalib import calibrate
+from transcalib.types import Diagnostic, InputError, Poses, RefineOptions
 
 
 def _codes(diags):
@@ -64,7 +64,9 @@ def test_diagnose_silent_on_good_data(make, seed):
     assert diagnose(scene.uv, scene.T, cal) == []
     assert diagnose(scene.uv, scene.T, cal.linear, check_rotation=False) == []
     R = np.tile(Rotation.from_quat([0.1, 0.2, 0.3, 0.9]).as_matrix(), (scene.n_views, 1, 1))
-    assert diagnose(scene.uv, scene.T, cal, rotations=R) == []
+    plain, oriented = (calibrate(scene.uv, poses, rng=0) for poses in (scene.T, Poses.of(scene.T, R)))
+    assert oriented.diagnostics == plain.diagnostics  # one orientation, given or not: the same checks
+    assert np.allclose(oriented.R, plain.R @ R[0]) and oriented.hand_eye.undetermined.shape == (3, 3)
 
 
 # ------------------------------------------------------------------------ translations
@@ -202,29 +204,6 @@ def test_rotation_test_with_robot_noise_and_distortion():
     scene = simulate.observe(scene, noise_px=0.3, robot_noise=0.5, rng=11)
     cal = refine(scene.uv, scene.T, estimate_linear(scene.uv, scene.T), distortion="radial2", sigma_T=0.5)
     assert check_view_rotations(scene.uv, scene.T, cal) == []
-
-
-# -------------------------------------------------------------------- orientations
-
-
-def test_pose_orientations():
-    """Angles from view 0's orientation, accurate for small ones (0.0573 deg = 0.001 rad)."""
-    q0 = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
-    rots = [q0, q0, Rotation.from_rotvec([0, 0, np.radians(0.5)]) * q0, q0 * Rotation.from_rotvec([0.001, 0, 0])]
-    R = np.stack([r.as_matrix() for r in rots])
-    d = check_pose_orientations(R, tol_deg=0.1)
-    assert _codes(d) == ["pose_orientation"]
-    assert "view 2: 0.5 deg" in str(d[0]) and "view 1" not in str(d[0]) and "view 3" not in str(d[0])
-    assert check_pose_orientations(R, tol_deg=1.0) == []
-    assert "view 3: 0.0573 deg" in str(check_pose_orientations(R, tol_deg=0.01)[0])
-
-
-@pytest.mark.parametrize("R", [np.zeros((4, 3)), np.zeros((4, 3, 3)), np.full((4, 3, 3), np.nan),
-                               1.01 * np.tile(np.eye(3), (4, 1, 1)), np.tile(-np.eye(3), (4, 1, 1)),
-                               [[["a"] * 3] * 3] * 4])
-def test_pose_orientations_bad_input(R):
-    with pytest.raises(InputError):
-        check_pose_orientations(R)
 
 
 def test_diagnose_silent_after_robust_pipeline():

@@ -20,7 +20,8 @@ def uv(cal):
     """Observations consistent with the calibration: projections plus the residuals."""
     from transcalib.geometry.camera import project
 
-    uv = project(cal.K, cal.R, np.nan_to_num(cal.X), cal.T, cal.dist) + np.nan_to_num(cal.residuals_px)
+    R_cam, C = cal.camera_poses()  # a rotation per view: the calibration has flange orientations
+    uv = project(cal.K, R_cam, np.nan_to_num(cal.X), C, cal.dist) + np.nan_to_num(cal.residuals_px)
     uv[np.isnan(cal.residuals_px)] = np.nan
     uv[2, :10] = np.nan  # some points unseen in view 2
     return uv
@@ -34,7 +35,7 @@ def test_opencv_yaml_read_by_cv2(cal, tmp_path):
     assert fs.isOpened()
     np.testing.assert_array_equal(fs.getNode("camera_matrix").mat(), cal.K)
     np.testing.assert_array_equal(fs.getNode("distortion_coefficients").mat().ravel(), cal.dist_opencv)
-    np.testing.assert_array_equal(fs.getNode("R_cam_world").mat(), cal.R)
+    np.testing.assert_array_equal(fs.getNode("R_cam_flange").mat(), cal.R)  # flange orientations: flange -> camera
     assert fs.getNode("image_width").real() == 640 and fs.getNode("image_height").real() == 480
     assert fs.getNode("distortion_model").string() == "radial2"
     fs.release()
@@ -73,8 +74,9 @@ def test_colmap_model_read_by_pycolmap(cal, uv, tmp_path):
         assert image.name == f"im{i}.png"
         pose = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
         M = pose.matrix()
-        np.testing.assert_allclose(M[:, :3], cal.R, atol=1e-12)
-        np.testing.assert_allclose(M[:, 3], -cal.R @ cal.T[i], atol=1e-9)
+        R_cam, C = cal.camera_poses()
+        np.testing.assert_allclose(M[:, :3], R_cam[i], atol=1e-12)
+        np.testing.assert_allclose(M[:, 3], -R_cam[i] @ C[i], atol=1e-9)
         # COLMAP projects its own points with its own camera onto the observations
         seen = np.isfinite(uv[i, :, 0]) & ok
         assert len(image.points2D) == seen.sum()
@@ -87,7 +89,7 @@ def test_colmap_model_read_by_pycolmap(cal, uv, tmp_path):
         proj = np.array([np.reshape(cam.img_from_cam(M[:, :3] @ x + M[:, 3]), 2) for x in X_col])
         from transcalib.geometry.camera import project
 
-        ours = project(cal.K, cal.R, X_col, cal.T[i:i + 1], cal.dist)[0]
+        ours = project(cal.K, R_cam[i], X_col, C[i:i + 1], cal.dist)[0]
         np.testing.assert_allclose(proj - 0.5, ours, atol=1e-6)
     assert len(rec.points3D[1].track.elements) == np.isfinite(uv[:, np.flatnonzero(ok)[0], 0]).sum()
     del X_ok

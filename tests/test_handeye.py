@@ -1,5 +1,6 @@
-"""Several translation sessions (issue 11): exactness, observability of t_X, SCARA, sessions,
-the command with several orientations.
+"""Several flange orientations through the one model (``transcalib.calibrate`` with poses that
+carry rotations): exactness, observability of t_X, SCARA, sessions, the command with several
+orientations, the deprecated ``calibrate_sessions`` alias.
 
 Ground truth comes from :mod:`transcalib.handeye.simulate`; quaternions are checked
 against scipy's independent implementation (the pose reader: ``tests/test_io.py``).
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from transcalib import DegenerateError, InputError, calibrate_sessions
+from transcalib import DegenerateError, InputError, Poses, RefineOptions, calibrate
 from transcalib.geometry.rotation import matrix_to_quaternion, matrix_to_rotvec, quaternion_to_matrix, rotvec_to_matrix
 from transcalib.handeye.export import easy_handeye_yaml, hand_eye_json, hand_eye_matrix, hand_eye_tf
 from transcalib.handeye.sessions import group_sessions
@@ -26,38 +27,43 @@ def _axis(Ra, Rb):
     return w / np.linalg.norm(w)
 
 
-def _check_camera(he, sc):
-    assert np.abs(he.K - sc.K).max() < EXACT * sc.K[0, 0]
-    assert np.abs(he.R_flange_camera - sc.R_X).max() < EXACT
+def _calibrate(uv, T, R, session=None, **kw):
+    """``calibrate`` with the flange poses ``T, R`` (distortion ``none`` unless given)."""
+    return calibrate(uv, Poses.of(T, R, session=session), **{"distortion": "none", **kw})
+
+
+def _check_camera(cal, sc):
+    assert np.abs(cal.K - sc.K).max() < EXACT * sc.K[0, 0]
+    assert np.abs(cal.hand_eye.R - sc.R_X).max() < EXACT
 
 
 def test_one_session_3d_exact_and_offset_reported_undetermined():
     sc = session_scene(0, n_sessions=1, moves="3d")
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
+    he = _calibrate(sc.uv, sc.T, sc.R)
     _check_camera(he, sc)
-    assert he.undetermined.shape == (3, 3)
-    assert np.all(he.t_flange_camera == 0)  # the stated convention
+    assert he.hand_eye.undetermined.shape == (3, 3)
+    assert np.all(he.hand_eye.t == 0)  # the stated convention
     ok = np.isfinite(he.X[:, 0])
     # with t_X = 0 the points are the truth shifted by -R t_X
     assert np.abs(he.X[ok] - (sc.X[ok] - sc.R[0] @ sc.t_X)).max() < EXACT * 500
-    assert "not determined at all" in he.notes[0]
+    assert "is not determined" in he.hand_eye.notes[0] and "two different axes" in he.hand_eye.notes[0]
 
 
 def test_two_coplanar_sessions_full_K_and_axis_component_undetermined():
     sc = session_scene(1, n_sessions=2, moves="xy")
     with pytest.raises(DegenerateError):  # one 2-axis session alone does not determine K
-        calibrate_sessions(sc.uv[:6], sc.T[:6], sc.R[:6])
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
+        _calibrate(sc.uv[:6], sc.T[:6], sc.R[:6])
+    he = _calibrate(sc.uv, sc.T, sc.R)
     _check_camera(he, sc)
     a = _axis(sc.R[0], sc.R[-1])  # relative rotation axis, flange frame
-    assert he.undetermined.shape == (3, 1)
-    assert abs(abs(he.undetermined[:, 0] @ a) - 1) < 1e-9
+    assert he.hand_eye.undetermined.shape == (3, 1)
+    assert abs(abs(he.hand_eye.undetermined[:, 0] @ a) - 1) < 1e-9
     alpha = sc.t_X @ a
-    assert np.abs(he.t_flange_camera - (sc.t_X - alpha * a)).max() < 1e-8
+    assert np.abs(he.hand_eye.t - (sc.t_X - alpha * a)).max() < 1e-8
     ok = np.isfinite(he.X[:, 0])
     assert np.abs(he.X[ok] - (sc.X[ok] - alpha * sc.R[0] @ a)).max() < 1e-8
-    assert "not determined" in he.notes[0] and "perpendicular" in he.notes[0]
-    entry = hand_eye_json(he)
+    assert "not determined" in he.hand_eye.notes[0] and "perpendicular" in he.hand_eye.notes[0]
+    entry = hand_eye_json(he.hand_eye)
     assert len(entry["undetermined_directions"]) == 1
     assert abs(abs(np.dot(entry["undetermined_directions"][0], a)) - 1) < 1e-9
 
@@ -65,10 +71,10 @@ def test_two_coplanar_sessions_full_K_and_axis_component_undetermined():
 @pytest.mark.parametrize("moves", ["xy", "3d"])
 def test_three_sessions_exact(moves):
     sc = session_scene(2, n_sessions=3, moves=moves)
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
+    he = _calibrate(sc.uv, sc.T, sc.R)
     _check_camera(he, sc)
-    assert he.undetermined.shape == (3, 0)
-    assert np.abs(he.t_flange_camera - sc.t_X).max() < 1e-8
+    assert he.hand_eye.undetermined.shape == (3, 0)
+    assert np.abs(he.hand_eye.t - sc.t_X).max() < 1e-8
     ok = np.isfinite(he.X[:, 0])
     assert ok.sum() > 50 and np.abs(he.X[ok] - sc.X[ok]).max() < 1e-8
 
@@ -77,8 +83,8 @@ def test_three_sessions_noisy_within_reported_std():
     errs = []
     for seed in range(6):
         sc = session_scene(10 + seed, n_sessions=3, moves="xy", noise_px=0.3, n_points=80)
-        he = calibrate_sessions(sc.uv, sc.T, sc.R)
-        errs.append((he.t_flange_camera - sc.t_X) / he.t_flange_camera_std)
+        he = _calibrate(sc.uv, sc.T, sc.R)
+        errs.append((he.hand_eye.t - sc.t_X) / he.hand_eye.t_std)
     z = np.array(errs)
     assert np.abs(z).max() < 4.5 and 0.3 < np.sqrt(np.mean(z**2)) < 2.0
 
@@ -91,15 +97,15 @@ def _scara_rotations(n):
 def test_scara_coplanar_ambiguity_is_named():
     sc = session_scene(3, n_sessions=3, moves="xy", rotations=_scara_rotations(3))
     with pytest.raises(DegenerateError, match="SCARA"):
-        calibrate_sessions(sc.uv, sc.T, sc.R)
+        _calibrate(sc.uv, sc.T, sc.R)
 
 
 def test_scara_with_z_moves_leaves_the_vertical_offset_undetermined():
     sc = session_scene(4, n_sessions=3, moves="3d", rotations=_scara_rotations(3))
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
+    he = _calibrate(sc.uv, sc.T, sc.R)
     _check_camera(he, sc)
     a = sc.R[0].T @ np.array([0, 0, 1.0])  # base z in the flange frame
-    assert he.undetermined.shape == (3, 1) and abs(abs(he.undetermined[:, 0] @ a) - 1) < 1e-9
+    assert he.hand_eye.undetermined.shape == (3, 1) and abs(abs(he.hand_eye.undetermined[:, 0] @ a) - 1) < 1e-9
 
 
 def test_bad_rotation_input():
@@ -107,7 +113,18 @@ def test_bad_rotation_input():
     R = sc.R.copy()
     R[3] *= 1.01
     with pytest.raises(InputError, match=r"views \[3\]"):
-        calibrate_sessions(sc.uv, sc.T, R)
+        _calibrate(sc.uv, sc.T, R)
+
+
+def test_calibrate_sessions_is_a_deprecated_alias():
+    from transcalib import calibrate_sessions
+
+    sc = session_scene(2, n_sessions=3, moves="xy", noise_px=0.3)
+    with pytest.warns(DeprecationWarning, match="transcalib.calibrate"):
+        old = calibrate_sessions(sc.uv, sc.T, sc.R, robust=True, rng=0)
+    new = _calibrate(sc.uv, sc.T, sc.R, robust=True, rng=0)
+    assert np.array_equal(old.K, new.K) and np.array_equal(old.t_flange_camera, new.hand_eye.t)
+    assert np.array_equal(old.R_flange_camera, new.hand_eye.R) and old.undetermined.shape == (3, 0)
 
 
 # -------------------------------------------------------------------------- sessions
@@ -174,15 +191,15 @@ def test_rendered_examples_ground_truth_tracks(n_sessions):
     assert all((folder / name).is_file() for name in poses.images)
     rendered = mod.rendered_sessions(n_sessions, with_images=False)
     uv, X = _ground_truth_tracks(rendered, np.random.default_rng(n_sessions))
-    he = calibrate_sessions(uv, poses.T, poses.R, session_of_view=poses.session)
+    he = _calibrate(uv, poses.T, poses.R, session=poses.session)
     K, R_X, t_X = (np.array(truth[k]) for k in ("K", "R_flange_camera", "t_flange_camera"))
     assert abs(he.K[0, 0] / K[0, 0] - 1) < 0.005 and abs(he.K[1, 1] / K[1, 1] - 1) < 0.005
-    angle = np.degrees(np.linalg.norm(matrix_to_rotvec(he.R_flange_camera.T @ R_X)))
+    angle = np.degrees(np.linalg.norm(matrix_to_rotvec(he.hand_eye.R.T @ R_X)))
     assert angle < 0.2
-    B = np.linalg.svd(he.undetermined, full_matrices=True)[0][:, he.undetermined.shape[1]:] \
-        if he.undetermined.shape[1] else np.eye(3)
-    assert he.undetermined.shape[1] == (1 if n_sessions == 2 else 0)
-    assert np.linalg.norm(B.T @ (he.t_flange_camera - t_X)) < 1.0  # mm, determined part
+    B = np.linalg.svd(he.hand_eye.undetermined, full_matrices=True)[0][:, he.hand_eye.undetermined.shape[1]:] \
+        if he.hand_eye.undetermined.shape[1] else np.eye(3)
+    assert he.hand_eye.undetermined.shape[1] == (1 if n_sessions == 2 else 0)
+    assert np.linalg.norm(B.T @ (he.hand_eye.t - t_X)) < 1.0  # mm, determined part
 
 
 def test_robust_finds_planted_outliers():
@@ -192,12 +209,11 @@ def test_robust_finds_planted_outliers():
     bad = rng.choice(80, 8, replace=False)
     views = np.flatnonzero(sc.session_of_view == 1)
     uv[views[:, None], bad[None]] += rng.uniform(15, 30, (len(views), 8, 2))  # wrong matches in session 1
-    he = calibrate_sessions(uv, sc.T, sc.R, robust=True, rng=0)
+    he = _calibrate(uv, sc.T, sc.R, robust=True, rng=0)
     seen1 = np.isfinite(sc.uv[views][..., 0]).sum(axis=0) >= 2
-    rejected = set(np.flatnonzero(~he.inliers[1]))
+    rejected = set(np.flatnonzero(~he.inliers))  # a track with wrong matches in one session is rejected whole
     assert set(bad[seen1[bad]]) <= rejected and len(rejected - set(bad)) <= 3  # 1 % false rejection
-    assert he.inliers[[0, 2]].mean() >= 0.97
-    assert np.linalg.norm(he.t_flange_camera - sc.t_X) < 5 * np.linalg.norm(he.t_flange_camera_std)
+    assert np.linalg.norm(he.hand_eye.t - sc.t_X) < 5 * np.linalg.norm(he.hand_eye.t_std)
 
 
 def test_monte_carlo_std_near_the_crlb():
@@ -212,8 +228,8 @@ def test_monte_carlo_std_near_the_crlb():
     est = []
     for _ in range(30):
         uv = np.where(np.isfinite(base.uv), base.uv_true + rng.normal(0, 0.5, base.uv.shape), np.nan)
-        he = calibrate_sessions(uv, base.T, base.R)
-        est.append([he.K[0, 0], he.K[1, 1], *he.t_flange_camera])
+        he = _calibrate(uv, base.T, base.R)
+        est.append([he.K[0, 0], he.K[1, 1], *he.hand_eye.t])
     ratio = np.std(est, axis=0, ddof=1) / np.array([bound[k] for k in ("fx", "fy", "t_x", "t_y", "t_z")])
     assert np.all((ratio > 0.6) & (ratio < 1.4)), ratio
 
@@ -263,12 +279,13 @@ def test_rendered_images_end_to_end(n_sessions):
         blocks.append((views, uv_s, *rendered[s].track_truth(uv_s)))
     uv, n_linked = _link_by_truth(blocks, len(poses.T))
     assert n_linked > 100
-    he = calibrate_sessions(uv, poses.T, poses.R, session_of_view=poses.session, robust=True, loss="huber", rng=0)
+    he = _calibrate(uv, poses.T, poses.R, session=poses.session, robust=True, rng=0,
+                    refinement=RefineOptions(loss="huber"))
     K, R_X, t_X = (np.array(truth[k]) for k in ("K", "R_flange_camera", "t_flange_camera"))
     assert abs(he.K[0, 0] / K[0, 0] - 1) < 0.005 and abs(he.K[1, 1] / K[1, 1] - 1) < 0.005
-    assert np.degrees(np.linalg.norm(matrix_to_rotvec(he.R_flange_camera.T @ R_X))) < 0.2
-    P = np.eye(3) - he.undetermined @ he.undetermined.T
-    assert np.linalg.norm(P @ (he.t_flange_camera - t_X)) < 1.0
+    assert np.degrees(np.linalg.norm(matrix_to_rotvec(he.hand_eye.R.T @ R_X))) < 0.2
+    P = np.eye(3) - he.hand_eye.undetermined @ he.hand_eye.undetermined.T
+    assert np.linalg.norm(P @ (he.hand_eye.t - t_X)) < 1.0
 
 
 def test_refinement_uses_each_views_own_rotation():
@@ -286,10 +303,10 @@ def test_refinement_uses_each_views_own_rotation():
     uv = np.stack([project(sc.K, Rc[i], sc.X, C[i:i + 1])[0] for i in range(len(R))])
     uv[~np.isfinite(sc.uv)] = np.nan
     sc = replace(sc, uv=uv, R=R)
-    he = calibrate_sessions(sc.uv, sc.T, sc.R)
-    assert he.sessions.n_sessions == 3
+    he = _calibrate(sc.uv, sc.T, sc.R)
+    assert he.hand_eye.n_sessions == 3
     _check_camera(he, sc)
-    assert np.abs(he.t_flange_camera - sc.t_X).max() < 1e-8
+    assert np.abs(he.hand_eye.t - sc.t_X).max() < 1e-8
 
 
 @pytest.mark.parametrize("poses_ids, tracks_ids", [("{}", "{}"), ("{:02d}", "{}"), ("{:02d}", "{:03d}")])
@@ -326,7 +343,7 @@ def test_distortion_chosen_from_the_data_with_sessions():
     """``distortion="auto"`` works on the sessions model too: none kept without a lens,
     radial2 found with one (k1 = -0.1)."""
     plain = session_scene(4, n_sessions=3, moves="xy", noise_px=0.3, n_points=80)
-    assert calibrate_sessions(plain.uv, plain.T, plain.R, distortion="auto").calibration.dist_model == "none"
+    assert _calibrate(plain.uv, plain.T, plain.R, distortion="auto").dist_model == "none"
     lens = session_scene(4, n_sessions=3, moves="xy", noise_px=0.3, n_points=80, dist=(-0.1, 0.02))
-    he = calibrate_sessions(lens.uv, lens.T, lens.R, distortion="auto")
-    assert he.calibration.dist_model == "radial2" and abs(he.calibration.dist[0] + 0.1) < 0.005
+    he = _calibrate(lens.uv, lens.T, lens.R, distortion="auto")
+    assert he.dist_model == "radial2" and abs(he.dist[0] + 0.1) < 0.005

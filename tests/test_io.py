@@ -323,8 +323,9 @@ def full_calibration(n_points=40, n_views=5, seed=0):
     """A Calibration with every field set (NaNs, nested options, arrays in info)."""
     from transcalib.errors import Diagnostic
     from transcalib.geometry.camera import Camera, K_from_params
-    from transcalib.types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, LinearEstimate,
-                                  RansacOptions, RansacStats, RefineOptions, RefineStats, ViewRotations)
+    from transcalib.types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, HandEye,
+                                  LinearEstimate, RansacOptions, RansacStats, RefineOptions, RefineStats,
+                                  ViewRotations)
 
     rng = np.random.default_rng(seed)
     from scipy.spatial.transform import Rotation
@@ -351,7 +352,11 @@ def full_calibration(n_points=40, n_views=5, seed=0):
         diagnostics=[Diagnostic("few_points", "only 40 points: add points"), Diagnostic("x", "second, with ±")],
         linear=lin, cov=cov, std={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)} | {"skew": np.nan},
         param_names=names, X_std=np.abs(X) / 100, inliers=np.arange(n_points) % 7 != 0, options=opts,
-        T_std=np.ones((n_views, 3)) / 3, t_flange_camera=np.array([1.5, -2.0, 30.25]),
+        T_std=np.ones((n_views, 3)) / 3,
+        flange_rotations=np.stack([Rotation.from_rotvec([0.1 * i, -0.05, 0.2]).as_matrix() for i in range(n_views)]),
+        hand_eye=HandEye("eye-to-hand", Rotation.from_rotvec([0.3, 0.1, -0.2]).as_matrix(), np.array([1.5, -2.0, 0.0]),
+                         np.array([0.01, 0.02, np.nan]), np.diag([0.1, 0.2, 0.0]), np.array([[0.0], [0.0], [1.0]]),
+                         np.array([0, 0, 1, 1, 2]), ("a", "b", "c"), ("one note",)),
         view_rotations=ViewRotations(np.arange(15.0).reshape(5, 3) / 7, np.full((5, 3), 0.01), np.arange(5.0)),
         stats=CalibrationStats(
             stages=("robust", "refine"), timings_s={"robust_s": 0.125, "refine_s": 0.25},

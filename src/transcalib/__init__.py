@@ -17,9 +17,11 @@ from .types import (
     Camera,
     DegenerateError,
     Diagnostic,
+    HandEye,
     InputError,
     LinearEstimate,
     MirroredError,
+    Poses,
     RansacOptions,
     RefineOptions,
     TranscalibError,
@@ -34,7 +36,8 @@ _LAZY = {
     "estimate_robust": (".estimate.robust", "estimate_robust"),
     "RobustEstimate": (".estimate.robust", "RobustEstimate"),
     "refine": (".estimate.refine", "refine"),
-    "calibrate_sessions": (".handeye.calibrate", "calibrate_sessions"),
+    "calibrate_sessions": (".pipeline.deprecated", "calibrate_sessions"),
+    "read_poses": (".io.poses", "read_poses"),
     "load": (".io.calibration_file", "load_calibration"),
     "save": (".io.calibration_file", "save_calibration"),
     "export": (".io.export", "export_calibration"),
@@ -50,8 +53,8 @@ _LAZY = {
 }
 
 __all__ = [
-    "CalibrateOptions", "Calibration", "Camera", "DegenerateError", "Diagnostic", "InputError", "LinearEstimate",
-    "MirroredError", "RansacOptions", "RefineOptions", "TranscalibError", *_LAZY,
+    "CalibrateOptions", "Calibration", "Camera", "DegenerateError", "Diagnostic", "HandEye", "InputError",
+    "LinearEstimate", "MirroredError", "Poses", "RansacOptions", "RefineOptions", "TranscalibError", *_LAZY,
 ]
 
 

@@ -3,21 +3,23 @@
 Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
 stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
 and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
-:mod:`.points`, :mod:`.tracks`, :mod:`.rotation`, :mod:`.poses`.
+:mod:`.points`, :mod:`.tracks`, :mod:`.rotation` (and the start's
+``pose_orientation_off``, :mod:`transcalib.handeye.join`).
 
 =========================  ==============================================================
 code                       meaning
 =========================  ==============================================================
-``translations_coplanar``  the translations nearly lie in a plane (or on a line)
-``translations_small``     the translations are tiny compared with the scene distance
+``translations_coplanar``  the translations of one orientation nearly lie in a plane
+``translations_small``     the translations (within sessions) are tiny compared with the scene distance (not
+                           checked with >= 2 single views: their orientations determine K and R)
 ``translations_coplanar_known_params``  coplanar translations made identifiable by known parameters
 ``null_space_2d``          the linear system has a nearly two-dimensional null space
 ``points_behind_camera``   reconstructed points behind the camera in some view
 ``view_few_points``        views that see very few points
 ``view_residuals``         views whose residuals stand out from the others
 ``outliers``               gross outliers left in the residuals (mismatched tracks)
-``view_rotation``          model violation: the camera rotated between views
-``pose_orientation``       robot poses whose orientation differs from view 0's
+``view_rotation``          model violation: the camera turned otherwise than the poses say
+``pose_orientation_off``   a single view whose recorded orientation its image contradicts (left out)
 ``static_tracks``          tracks that do not move at all (left out)
 ``low_parallax``           tracks whose motion is below 5 x the pixel noise
 ``inliers_few``            fewer than half of the tracked points are inliers
@@ -33,17 +35,17 @@ import numpy as np
 
 from ..errors import DegenerateError, Diagnostic
 from ..types import Calibration, LinearEstimate
-from ..validate import as_uv_T
+from ..validate import WEAK_SPAN_RATIO, as_uv_T
+from .common import camera_poses, depths
 from .linear import check_null_space
 from .points import check_outliers, check_points_behind, check_views
-from .poses import check_pose_orientations
 from .rotation import check_view_rotations, locate_view_rotation, view_rotation_test
 from .tracks import check_inliers, check_intrinsics, check_parallax, check_threshold
 from .translations import check_translations
 
 __all__ = ["diagnose", "check_translations", "check_null_space", "check_points_behind", "check_views",
            "check_outliers", "check_view_rotations", "view_rotation_test", "locate_view_rotation",
-           "check_pose_orientations", "skipped"]
+           "skipped"]
 
 
 def skipped(check: str, reason) -> Diagnostic:
@@ -51,8 +53,8 @@ def skipped(check: str, reason) -> Diagnostic:
     return Diagnostic("check_skipped", f"the {check} could not run: {reason}")
 
 
-def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, rotations=None,
-             check_rotation: bool = True, unit: str = "units", all_uv=None, rotation_data=None) -> list:
+def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_rotation: bool = True,
+             unit: str = "units", all_uv=None, rotation_data=None, sessions=None, views_left_out=None) -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
     Parameters
@@ -62,16 +64,13 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, rotati
         ``calibration.inliers`` may be included: every check but those on all tracks
         leaves them out).
     T : (n_views, 3) float
-        Measured robot translations.
+        Flange positions (as the calibration's model uses them).
     calibration : Calibration or LinearEstimate
         The result to check; its ``inliers`` (if any) select the points that count; its
         ``stats.ransac`` (the robust stage's noise estimate) is checked against a user
         threshold (``options.ransac.threshold_px``).
     linear : LinearEstimate, optional
         The linear estimate (default ``calibration.linear``) for the null-space check.
-    rotations : (n_views, 3, 3) float, optional
-        Flange -> base rotations of the views when the poses carry them
-        (:attr:`transcalib.io.Poses.R`): checked to be constant.
     check_rotation : bool
         Run the model-violation (rotation) test (a refined calibration only).
     unit : str
@@ -81,43 +80,81 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, rotati
     rotation_data : (uv, Calibration), optional
         What the rotation test runs on instead of ``uv`` and ``calibration``: the subset
         of the tracks a large calibration was fitted on, and its fit (the test refits).
+    sessions : (n_views,) int, optional
+        Session of each view (views of one flange orientation; default
+        ``calibration.hand_eye``'s, else one session): the motion within sessions is what
+        determines the camera, and where image motion is parallax.
+    views_left_out : (n_views,) bool, optional
+        Views the start left out (their poses contradict their images; reported there).
 
     Returns
     -------
     list of Diagnostic
         In the order: translations, null space, points behind, tracks (parallax, inliers,
-        threshold, plausibility), views, outliers, rotation, poses; a ``check_skipped``
-        entry for each check that could not run.
+        threshold, plausibility), views, outliers, rotation; a ``check_skipped`` entry for
+        each check that could not run.
     """
-    uv, T = as_uv_T(uv, T)
-    K, R, X = (np.asarray(a, float) for a in (calibration.K, calibration.R, calibration.X))
-    distance = _scene_distance(R, X, T)
-    out = check_translations(T, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=distance, unit=unit)
+    uv, T = as_uv_T(uv, T, min_views=2)
+    K, X = np.asarray(calibration.K, float), np.asarray(calibration.X, float)
+    sessions = _sessions(calibration, sessions, len(T))
+    R_cam, C = camera_poses(calibration, T)
+    out = []
+    sizes = np.bincount(sessions)
+    if np.sum(sizes == 1) < 2:  # >= 2 single views determine K and R whatever the moves
+        moves, frame = _session_moves(T, calibration, sessions)
+        # coplanar moves leave K and R undetermined at one orientation only; with several the
+        # start's information test names what is undetermined
+        ratio = WEAK_SPAN_RATIO if np.sum(sizes >= 1) == 1 else 0.0
+        out += check_translations(moves, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=_scene_distance(R_cam, X, C),
+                                  unit=unit, frame=frame, coplanar_ratio=ratio)
     if linear is None:
         linear = calibration if isinstance(calibration, LinearEstimate) else calibration.linear
     if linear is not None:
         out += check_null_space(linear)
     out += _behind(uv, T, calibration)
     if isinstance(calibration, Calibration):
-        out += _track_checks(uv if all_uv is None else all_uv, calibration)
-        out += check_views(uv, calibration.residuals_px, used=calibration.inliers)
+        out += _track_checks(uv if all_uv is None else all_uv, calibration, sessions)
+        out += check_views(uv, calibration.residuals_px, used=calibration.inliers, left_out=views_left_out)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
         if check_rotation:
             rot_uv, rot_cal = rotation_data if rotation_data is not None else (uv, calibration)
             try:
                 out += check_view_rotations(rot_uv, T, rot_cal)
             except DegenerateError as exc:
-                out.append(skipped("rotation test (did the robot rotate between views?)", exc))
-    if rotations is not None:
-        out += check_pose_orientations(rotations)
+                out.append(skipped("rotation test (did the camera turn otherwise than the poses say?)", exc))
     return out
 
 
-def _scene_distance(R, X, T) -> float | None:
-    """Median over the points of their depth seen from the mean robot position (user
-    units; None without a point in front of it)."""
+def _sessions(calibration, sessions, n_views: int) -> np.ndarray:
+    """The session of each view: given, else the calibration's, else one session."""
+    if sessions is not None:
+        return np.asarray(sessions, int)
+    he = getattr(calibration, "hand_eye", None)
+    return np.zeros(n_views, int) if he is None else np.asarray(he.session_of_view, int)
+
+
+def _session_moves(T, calibration, sessions) -> tuple:
+    """``(moves (m, 3), frame)``: the moves that determine the camera, within each session
+    of >= 2 views, in the model's flange frame (``R_s^T (T_i - mean_s T)``) and named in
+    the user's terms: the robot axes for one orientation (or without rotations), the flange
+    axes for several; eye-to-hand the model's flange frame is the robot base."""
+    R_i = getattr(calibration, "flange_rotations", None)
+    he = getattr(calibration, "hand_eye", None)
+    if R_i is None or (he.setup == "eye-in-hand" and len(np.unique(sessions)) == 1):
+        return T - T.mean(axis=0), "robot"
+    moves = []
+    for s in np.unique(sessions):
+        views = np.flatnonzero(sessions == s)
+        if len(views) >= 2:
+            moves.append((T[views] - T[views].mean(axis=0)) @ np.asarray(R_i)[views[0]])
+    return np.concatenate(moves), "flange" if he.setup == "eye-in-hand" else "robot base"
+
+
+def _scene_distance(R_cam, X, C) -> float | None:
+    """Median over the points of their depth seen from the views (user units; None
+    without a point in front of a camera)."""
     with np.errstate(invalid="ignore"):
-        z = X @ R[2] - np.mean(T, axis=0) @ R[2]
+        z = depths(R_cam, X, C)
         z = z[np.isfinite(z) & (z > 0)]
     return float(np.median(z)) if z.size else None
 
@@ -136,14 +173,14 @@ def _behind(uv, T, calibration) -> list:
         "(calibrate(..., robust=True), CLI --robust).")]
 
 
-def _track_checks(uv, calibration: Calibration) -> list:
+def _track_checks(uv, calibration: Calibration, sessions) -> list:
     """Static and low-parallax tracks, the inlier fraction, a threshold small for the
     noise, implausible intrinsics."""
     out = []
     robust = calibration.stats.ransac
     sigma = calibration.sigma_px if calibration.sigma_px else (robust.sigma_px if robust is not None else None)
     if sigma:
-        out += check_parallax(uv, sigma)
+        out += check_parallax(uv, sigma, sessions)
     else:
         out.append(skipped("parallax check", "no estimate of the pixel noise (refine the calibration)"))
     out += check_inliers(calibration.inliers, uv)

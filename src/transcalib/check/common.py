@@ -16,8 +16,21 @@ def fmt_list(idx, limit: int = 10) -> str:
 
 
 def depths(R, X, T):
-    """Camera z of every point in every view (n_views, n_points)."""
-    return (X @ R[2])[None, :] - (T @ R[2])[:, None]
+    """Camera z of every point in every view (n_views, n_points): ``R`` one rotation world
+    -> camera (3, 3) or one per view (n_views, 3, 3), ``T`` the camera centres."""
+    R = np.asarray(R)
+    if R.ndim == 2:
+        return (X @ R[2])[None, :] - (T @ R[2])[:, None]
+    return R[:, 2] @ X.T - np.einsum("va,va->v", R[:, 2], T)[:, None]
+
+
+def camera_poses(calibration, T):
+    """Rotations world -> camera (per view, or one for every view) and centres of a
+    Calibration (:meth:`~transcalib.types.Calibration.camera_poses`) or a LinearEstimate
+    (one rotation, centres ``T``)."""
+    if hasattr(calibration, "camera_poses") and getattr(calibration, "flange_rotations", None) is not None:
+        return calibration.camera_poses()
+    return np.asarray(calibration.R, float), np.asarray(T, float)
 
 
 def squared_norms(res: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import Diagnostic
 from ..estimate.distributions import f_sf
 from ..estimate.noise import median_sigma
-from .common import depths, fmt_list, squared_norms
+from .common import camera_poses, depths, fmt_list, squared_norms
 
 MIN_VIEW_POINTS = 6
 VIEW_RESIDUAL_RATIO = 2.0
@@ -22,8 +22,8 @@ def check_points_behind(uv, T, calibration) -> list:
     uv : (n_views, n_points, 2) float
     T : (n_views, 3) float
     calibration : Calibration or LinearEstimate
-        ``R`` and ``X`` (points with non-finite ``X``, and outside its ``inliers``, are
-        skipped).
+        Its cameras and ``X`` (points with non-finite ``X``, and outside its ``inliers``,
+        are skipped).
 
     Returns
     -------
@@ -33,7 +33,8 @@ def check_points_behind(uv, T, calibration) -> list:
     uv, T = np.asarray(uv, float), np.asarray(T, float)
     X = np.asarray(calibration.X, float)
     seen = np.isfinite(uv[..., 0])
-    z = depths(np.asarray(calibration.R, float), X, T)
+    R_cam, C = camera_poses(calibration, T)
+    z = depths(R_cam, X, C)
     with np.errstate(invalid="ignore"):
         behind = np.any(seen & np.isfinite(z) & (z <= 0), axis=0)
     if getattr(calibration, "inliers", None) is not None:
@@ -51,7 +52,7 @@ def check_points_behind(uv, T, calibration) -> list:
 
 def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINTS,
                 residual_ratio: float = VIEW_RESIDUAL_RATIO, alpha: float = 1e-4,
-                min_excess_px: float = 0.1) -> list:
+                min_excess_px: float = 0.1, left_out=None) -> list:
     """Warn about views with very few points and views whose residuals stand out.
 
     Parameters
@@ -73,6 +74,8 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
     min_excess_px : float
         ... and the view's RMS must exceed the others' by this much (very precise tracks
         make harmless differences of hundredths of a pixel significant).
+    left_out : (n_views,) bool, optional
+        Views left out on purpose (already reported): not counted as having few points.
 
     Returns
     -------
@@ -87,7 +90,7 @@ def check_views(uv, residuals_px, *, used=None, min_points: int = MIN_VIEW_POINT
         ok &= np.asarray(used, bool)[None, :]
     counts = ok.sum(axis=1)
     out = []
-    few = np.flatnonzero(counts < min_points)
+    few = np.flatnonzero((counts < min_points) & (True if left_out is None else ~np.asarray(left_out, bool)))
     if len(few):
         detail = ", ".join(f"view {i}: {counts[i]}" for i in few[:10])
         out.append(Diagnostic(

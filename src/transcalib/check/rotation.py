@@ -306,9 +306,9 @@ def check_view_rotations(uv, T, calibration: Calibration, *, alpha: float = ROTA
                      "instead; with few views the rotated one cannot be singled out for certain")
     return [Diagnostic(
         "view_rotation",
-        "the camera seems to have rotated between views, which breaks the pure-translation model (view 0 is "
-        f"the reference): {'; '.join(parts)}. The calibration is biased. Make the robot keep the tool "
-        "orientation fixed (command pure Cartesian translations, check the orientation the controller "
-        "reports), check the camera mount is rigid, or drop those views. Imprecise robot positions "
-        "and unmodelled lens distortion can mimic this: give the robot's precision (sigma_T, CLI "
-        "--robot-sigma) and try distortion='radial2'.")]
+        "the camera's orientation in some views differs from what the robot poses say (view 0 is the reference): "
+        f"{'; '.join(parts)}. The calibration is biased. Either the robot turned where the poses say it did not "
+        "(command pure Cartesian translations, check the orientation the controller reports), the recorded "
+        "orientations of those views are off, or the camera moved on its mount: drop those views or correct their "
+        "poses. Imprecise robot positions and unmodelled lens distortion can mimic this: give the robot's precision "
+        "(sigma_T, CLI --robot-sigma) and try distortion='radial2'.")]

@@ -25,15 +25,22 @@ LOW_PARALLAX_SIGMAS = 5.0
 MIN_INLIER_FRACTION = 0.5
 
 
-def track_motion_px(uv: np.ndarray) -> np.ndarray:
-    """Largest image motion (pixels) of each track from its first view (n_points,); NaN
-    for tracks seen once."""
-    seen = np.isfinite(uv[..., 0])
-    largest = np.max(reference_motion(uv)[0], axis=0, where=seen, initial=0.0)
-    return np.where(seen.sum(axis=0) >= 2, largest, np.nan)
+def track_motion_px(uv: np.ndarray, sessions=None) -> np.ndarray:
+    """Largest image motion (pixels) of each track from its first view (n_points,), within
+    a session (``sessions (n_views,)``: views of one flange orientation, where image
+    motion is parallax; default: all views one session); NaN for tracks seen in fewer
+    than 2 views of any session."""
+    sessions = np.zeros(uv.shape[0], int) if sessions is None else np.asarray(sessions)
+    out = np.full(uv.shape[1], np.nan)
+    for s in np.unique(sessions):
+        part = uv[sessions == s]
+        seen = np.isfinite(part[..., 0])
+        largest = np.max(reference_motion(part)[0], axis=0, where=seen, initial=0.0)
+        out = np.fmax(out, np.where(seen.sum(axis=0) >= 2, largest, np.nan))
+    return out
 
 
-def check_parallax(uv: np.ndarray, sigma_px: float) -> list:
+def check_parallax(uv: np.ndarray, sigma_px: float, sessions=None) -> list:
     """Warn about tracks that do not move at all (they are left out: their depth is
     undetermined) and tracks with low parallax.
 
@@ -42,6 +49,8 @@ def check_parallax(uv: np.ndarray, sigma_px: float) -> list:
     uv : (n_views, n_points, 2) float
     sigma_px : float
         Pixel noise per coordinate (estimated).
+    sessions : (n_views,) int, optional
+        Session of each view: the motion is measured within the sessions.
 
     Returns
     -------
@@ -49,7 +58,7 @@ def check_parallax(uv: np.ndarray, sigma_px: float) -> list:
         ``static_tracks``, ``low_parallax``.
     """
     out = []
-    motion = track_motion_px(uv)
+    motion = track_motion_px(uv, sessions)
     moving = np.isfinite(motion) & (motion > 0)
     scale = float(np.median(motion[moving])) if moving.any() else 0.0
     static = np.isfinite(motion) & (motion <= 1e-9 * scale)

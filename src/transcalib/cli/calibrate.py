@@ -39,8 +39,8 @@ def add_parser(sub) -> None:
     src.add_argument("--tracks", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
     src.add_argument("--images", nargs="+", metavar="IMAGE", help="images in view order (or named in poses.csv)")
     c.add_argument("--poses", required=True,
-                   help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]; orientations that "
-                        "vary between sessions select the hand-eye (several sessions) model")
+                   help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]: the flange pose of "
+                        "each view; with orientations, the camera's pose on the flange (hand-eye) too")
     c.add_argument("--rotation-format", default=None,
                    choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
@@ -48,6 +48,9 @@ def add_parser(sub) -> None:
     c.add_argument("--session-tolerance-deg", type=positive_float, default=SESSION_TOLERANCE_DEG,
                    help="views whose orientations differ by less than this form one session "
                         f"(default {SESSION_TOLERANCE_DEG:g} deg)")
+    c.add_argument("--setup", choices=["eye-in-hand", "eye-to-hand"], default="eye-in-hand",
+                   help="eye-in-hand: the camera on the flange (default); eye-to-hand: the camera fixed, watching "
+                        "an object carried by the flange (the points are then in the flange frame)")
     c.add_argument("--out", required=True, help="output folder (created if missing)")
     c.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
     c.add_argument("--image-size", type=image_size, metavar="WxH",
@@ -163,7 +166,8 @@ def build_options(args, size=None):
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
-                               unit=args.unit, subset_points=args.subset_points)
+                               unit=args.unit, subset_points=args.subset_points, setup=args.setup,
+                               session_tolerance_deg=args.session_tolerance_deg)
     if args.target and not args.images:
         raise OptionError("--target", "applies to --images only")
     return options
@@ -299,20 +303,18 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({t_imports - t_read:.2f} s)")
     from ..io.export import ExportContext, export_calibration  # after the reading: see import_in_background
     from ..pipeline import calibrate
-    from .handeye import calibrate_hand_eye, hand_eye_text, write_hand_eye
+    from .handeye import hand_eye_text, write_hand_eye
     from .summary import summary_json, summary_text
     opts = plan["options"]
     memory = {"after_read": _peak_rss_gib()}
     t_cal = time.perf_counter()
-    hand_eye = None
     if plan["sessions"] is not None:
-        hand_eye = calibrate_hand_eye(uv, plan, opts, args, progress)
-        cal = hand_eye.calibration
-    else:
-        cal = calibrate(uv, plan["poses"].T, refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
-                        refinement=opts.refinement if opts.refine else None, rotations=plan["poses"].R,
-                        image_size=plan["image_size"], unit=args.unit, subset_points=opts.subset_points,
-                        rng=args.seed, progress=progress)
+        progress.log(f"{plan['sessions'].n_sessions} flange orientations in {uv.shape[0]} views ({opts.setup})")
+    cal = calibrate(uv, plan["poses"], setup=opts.setup, session_tolerance_deg=opts.session_tolerance_deg,
+                    refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
+                    refinement=opts.refinement if opts.refine else None, image_size=plan["image_size"],
+                    unit=args.unit, subset_points=opts.subset_points, rng=args.seed, progress=progress)
+    hand_eye = cal.hand_eye
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
@@ -325,6 +327,9 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings, report_worker=worker)
     if hand_eye is not None:
         written += write_hand_eye(hand_eye, plan["out"], args.unit)
+    notes = _size_notes(cal, uv, plan)
+    for note in notes:
+        progress.log(f"note: {note}")
     if args.images:
         written.insert(0, plan["out"] / "tracks.csv")
     t_end = time.perf_counter()
@@ -337,7 +342,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
         summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)
         summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
                        outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings,
-                       memory_peak_gib=memory)
+                       memory_peak_gib=memory, notes=notes)
         print_json(summary)
     else:
         print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
@@ -355,6 +360,18 @@ def _peak_rss_gib() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
+
+
+def _size_notes(cal, uv, plan) -> list[str]:
+    """What the outputs could not know: the image size, without images, ``--image-size``
+    or ``--truth``, for the formats that state it."""
+    if plan["image_size"] is not None or not {"opencv", "ros", "colmap"} & set(plan["formats"]):
+        return []
+    from ..io.formats import image_size_or_extent
+
+    w, h = image_size_or_extent(cal, uv)
+    return [f"the image size is unknown (tracks only): camera.yaml, camera_info.yaml and COLMAP state {w}x{h}, the "
+            "extent of the tracked pixels; give --image-size WIDTHxHEIGHT for the true size"]
 
 
 def _size_source(args, plan) -> str | None:

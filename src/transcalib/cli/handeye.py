@@ -1,24 +1,10 @@
-"""``transcalib calibrate`` with several sessions: the hand-eye model's call and outputs."""
+"""``transcalib calibrate`` with flange orientations: the hand-eye pose's outputs and summary lines."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-
-
-def calibrate_hand_eye(uv, plan, opts, args, progress):
-    """:func:`transcalib.handeye.calibrate_sessions` with the command's options."""
-    from ..handeye.calibrate import calibrate_sessions
-
-    poses, grouping, r = plan["poses"], plan["sessions"], opts.refinement
-    progress.log(f"{grouping.n_sessions} sessions (orientations) in {poses.n_views} views: hand-eye model")
-    he = calibrate_sessions(uv, poses.T, poses.R, session_of_view=grouping.session_of_view,
-                            tolerance_deg=grouping.tolerance_deg, distortion=r.distortion, fix=dict(r.fix),
-                            square_pixels=r.square_pixels, estimate_skew=r.estimate_skew, sigma_T=r.sigma_T,
-                            robust=opts.robust is not False, ransac=opts.ransac, rng=args.seed)
-    progress.stage("hand-eye", {"sessions": grouping.n_sessions, "rms_px": he.calibration.rms_px})
-    return he
 
 
 def write_hand_eye(he, out: Path, unit: str) -> list[Path]:
@@ -29,7 +15,7 @@ def write_hand_eye(he, out: Path, unit: str) -> list[Path]:
 
     write_json(out / "hand_eye.json", hand_eye_json(he, unit=unit))
     with atomic_write(out / "hand_eye.yaml", newline="\n", encoding="utf-8") as fh:
-        fh.write(easy_handeye_yaml(he.R_flange_camera, he.t_flange_camera, unit=unit))
+        fh.write(easy_handeye_yaml(he.R, he.t, unit=unit, eye_on_hand=he.setup == "eye-in-hand"))
     return [out / "hand_eye.json", out / "hand_eye.yaml"]
 
 
@@ -37,15 +23,17 @@ def hand_eye_text(he, unit: str, truth: dict | None) -> str:
     """The hand-eye lines of the summary (errors against ``truth`` when it has them)."""
     from ..geometry.rotation import rotation_angle_deg
 
-    t, sd = he.t_flange_camera, he.t_flange_camera_std
-    lines = ["", "Camera in the flange (hand-eye):", "  R_flange_camera:"]
-    lines += ["    [" + "  ".join(f"{x:+.6f}" for x in row) + "]" for row in he.R_flange_camera]
-    lines.append(f"  t_flange_camera [{unit}]: " + ", ".join(f"{v:+.3f} ± {s:.3g}" for v, s in zip(t, sd)))
-    if truth is not None and "R_flange_camera" in truth:
-        Rt, tt = np.asarray(truth["R_flange_camera"]), np.asarray(truth["t_flange_camera"])
-        undet = np.asarray(he.undetermined).reshape(3, -1)
+    f, t, sd = he.frame, he.t, he.t_std
+    title = "Camera in the flange (hand-eye)" if f == "flange" else "Camera in the robot base (eye-to-hand)"
+    lines = ["", f"{title}, {he.n_sessions} session(s) of orientation:", f"  R_{f}_camera:"]
+    lines += ["    [" + "  ".join(f"{x:+.6f}" for x in row) + "]" for row in he.R]
+    undet = np.asarray(he.undetermined).reshape(3, -1)
+    lines.append(f"  t_{f}_camera [{unit}]: " + ", ".join(f"{v:+.3f} ± {s:.3g}" for v, s in zip(t, sd))
+                 + (f"  ({3 - undet.shape[1]} of 3 directions determined)" if undet.shape[1] else ""))
+    if truth is not None and f"R_{f}_camera" in truth:
+        Rt, tt = np.asarray(truth[f"R_{f}_camera"]), np.asarray(truth[f"t_{f}_camera"])
         tt = tt - undet @ (undet.T @ tt)  # compare the determined part
-        lines.append(f"  error vs truth: R {rotation_angle_deg(he.R_flange_camera @ Rt.T):.4f} deg, "
+        lines.append(f"  error vs truth: R {rotation_angle_deg(he.R @ Rt.T):.4f} deg, "
                      f"t (determined part) {np.linalg.norm(t - tt):.3f} {unit}")
     lines += [f"  note: {n}" for n in he.notes]
     return "\n".join(lines)

@@ -54,7 +54,8 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         lines.append(f"Distortion ({cal.dist_model}, OpenCV order):")
         for name, v in zip(DIST_MODELS[cal.dist_model], cal.dist):
             lines.append("  " + _fmt_param(cal, name, v))
-    lines.append("Rotation R (robot → camera):")
+    frame = "robot" if cal.hand_eye is None else {"eye-in-hand": "flange", "eye-to-hand": "robot base"}[cal.hand_eye.setup]
+    lines.append(f"Rotation R ({frame} → camera):")
     lines += ["  [" + "  ".join(f"{x:+.6f}" for x in row) + "]" for row in cal.R]
     if "rx" in cal.std:
         lines.append("  std of rotation [deg]: " + ", ".join(f"{k} {cal.std[k]:.3g}" for k in ("rx", "ry", "rz")))

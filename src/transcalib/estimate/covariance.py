@@ -21,7 +21,7 @@ from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, pad_dist
 from ..types import RefineOptions
 from .bundle import BundleProblem, cost, reduced_system
-from .layout import Layout, State, robot_sigma
+from .layout import FlangeModel, Layout, State, robot_sigma
 from .observations import build_data
 from .schur import Reduced
 from .solvers import levenberg_marquardt
@@ -218,7 +218,9 @@ def linearise(uv, T, calibration, opts, polish: int = 5, flange=None) -> Lineari
     """The refined calibration's problem at its solution (``polish`` LM steps make sure it
     is the ML one): layout from ``opts`` (a RefineOptions), points with finite ``X``
     among ``calibration.inliers``, translation priors from ``opts.sigma_T``; with
-    ``flange`` (a :class:`transcalib.estimate.refine.FlangeModel`) the sessions model."""
+    ``flange`` (a :class:`transcalib.estimate.layout.FlangeModel`; default the model of
+    the calibration) the hand-eye model."""
+    flange = flange if flange is not None else FlangeModel.of(calibration)
     n_views = uv.shape[0]
     seen = np.isfinite(uv[..., 0])
     X = np.asarray(calibration.X, float)

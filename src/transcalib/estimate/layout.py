@@ -212,3 +212,45 @@ class State:
             new.T[i] += dg[s: s + 3]
         new.X += dX.T
         return new
+
+
+@dataclass(frozen=True, eq=False)
+class FlangeModel:
+    """Known flange orientations of the views (the hand-eye model).
+
+    The camera rotation of view ``i`` becomes ``R F_i`` and its centre ``T_i + F_i^T t``
+    (``F_i = R_i^T``, ``R = R_X^T``, ``t = t_X``; :mod:`transcalib.estimate.bundle`).
+
+    Attributes
+    ----------
+    F : (n_views, 3, 3) float
+        World -> flange rotations ``R_i^T`` of the views.
+    t0 : (3,) float
+        Start of the offset ``t`` (robot units).
+    t_basis : (3, k) float
+        Directions of ``t`` the data determine (the others keep ``t0``'s component).
+    """
+
+    F: np.ndarray
+    t0: np.ndarray
+    t_basis: np.ndarray
+
+    @classmethod
+    def of(cls, calibration) -> "FlangeModel | None":
+        """The model of a calibration with flange orientations (its rotations, offset and
+        the offset's determined directions), or None for one without."""
+        R_i = getattr(calibration, "flange_rotations", None)
+        if R_i is None:
+            return None
+        he = calibration.hand_eye
+        undetermined = np.zeros((3, 0)) if he is None else np.asarray(he.undetermined).reshape(3, -1)
+        t0 = np.zeros(3) if he is None else np.asarray(he.t, dtype=float)
+        return cls(np.transpose(R_i, (0, 2, 1)).copy(), t0.copy(), complement(undetermined))
+
+
+def complement(U: np.ndarray) -> np.ndarray:
+    """Orthonormal basis ``(3, 3 - k)`` of the directions orthogonal to the orthonormal
+    columns ``U (3, k)``."""
+    if U.shape[1] == 0:
+        return np.eye(3)
+    return np.linalg.svd(U, full_matrices=True)[0][:, U.shape[1]:]

@@ -21,14 +21,14 @@ import numpy as np
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
 from ..geometry.rotation import matrix_to_rotvec
-from ..types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, LinearEstimate, RefineOptions,
-                     RefineStats, ViewRotations)
+from ..types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, HandEye, LinearEstimate,
+                     RefineOptions, RefineStats, ViewRotations)
 from ..validate import as_uv_T
 from .bundle import BundleProblem, all_residuals, cost, sum_sq
 from .covariance import covariance, linearise, profile_step
 from .degeneracy import identifiability_hint
 from .distributions import f_sf
-from .layout import Layout, State, dist_indices, robot_sigma
+from .layout import FlangeModel, Layout, State, complement, dist_indices, robot_sigma
 from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
 from .solvers import gauss_newton, levenberg_marquardt
@@ -36,28 +36,6 @@ from .solvers import gauss_newton, levenberg_marquardt
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
-
-
-@dataclass(frozen=True, eq=False)
-class FlangeModel:
-    """Known flange orientations of several sessions (the hand-eye model).
-
-    The camera rotation of view ``i`` becomes ``R F_i`` and its centre ``T_i + F_i^T t``
-    (``F_i = R_i^T``, ``R = R_X^T``, ``t = t_X``; :mod:`transcalib.estimate.bundle`).
-
-    Attributes
-    ----------
-    F : (n_views, 3, 3) float
-        World -> flange rotations ``R_i^T`` of the views.
-    t0 : (3,) float
-        Start of the offset ``t`` (robot units).
-    t_basis : (3, k) float
-        Directions of ``t`` the data determine (the others keep ``t0``'s component).
-    """
-
-    F: np.ndarray
-    t0: np.ndarray
-    t_basis: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -129,10 +107,13 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
 def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, progress=None,
                flange: FlangeModel | None = None, near_solution: bool = False) -> Calibration:
     """:func:`refine` on validated arrays and options (the pipeline's entry); with
-    ``flange`` the views carry known flange rotations and the hand-eye offset ``t`` is
-    estimated (``t_flange_camera``, std ``t_x, t_y, t_z`` when fully determined).
-    ``near_solution``: ``initial`` is within a few standard deviations of the solution
-    (the fit of a subset of the tracks): undamped Gauss-Newton steps."""
+    ``flange`` (default: the model of an ``initial`` Calibration that has flange
+    orientations) the views carry known flange rotations and the hand-eye offset ``t`` is
+    estimated along its determined directions (``hand_eye.t``, std ``t_x, t_y, t_z`` when
+    fully determined). ``near_solution``: ``initial`` is within a few standard
+    deviations of the solution (the fit of a subset of the tracks): undamped Gauss-Newton
+    steps."""
+    flange = flange if flange is not None else FlangeModel.of(initial)
     if opts.distortion == "auto":
         return _fit_auto(uv, T, initial, opts, progress, flange)
     t_start = time.perf_counter()
@@ -227,23 +208,21 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Cal
     coefficient (its covariance exists); ``stats.distortion_selection`` says why.
     """
     cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress, flange)
-    return climb_distortion(uv, T, cal, opts, progress, flange)
+    return climb_distortion(uv, T, cal, opts, progress)
 
 
-def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None,
-                     flange: FlangeModel | None = None) -> Calibration:
+def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None) -> Calibration:
     """From the refined ``cal`` (a model of :data:`AUTO_CHAIN`), add coefficients while
-    the score test asks for them (:func:`_fit_auto`); ``opts`` are recorded. With
-    ``flange`` (several sessions) the hand-eye offset starts each refit where ``cal`` left it."""
+    the score test asks for them (:func:`_fit_auto`); ``opts`` are recorded. Each refit
+    starts where ``cal`` left off, its flange model (the hand-eye offset) included."""
     steps = []
     start = AUTO_CHAIN.index(cal.dist_model) if cal.dist_model in AUTO_CHAIN else len(AUTO_CHAIN) - 1
     for simpler, richer in zip(AUTO_CHAIN[start:], AUTO_CHAIN[start + 1:]):
-        at = None if flange is None else replace(flange, t0=np.asarray(cal.t_flange_camera, float))
-        F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer, at)
+        F, p = _distortion_score(uv, T, cal, replace(opts, distortion=simpler), richer)
         step = DistortionStep(richer, F, p, AUTO_ALPHA, bool(p < AUTO_ALPHA))
         if step.chosen:
             try:
-                richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress, at)
+                richer_cal = fit_refine(uv, T, cal, replace(opts, distortion=richer), progress)
             except DegenerateError as exc:  # the added coefficients are not determined
                 step = replace(step, chosen=False, reason=f"not determined: {exc}")
             else:
@@ -255,11 +234,10 @@ def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None
                    stats=replace(cal.stats, distortion_selection=tuple(steps)))
 
 
-def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str,
-                      flange: FlangeModel | None = None) -> tuple[float, float]:
+def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: str) -> tuple[float, float]:
     """Score test at ``cal`` (the ML solution of ``simpler``) of the coefficients that
     ``richer`` adds: ``(F, p-value)``."""
-    lin = linearise(uv, T, cal, simpler, polish=0, flange=flange)
+    lin = linearise(uv, T, cal, simpler, polish=0)
     lay = replace(lin.layout, dist_free=dist_indices(richer, simpler.fix))
     added = [lay.i_dist + m for m, k in enumerate(lay.dist_free) if k not in lin.layout.dist_free]
     if not added:
@@ -456,7 +434,8 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
         camera=camera, X=X, residuals_px=residuals, rms_px=rms,
         T=fit.state.T.copy(), sigma_px=sigma, linear=linear, cov=cov, std=std, param_names=names, X_std=X_std,
         inliers=fit.inliers, T_std=T_std, view_rotations=_view_rotations(lay, fit.state, cov, n_views),
-        t_flange_camera=None if fit.state.F is None else fit.state.t.copy(),
+        flange_rotations=None if fit.state.F is None else np.transpose(fit.state.F, (0, 2, 1)),
+        hand_eye=None if fit.state.F is None else _hand_eye(lay, fit.state, cov, initial),
         options=CalibrateOptions(robust=False, refinement=pb.opts),
         stats=CalibrationStats(stages=("refine",), refine=_stats(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)))
 
@@ -500,6 +479,22 @@ def _stats(pb, fit, dof_fit, n_undetermined, t_start) -> RefineStats:
         n_points_excluded=int(n_points - len(pb.used_idx)), n_points_behind_camera=pb.n_behind,
         n_points_undetermined=n_undetermined,
         inlier_threshold_px=fit.thr if pb.opts.loss != "linear" else None, time_s=time.perf_counter() - t_start)
+
+
+def _hand_eye(lay: Layout, state: State, cov: np.ndarray, initial) -> HandEye:
+    """The camera's pose in the flange (or, eye-to-hand, the base) with its uncertainty:
+    ``R = R_model^T``, ``t`` and its covariance ``B cov_t B^T`` along the determined
+    directions ``B``; the setup, sessions and notes of ``initial`` when it has them."""
+    B = lay.t_basis if lay.t_free else np.zeros((3, 0))
+    it = slice(lay.i_t, lay.i_t + lay.n_t)
+    t_cov = B @ cov[it, it] @ B.T if lay.t_free else np.zeros((3, 3))
+    R_std = np.sqrt(np.diag(cov)[lay.i_rot: lay.i_rot + 3])
+    before = getattr(initial, "hand_eye", None)
+    if before is None:
+        before = HandEye("eye-in-hand", np.eye(3), np.zeros(3), np.zeros(3), np.zeros((3, 3)), np.eye(3),
+                         np.zeros(lay.n_views, int), ("0",))
+    return replace(before, R=state.R.T.copy(), t=state.t.copy(), R_std_deg=R_std, t_cov=t_cov,
+                   undetermined=complement(B))
 
 
 def _view_rotations(lay, state, cov, n_views) -> ViewRotations | None:

@@ -291,8 +291,12 @@ def project_camera_frame(intr: np.ndarray, dist5: np.ndarray, xc: np.ndarray, *,
 
 def camera_frame(R: np.ndarray, X: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Camera-frame coordinates ``R (X_j - T_i)`` of every point in every view, ``(3,
-    n_views, n_points)``, as ``R X_j - R T_i`` (no (views, points, 3) temporary)."""
-    return (R @ X.T)[:, None, :] - (R @ T.T)[:, :, None]
+    n_views, n_points)``, as ``R X_j - R T_i`` (no (views, points, 3) temporary); ``R``
+    is one rotation ``(3, 3)`` or one per view ``(n_views, 3, 3)``."""
+    R = np.asarray(R)
+    if R.ndim == 2:
+        return (R @ X.T)[:, None, :] - (R @ T.T)[:, :, None]
+    return np.einsum("vab,nb->avn", R, X) - np.einsum("vab,vb->av", R, T)[:, :, None]
 
 
 def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=()) -> np.ndarray:
@@ -300,8 +304,9 @@ def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=())
 
     Parameters
     ----------
-    K, R : (3, 3) float
-        Intrinsics and rotation world -> camera.
+    K : (3, 3) float
+    R : (3, 3) or (n_views, 3, 3) float
+        Rotation world -> camera, for every view or per view.
     X : (n_points, 3) float
         Scene points, world frame.
     T : (n_views, 3) float

@@ -1,8 +1,10 @@
-"""Scene points from a known camera (``A = K R``) and known translations.
+"""Scene points from known cameras (``A = K R``, one for every view or one per view) and centres.
 
 With the camera known, each view gives two linear equations in ``X_j`` (paper eq. 2)::
 
-    (A[0] - u_ij A[2]) (X_j - T_i) = 0,     (A[1] - v_ij A[2]) (X_j - T_i) = 0.
+    (A[0] - u_ij A[2]) (X_j - T_i) = 0,     (A[1] - v_ij A[2]) (X_j - T_i) = 0
+
+(with ``A_i`` per view when the views have their own orientations).
 
 Dividing each pair by the point's depth ``A[2] (X_j - T_i)`` (with ``||A[2]|| = 1``)
 turns the algebraic error into the pixel reprojection error to first order, so the
@@ -11,6 +13,8 @@ passes: the first uses the depths given (or 1), the second the depths of the fir
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -69,12 +73,12 @@ def triangulate(
 
     Parameters
     ----------
-    A : (3, 3) float
-        ``K R`` (any scale; it is rescaled so that ``||A[2]|| = 1``).
+    A : (3, 3) or (n_views, 3, 3) float
+        ``K R``, for every view or per view (any scale; rescaled so that ``||A[2]|| = 1``).
     uv : (n_views, n_points, 2) float
         Pixels, NaN where unseen.
     T : (n_views, 3) float
-        Camera translations.
+        Camera centres (the robot translations, with one orientation).
     depth : (n_views, n_points) float, optional
         Initial depth estimates for the weights (e.g. the TLS depths).
     K : (3, 3) float, optional
@@ -90,32 +94,46 @@ def triangulate(
     X : (n_points, 3) float
         NaN for points seen in fewer than 2 views (or whose rays are parallel).
     """
-    A = A / np.linalg.norm(A[2])
+    A = np.asarray(A, dtype=float)
+    shared = A.ndim == 2
+    A = A.reshape(-1, 3, 3)
     if np.asarray(dist).size:
         if K is None:
             raise ValueError("triangulate: K is required together with dist")
         A = np.linalg.inv(K) @ A  # = R up to scale: work in undistorted normalised coordinates
-        A = A / np.linalg.norm(A[2])
+    A = A / np.linalg.norm(A[:, 2], axis=1)[:, None, None]
     # M = sum_v w (a_u a_u^T + a_v a_v^T) with a_u = A0 - u A2, a_v = A1 - v A2 expands
-    # into four fixed 3x3 matrices weighted by per-point sums of w, w u, w v, w (u^2 + v^2);
-    # b = sum_v w (a_u a_u^T + a_v a_v^T) T_v likewise with per-view vectors.
-    A0, A1, A2 = A
-    sym = lambda x, y: np.outer(x, y) + np.outer(y, x)  # noqa: E731
-    basis = np.stack([np.outer(A0, A0) + np.outer(A1, A1), -sym(A0, A2), -sym(A1, A2), np.outer(A2, A2)])
-    per_view = np.einsum("kab,vb->kva", basis, T).reshape(-1, 3)  # (4 V, 3): basis_k T_v
+    # into four 3x3 matrices (per view, or shared) weighted by per-point sums of w, w u,
+    # w v, w (u^2 + v^2); b = sum_v w (a_u a_u^T + a_v a_v^T) T_v likewise.
+    A0, A1, A2 = A[:, 0], A[:, 1], A[:, 2]  # (m, 3) each, m = 1 or n_views
+    outer = lambda x, y: x[:, :, None] * y[:, None, :]  # noqa: E731
+    basis = np.stack([outer(A0, A0) + outer(A1, A1), -outer(A0, A2) - outer(A2, A0), -outer(A1, A2) - outer(A2, A1),
+                      outer(A2, A2)], axis=1)  # (m, 4, 3, 3)
+    per_view = np.einsum("vkab,vb->vka", np.broadcast_to(basis, (len(T), 4, 3, 3)), T)  # (V, 4, 3): basis_k T_v
+    cams = _Cameras(basis.reshape(-1, 4, 9), per_view, np.broadcast_to(A2, (len(T), 3)), T, shared)
     X = np.empty((uv.shape[1], 3))
     for lo in range(0, uv.shape[1], _CHUNK):  # small temporaries: memory is reused
         c = slice(lo, min(lo + _CHUNK, uv.shape[1]))
-        X[c] = _triangulate_chunk(uv[:, c], None if depth is None else depth[:, c], A2, T, basis, per_view,
-                                  K, dist, passes)
+        X[c] = _triangulate_chunk(uv[:, c], None if depth is None else depth[:, c], cams, K, dist, passes)
     return X
+
+
+class _Cameras(NamedTuple):
+    """What the chunks need of the cameras: ``basis (m, 4, 9)`` (m = 1: shared), ``per_view
+    (V, 4, 3)``, the depth rows ``A2 (V, 3)``, the centres ``T (V, 3)``."""
+
+    basis: np.ndarray
+    per_view: np.ndarray
+    A2: np.ndarray
+    T: np.ndarray
+    shared: bool
 
 
 #: Points per chunk.
 _CHUNK = 16384
 
 
-def _triangulate_chunk(uv, depth, A2, T, basis, per_view, K, dist, passes) -> np.ndarray:
+def _triangulate_chunk(uv, depth, cams: _Cameras, K, dist, passes) -> np.ndarray:
     seen = np.isfinite(uv[..., 0])  # (V, n)
     if np.asarray(dist).size:
         rays = pixels_to_rays(K, np.where(seen[..., None], uv, 0.0), dist)
@@ -134,10 +152,14 @@ def _triangulate_chunk(uv, depth, A2, T, basis, per_view, K, dist, passes) -> np
         np.multiply(w, u, out=coef[1])
         np.multiply(w, v, out=coef[2])
         np.multiply(w, r2, out=coef[3])
-        M = basis.reshape(4, 9).T @ coef.sum(axis=1)  # (9, n): rows of the 3x3 systems
-        X = _solve_sym3(M[0], M[1], M[2], M[4], M[5], M[8], per_view.T @ coef.reshape(4 * V, n))
+        if cams.shared:  # rows of the 3x3 systems (9, n)
+            M = cams.basis[0].T @ coef.sum(axis=1)
+        else:
+            M = np.einsum("vkx,kvn->xn", cams.basis, coef)
+        b = np.einsum("vka,kvn->an", cams.per_view, coef)
+        X = _solve_sym3(M[0], M[1], M[2], M[4], M[5], M[8], b)
         if p + 1 < passes:  # weights from these depths for the next pass
-            _inverse_square(A2 @ X - (T @ A2)[:, None], seen, out=w)
+            _inverse_square(cams.A2 @ X - np.einsum("va,va->v", cams.A2, cams.T)[:, None], seen, out=w)
     X[:, seen.sum(axis=0) < 2] = np.nan
     return X.T
 

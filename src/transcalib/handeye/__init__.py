@@ -1,5 +1,5 @@
-"""Several translation sessions at different wrist orientations: full K from 2-axis moves
-and the camera-to-flange (hand-eye) transform without a target.
+"""What is specific to several flange orientations: sessions, their linear start, the single
+views joining it, what the motion determines of the hand-eye offset, the exports.
 
 Model (``docs/hand-eye.md``): flange pose of view ``i`` in the robot base ``(R_i, T_i)``,
 camera in the flange ``(R_X, t_X)``::
@@ -7,17 +7,18 @@ camera in the flange ``(R_X, t_X)``::
     x_ij ~ K (R_i R_X)^T (X_j - T_i - R_i t_X)
 
 Modules: :mod:`.sessions` (views grouped by orientation), :mod:`.linear` (the
-multi-session linear start), :mod:`.observability` (which parts of ``t_X`` the data
-determine; the CRLB), :mod:`.calibrate` (:func:`calibrate_sessions`), :mod:`.export`
-(4x4, ROS tf, easy_handeye YAML, JSON), :mod:`.simulate` (scenes for tests and benchmarks).
+multi-session linear start), :mod:`.join` (single views at their own orientation join the
+start: their poses from the images, checked against the recorded ones, the offset),
+:mod:`.observability` (which parts of ``t_X`` the data determine; the CRLB),
+:mod:`.export` (4x4, ROS tf, easy_handeye YAML, JSON), :mod:`.simulate` (scenes for tests
+and benchmarks). :func:`transcalib.calibrate` runs them for every motion.
 """
 
 from __future__ import annotations
 
 import importlib
 
-_LAZY = {"calibrate_sessions": ".calibrate", "HandEyeCalibration": ".calibrate", "group_sessions": ".sessions",
-         "SessionGrouping": ".sessions"}
+_LAZY = {"group_sessions": ".sessions", "SessionGrouping": ".sessions"}
 
 __all__ = list(_LAZY)
 

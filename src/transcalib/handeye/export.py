@@ -1,11 +1,12 @@
 """The hand-eye transform in the formats robot software reads.
 
-``T_flange_camera = [[R_X, t_X], [0, 1]]`` maps camera coordinates to flange coordinates
-(the camera pose in the flange frame; ROS ``tf`` from ``robot_effector_frame`` (parent) to
-the camera frame (child)). Provided as a 4x4 matrix, as translation + quaternion
-``qx, qy, qz, qw`` (ROS ``tf``), in easy_handeye's YAML layout (eye-in-hand, metres), and
-as the JSON dict of ``calibration.json``'s ``hand_eye`` entry. The camera frame is
-OpenCV's (x right, y down, z forward), i.e. a ROS *optical* frame.
+Eye-in-hand, ``T_flange_camera = [[R_X, t_X], [0, 1]]`` maps camera coordinates to flange
+coordinates (the camera pose in the flange frame; ROS ``tf`` from ``robot_effector_frame``
+(parent) to the camera frame (child)); eye-to-hand, ``T_base_camera`` the fixed camera's
+pose in the robot base frame (``tf`` from ``robot_base_frame``). Provided as a 4x4 matrix,
+as translation + quaternion ``qx, qy, qz, qw`` (ROS ``tf``), in easy_handeye's YAML layout
+(metres), and as ``hand_eye.json``. The camera frame is OpenCV's (x right, y down, z
+forward), i.e. a ROS *optical* frame.
 """
 
 from __future__ import annotations
@@ -34,17 +35,19 @@ def hand_eye_tf(R_X, t_X, *, unit: str = "mm", to_unit: str = "m") -> dict:
     return {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))}
 
 
-def easy_handeye_yaml(R_X, t_X, *, unit: str = "mm", robot_base_frame: str = "base_link",
+def easy_handeye_yaml(R_X, t_X, *, unit: str = "mm", eye_on_hand: bool = True, robot_base_frame: str = "base_link",
                       robot_effector_frame: str = "tool0", tracking_base_frame: str = "camera_optical_frame",
-                      namespace: str = "/transcalib_eye_on_hand/") -> str:
-    """easy_handeye's calibration YAML (eye-in-hand; translation in metres).
+                      namespace: str | None = None) -> str:
+    """easy_handeye's calibration YAML (translation in metres).
 
     The ``transformation`` is ``robot_effector_frame -> tracking_base_frame`` (the camera),
-    i.e. ``T_flange_camera``. No marker frame: this calibration uses no target.
+    i.e. ``T_flange_camera`` (eye-on-hand), or ``robot_base_frame -> tracking_base_frame``,
+    ``T_base_camera`` (eye-to-hand). No marker frame: this calibration uses no target.
     """
     tf = hand_eye_tf(R_X, t_X, unit=unit, to_unit="m")
     tr, q = tf["translation"], tf["rotation"]
-    lines = ["parameters:", "  eye_on_hand: true", "  freehand_robot_movement: false",
+    namespace = namespace or ("/transcalib_eye_on_hand/" if eye_on_hand else "/transcalib_eye_on_base/")
+    lines = ["parameters:", f"  eye_on_hand: {'true' if eye_on_hand else 'false'}", "  freehand_robot_movement: false",
              f"  namespace: {namespace}", f"  robot_base_frame: {robot_base_frame}",
              f"  robot_effector_frame: {robot_effector_frame}", f"  tracking_base_frame: {tracking_base_frame}",
              "  tracking_marker_frame: none", "transformation:"]
@@ -53,26 +56,33 @@ def easy_handeye_yaml(R_X, t_X, *, unit: str = "mm", robot_base_frame: str = "ba
 
 
 def hand_eye_json(he, unit: str = "mm") -> dict:
-    """``calibration.json``'s ``hand_eye`` entry of a :class:`HandEyeCalibration`.
+    """``hand_eye.json`` of a :class:`~transcalib.types.HandEye`.
 
-    Keys: ``R_flange_camera`` (3x3), ``t_flange_camera`` (3, robot units), their std,
-    ``undetermined_directions`` (list of flange-frame unit vectors; ``t_flange_camera`` has
-    zero component along each), ``convention``, ``matrix_flange_camera`` (4x4), ``tf``
-    (translation in metres + quaternion), ``sessions`` (count and labels), ``notes``.
+    Keys (``frame`` is ``flange`` eye-in-hand, ``base`` eye-to-hand): ``setup``,
+    ``R_<frame>_camera`` (3x3), ``t_<frame>_camera`` (3, robot units), their std,
+    ``undetermined_directions`` (list of unit vectors in that frame; ``t`` has zero
+    component along each; empty when determined), ``convention``,
+    ``matrix_<frame>_camera`` (4x4), ``tf`` (translation in metres + quaternion),
+    ``sessions`` (count, labels, the session of each view), ``notes``.
     """
     undet = np.asarray(he.undetermined).reshape(3, -1)
+    f = he.frame
+    convention = ("x ~ K (R_i R_X)^T (X - T_i - R_i t_X); R_i flange->base; R_X camera->flange; t_X camera centre "
+                  "in the flange frame" if f == "flange" else
+                  "x ~ K R_bc^T (R_i P + T_i - t_bc); R_i flange->base; R_bc camera->base; t_bc camera centre in the "
+                  "base frame; P the scene points in the flange frame")
     return {
-        "R_flange_camera": np.asarray(he.R_flange_camera).tolist(),
-        "t_flange_camera": np.asarray(he.t_flange_camera).tolist(),
+        "setup": he.setup,
+        f"R_{f}_camera": np.asarray(he.R).tolist(),
+        f"t_{f}_camera": np.asarray(he.t).tolist(),
         "unit": unit,
-        "R_flange_camera_std_deg": np.asarray(he.R_flange_camera_std_deg).tolist(),
-        "t_flange_camera_std": np.asarray(he.t_flange_camera_std).tolist(),
+        f"R_{f}_camera_std_deg": np.asarray(he.R_std_deg).tolist(),
+        f"t_{f}_camera_std": np.asarray(he.t_std).tolist(),
         "undetermined_directions": undet.T.tolist(),
-        "convention": ("x ~ K (R_i R_X)^T (X - T_i - R_i t_X); R_i flange->base; R_X camera->flange; t_X camera "
-                       "centre in the flange frame; zero component of t_X along each undetermined direction"),
-        "matrix_flange_camera": hand_eye_matrix(he.R_flange_camera, he.t_flange_camera).tolist(),
-        "tf": hand_eye_tf(he.R_flange_camera, he.t_flange_camera, unit=unit),
-        "sessions": {"count": int(he.sessions.n_sessions), "labels": list(he.sessions.labels),
-                     "tolerance_deg": he.sessions.tolerance_deg},
+        "convention": convention + "; zero component of t along each undetermined direction",
+        f"matrix_{f}_camera": hand_eye_matrix(he.R, he.t).tolist(),
+        "tf": hand_eye_tf(he.R, he.t, unit=unit),
+        "sessions": {"count": int(he.n_sessions), "labels": list(he.session_labels),
+                     "session_of_view": np.asarray(he.session_of_view).tolist()},
         "notes": list(he.notes),
     }

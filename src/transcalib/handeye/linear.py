@@ -29,14 +29,14 @@ zero (the minimum-norm solution), and the points follow from ``t``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import DegenerateError
 from ..estimate.linear import fit_linear
 from ..estimate.robust import fit_robust
-from ..types import LinearEstimate, RansacOptions
+from ..types import LinearEstimate, RansacOptions, RansacStats
 from ..validate import SPAN_RTOL
 from .sessions import SessionGrouping
 
@@ -81,6 +81,7 @@ class SessionsLinear:
     m: np.ndarray  # (n_sessions, 3)
     rotations: np.ndarray  # (n_sessions, 3, 3)
     inliers: np.ndarray | None = None  # (n_sessions, n_points) bool with RANSAC
+    ransac: RansacStats | None = None  # the robust stage, with RANSAC
 
     def as_linear_estimate(self) -> LinearEstimate:
         """The start of the refinement: ``K``, ``R = R_X^T``, the base-frame ``X``."""
@@ -93,8 +94,7 @@ class SessionsLinear:
         """Re-solve ``t_X`` restricted to ``t = basis c`` (the directions the Fisher
         information determines) and the points with it."""
         t, undet = solve_offset(self.Y, self.m, self.rotations, basis)
-        return SessionsLinear(self.K, self.R_X, t, _points(self.Y, self.m, self.rotations, t), self.depth, undet,
-                              self.stacked, self.flange_span, self.Y, self.m, self.rotations, self.inliers)
+        return replace(self, t_X=t, X=_points(self.Y, self.m, self.rotations, t), undetermined=undet)
 
 
 def _flange_moves(T: np.ndarray, grouping: SessionGrouping):
@@ -240,12 +240,12 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
     Tf = np.einsum("vba,vb->va", grouping.rotations[s_of], T - m[s_of])
     n_s, n = grouping.n_sessions, uv.shape[1]
     uv_st = _stack(uv, grouping)
-    inliers = None
+    inliers = stats = None
     if ransac is None:
         stacked = fit_linear(uv_st, Tf, method)
     else:
         rob = fit_robust(uv_st, Tf, ransac, rng=rng)
-        stacked = rob.linear
+        stacked, stats = rob.linear, rob.stats
         seen = np.isfinite(uv_st[..., 0]).sum(axis=0) >= 2
         inliers = (rob.inliers | ~seen).reshape(n_s, n)
     Y = stacked.X.reshape(n_s, n, 3)
@@ -256,4 +256,4 @@ def sessions_linear(uv: np.ndarray, T: np.ndarray, grouping: SessionGrouping, me
         views = grouping.session_of_view == s
         depth[views] = stacked.depth[views, s * n:(s + 1) * n]
     return SessionsLinear(stacked.K, stacked.R.T, t, _points(Y, m, Rs, t), depth, undet, stacked, span, Y, m, Rs,
-                          inliers)
+                          inliers, stats)

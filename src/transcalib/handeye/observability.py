@@ -107,31 +107,33 @@ def _split(free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return U[:, :k], U[:, k:]
 
 
-def _suggestion(undet: np.ndarray, axes: list) -> str:
+def _suggestion(undet: np.ndarray, axes: list, frame: str) -> str:
+    """What the undetermined directions ``undet (3, k)`` mean and the motion that fixes them."""
     k = undet.shape[1]
+    name = f"t_{frame}_camera"
     if k == 0:
         return ""
     if k == 3:
-        why = ("all views have one flange orientation" if not axes else
+        why = ("the views used have one flange orientation" if not axes else
                "no point is tracked across sessions")
-        return (f"t_flange_camera is not determined at all ({why}); add two sessions with the wrist turned by "
+        return (f"{name} is not determined at all ({why}); add two sessions with the wrist turned by "
                 ">= 15 deg about two non-parallel axes, and track points across the sessions. Reported: t = 0.")
     if k == 2:
-        return ("only one direction of t_flange_camera is determined; add a session turned about a new axis and "
+        return (f"only one direction of {name} is determined; add a session turned about a new axis and "
                 "track points across the sessions. Reported: zero along the free directions "
-                f"{np.round(undet.T, 3).tolist()} (flange frame).")
+                f"{np.round(undet.T, 3).tolist()} ({frame} frame).")
     a = undet[:, 0]
     e = np.eye(3)[int(np.argmin(np.abs(a)))]
     perp = np.cross(a, e)
     perp /= np.linalg.norm(perp)
-    return (f"the component of t_flange_camera along {np.round(a, 3).tolist()} (flange frame, the common axis of "
+    return (f"the component of {name} along {np.round(a, 3).tolist()} ({frame} frame, the common axis of "
             "the relative wrist rotations) is not determined; it is reported as 0 (t_X . a = 0) and the points "
             "carry the same convention. Add a session with the wrist turned by >= 15 deg about an axis "
-            f"perpendicular to it, e.g. the flange axis {np.round(perp, 3).tolist()}.")
+            f"perpendicular to it, e.g. the {frame} axis {np.round(perp, 3).tolist()}.")
 
 
 def offset_observability(K, dist5, R_cam, t, X, uv, T, F, rotations, labels, *, fix=None, estimate_skew=False,
-                         square_pixels=False, distortion="none") -> Observability:
+                         square_pixels=False, distortion="none", frame="flange") -> Observability:
     """Undetermined directions of ``t_X`` from the Fisher information of the posed problem.
 
     Parameters
@@ -153,6 +155,8 @@ def offset_observability(K, dist5, R_cam, t, X, uv, T, F, rotations, labels, *, 
     labels : sequence of str
     fix, estimate_skew, square_pixels, distortion
         The posed problem (as :class:`transcalib.RefineOptions`).
+    frame : {"flange", "base"}
+        The frame ``t_X`` is in (``base`` eye-to-hand), named in the message.
 
     Raises
     ------
@@ -172,10 +176,10 @@ def offset_observability(K, dist5, R_cam, t, X, uv, T, F, rotations, labels, *, 
     weak = evals <= T_RTOL
     undet, determined = _split(vecs[:, weak])
     axes = relative_axes(rotations, labels)
-    msg = _suggestion(undet, axes)
+    msg = _suggestion(undet, axes, frame)
     if not weak.any() and evals[0] < T_WEAK * evals[-1]:
         v0 = np.round(vecs[:, 0] / np.linalg.norm(vecs[:, 0]), 3).tolist()
-        msg = (f"t_flange_camera is only weakly determined along {v0} (flange frame; information "
+        msg = (f"t_{frame}_camera is only weakly determined along {v0} ({frame} frame; information "
                f"{evals[0] / evals[-1]:.1e} of the best direction's): the relative wrist rotations "
                "are nearly about one axis; add a session turned about a perpendicular axis.")
     return Observability(determined, undet, np.clip(evals, 0, None), axes, msg)
@@ -188,8 +192,10 @@ def sessions_crlb(scene, *, fix=None, square_pixels=False, estimate_skew=False, 
     ``sigma_px^2 S^-1`` at the ground truth (points eliminated) for the observation
     pattern of ``scene.uv``; names as in ``Calibration.std`` (``f`` or ``fx, fy``, ``cx``,
     ``cy``, ``rx, ry, rz`` in degrees — the rotation ``R_X^T <- exp([w]x) R_X^T`` — and
-    ``t_x, t_y, t_z``, or ``t_0 ..`` along ``t_basis``).
+    ``t_x, t_y, t_z``, or ``t_0 ..`` along ``t_basis``). Any motion: sessions, single
+    views, eye-to-hand (whose poses the model inverts, as :mod:`transcalib.pipeline.motion`).
     """
+    scene = scene.as_eye_in_hand()
     F = np.transpose(scene.R, (0, 2, 1))
     uv = np.where(np.isfinite(scene.uv), scene.uv_true, np.nan)
     S, lay, _ = _fisher(scene.K, pad_dist(scene.dist), scene.R_X.T, scene.t_X, scene.X, uv, scene.T, F, dict(fix or {}),

@@ -77,6 +77,20 @@ class SessionGrouping:
     def n_sessions(self) -> int:
         return len(self.rotations)
 
+    def restricted(self, keep: np.ndarray) -> "SessionGrouping":
+        """The grouping of the views ``keep`` ((n_views,) bool): sessions without a kept
+        view dropped, the others renumbered in order."""
+        keep = np.asarray(keep, bool)
+        kept = np.unique(self.session_of_view[keep])
+        number = np.full(self.n_sessions, -1)
+        number[kept] = np.arange(len(kept))
+        views = np.flatnonzero(keep)
+        position = np.full(len(keep), -1)
+        position[views] = np.arange(len(views))
+        off = tuple((int(position[i]), a) for i, a in self.off_views if keep[i])
+        return SessionGrouping(number[self.session_of_view[keep]], self.rotations[kept], self.angle_deg[keep],
+                               self.tolerance_deg, off, tuple(self.labels[k] for k in kept))
+
     def messages(self, view_ids=None) -> list[str]:
         """One line per view off its session's orientation (empty if none)."""
         name = (lambda i: str(view_ids[i])) if view_ids is not None else str

@@ -1,22 +1,29 @@
-"""Simulated sessions: a camera on a flange, several wrist orientations, translations in each.
+"""Simulated robot motions: a camera on a flange, sessions of translations at several wrist
+orientations, single views at any orientation, and the same motions eye-to-hand.
 
 The camera of view ``i`` has rotation ``(R_i R_X)^T`` (base -> camera) and centre
 ``C_i = T_i + R_i t_X``; pixels come from :func:`transcalib.geometry.camera.project` (the
 project's one camera model), one call per view. The default layout: a table-top scene
 (base z up, points within ``+-150 x +-150 x 0..100`` mm) seen from about 0.5 m above, the
 camera mounted ~100 mm off the flange, the wrist tilted by ``tilt_deg`` between sessions.
+
+Eye-to-hand (:meth:`SessionScene.eye_to_hand`) is the same geometry read the other way: the
+scene is carried by the flange (its points are in the flange frame), the camera is fixed in
+the base with pose ``(R_X, t_X)``, and the robot records the flange poses, the inverses
+``(R_i^T, -R_i^T T_i)`` of the camera's motion relative to the scene.
 Used by the tests, the benchmarks and ``examples/make_sessions.py``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import InputError
 from ..geometry.camera import project
 from ..geometry.rotation import rotvec_to_matrix
+from ..types.options import SETUPS
 
 __all__ = ["session_scene", "flange_rotations_looking", "DEFAULT_R_X", "DEFAULT_T_X"]
 
@@ -40,8 +47,11 @@ class SessionScene:
     R : (n_views, 3, 3) float
         Flange -> base rotations.
     session_of_view : (n_views,) int
+        Session of each view; single views have their own session each.
     K, R_X, t_X, dist, X, noise_px, image_size
-        Truth: intrinsics, camera in the flange, distortion, points (base frame).
+        Truth: intrinsics, camera in the flange (eye-to-hand: in the base), distortion,
+        points (base frame; eye-to-hand: flange frame).
+    setup : {"eye-in-hand", "eye-to-hand"}
     """
 
     uv: np.ndarray
@@ -56,14 +66,41 @@ class SessionScene:
     X: np.ndarray
     noise_px: float
     image_size: tuple
+    setup: str = "eye-in-hand"
+
+    @property
+    def truth(self) -> dict:
+        """The hand-eye truth named as in ``hand_eye.json``: ``R_<frame>_camera``,
+        ``t_<frame>_camera`` (frame ``flange`` eye-in-hand, ``base`` eye-to-hand), plus
+        ``K`` and ``image_size``."""
+        frame = "flange" if self.setup == "eye-in-hand" else "base"
+        return {f"R_{frame}_camera": self.R_X, f"t_{frame}_camera": self.t_X, "K": self.K,
+                "image_size": self.image_size}
+
+    def eye_to_hand(self) -> "SessionScene":
+        """The same images seen by a camera fixed in the base while the flange carries the
+        scene: the recorded poses become ``R_i^T`` and ``-R_i^T T_i``."""
+        if self.setup != "eye-in-hand":
+            raise InputError("eye_to_hand() applies to an eye-in-hand scene")
+        return self._poses_inverted("eye-to-hand")
+
+    def as_eye_in_hand(self) -> "SessionScene":
+        """The scene with the poses the model uses: eye-to-hand poses inverted (itself
+        eye-in-hand)."""
+        return self if self.setup == "eye-in-hand" else self._poses_inverted("eye-in-hand")
+
+    def _poses_inverted(self, setup: str) -> "SessionScene":
+        Rt = np.transpose(self.R, (0, 2, 1))
+        return replace(self, R=Rt, T=-np.einsum("vij,vj->vi", Rt, self.T), setup=setup)
 
     def camera_rotations(self) -> np.ndarray:
-        """(n_views, 3, 3) base -> camera rotations ``(R_i R_X)^T``."""
-        return np.transpose(self.R @ self.R_X, (0, 2, 1))
+        """(n_views, 3, 3) scene -> camera rotations ``(R_i R_X)^T`` (eye-in-hand)."""
+        return np.transpose(self.as_eye_in_hand().R @ self.R_X, (0, 2, 1))
 
     def camera_centres(self) -> np.ndarray:
-        """(n_views, 3) camera centres ``T_i + R_i t_X``."""
-        return self.T + self.R @ self.t_X
+        """(n_views, 3) camera centres in the scene frame, ``T_i + R_i t_X`` (eye-in-hand)."""
+        scene = self.as_eye_in_hand()
+        return scene.T + scene.R @ self.t_X
 
 
 def look_rotation(direction: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
@@ -84,7 +121,8 @@ def flange_rotations_looking(directions: np.ndarray, R_X: np.ndarray) -> np.ndar
 def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, n_points: int = 60,
                   moves: str = "3d", step_mm: float = 60.0, tilt_deg: float = 25.0, distance_mm: float = 500.0,
                   noise_px: float = 0.0, K=None, R_X=None, t_X=None, dist=(), image_size=(640, 480),
-                  rotations=None, X=None) -> SessionScene:
+                  rotations=None, X=None, single_views: int = 0, single_tilt_deg=(15.0, 40.0),
+                  setup: str = "eye-in-hand") -> SessionScene:
     """Simulate sessions of a flange-mounted camera over a table-top scene.
 
     Parameters
@@ -109,6 +147,13 @@ def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, 
         Flange rotations to use instead of the tilts (e.g. a SCARA wrist about base z).
     X : (n_points, 3) float, optional
         Scene points (base frame).
+    single_views : int
+        Views added after the sessions, each at its own orientation: the viewing direction
+        tilted from straight down by a uniform angle in ``single_tilt_deg`` about a random
+        horizontal axis, rolled by up to 30 deg, the distance varied by 10 %.
+    single_tilt_deg : (2,) float
+    setup : {"eye-in-hand", "eye-to-hand"}
+        Eye-to-hand returns :meth:`SessionScene.eye_to_hand` of the simulated scene.
 
     Returns
     -------
@@ -120,6 +165,8 @@ def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, 
     t_X = DEFAULT_T_X if t_X is None else np.asarray(t_X, float)
     if moves not in ("3d", "xy", "line"):
         raise InputError(f"moves must be '3d', 'xy' or 'line', got {moves!r}")
+    if setup not in SETUPS:
+        raise InputError(f"setup must be one of {SETUPS}, got {setup!r}")
     if rotations is None:
         axes = [np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([1.0, 1.0, 0]) / np.sqrt(2),
                 np.array([1.0, -1.0, 0]) / np.sqrt(2)]
@@ -132,18 +179,15 @@ def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, 
     T, R, sess = [], [], []
     for s, Rs in enumerate(rotations):
         view_dir = (Rs @ R_X)[:, 2]  # camera z in the base frame
-        C0 = centre - distance_mm * view_dir
-        T0 = C0 - Rs @ t_X
-        if moves == "3d":
-            d = rng.uniform(-step_mm, step_mm, (views_per_session, 3))
-        elif moves == "xy":
-            d = np.c_[rng.uniform(-step_mm, step_mm, (views_per_session, 2)), np.zeros(views_per_session)]
-        else:
-            d = np.c_[np.linspace(-step_mm, step_mm, views_per_session), np.zeros((views_per_session, 2))]
-        d[0] = 0.0
-        T.append(T0 + d)
+        T0 = centre - distance_mm * view_dir - Rs @ t_X
+        T.append(T0 + _moves(rng, moves, views_per_session, step_mm))
         R.append(np.repeat(Rs[None], views_per_session, axis=0))
         sess += [s] * views_per_session
+    for j in range(single_views):
+        Rs, Ts = _single_view(rng, centre, distance_mm, R_X, t_X, rng.uniform(*single_tilt_deg))
+        T.append(Ts[None])
+        R.append(Rs[None])
+        sess.append(len(rotations) + j)
     T, R, sess = np.concatenate(T), np.concatenate(R), np.array(sess)
     Rc = np.transpose(R @ R_X, (0, 2, 1))
     C = T + R @ t_X
@@ -153,5 +197,32 @@ def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, 
     depth = np.einsum("vb,vnb->vn", Rc[:, 2], X[None] - C[:, None])
     outside = (uv_true[..., 0] < 0) | (uv_true[..., 0] > w - 1) | (uv_true[..., 1] < 0) | (uv_true[..., 1] > h - 1)
     uv[outside | (depth <= 0)] = np.nan
-    return SessionScene(uv, uv_true, T, R, sess, K, R_X, t_X, np.asarray(dist, float), X, float(noise_px),
-                        tuple(image_size))
+    scene = SessionScene(uv, uv_true, T, R, sess, K, R_X, t_X, np.asarray(dist, float), X, float(noise_px),
+                         tuple(image_size))
+    return scene.eye_to_hand() if setup == "eye-to-hand" else scene
+
+
+def _moves(rng, moves: str, n: int, step_mm: float) -> np.ndarray:
+    """(n, 3) translations of one session from its first view (mm): random in a box, in the
+    base xy plane, or along base x."""
+    if moves == "3d":
+        d = rng.uniform(-step_mm, step_mm, (n, 3))
+    elif moves == "xy":
+        d = np.c_[rng.uniform(-step_mm, step_mm, (n, 2)), np.zeros(n)]
+    else:
+        d = np.c_[np.linspace(-step_mm, step_mm, n), np.zeros((n, 2))]
+    d[0] = 0.0
+    return d
+
+
+def _single_view(rng, centre, distance_mm: float, R_X, t_X, tilt_deg: float):
+    """Flange pose ``(R, T)`` of one view looking at ``centre`` from a direction tilted from
+    straight down by ``tilt_deg`` about a random horizontal axis, rolled by up to 30 deg,
+    at ``distance_mm`` +- 10 %."""
+    axis = np.r_[rng.normal(size=2), 0.0]
+    down = rotvec_to_matrix(np.radians(tilt_deg) * axis / np.linalg.norm(axis)) @ [0, 0, -1.0]
+    roll = rotvec_to_matrix(np.radians(rng.uniform(-30, 30)) * np.array([0, 0, 1.0]))
+    look = roll @ look_rotation(down)  # base -> camera, rolled about the optical axis
+    R = look.T @ R_X.T
+    C = centre - distance_mm * rng.uniform(0.9, 1.1) * down
+    return R, C - R @ t_X

@@ -179,23 +179,32 @@ def _stats_from_json(doc: dict):
                             sigma_truncation_factor=d["sigma_truncation_factor"])
 
 
+#: The fields of a hand-eye pose that are arrays.
+_HAND_EYE_ARRAYS = ("R", "t", "R_std_deg", "t_cov", "undetermined", "session_of_view")
+
+
 def _estimates_to_json(cal) -> dict:
-    """The estimates beside the camera: refined translations' std, view rotations, the
-    camera's position in the flange (each None when not estimated)."""
-    vr = cal.view_rotations
-    return {"T_std": None if cal.T_std is None else cal.T_std.tolist(),
-            "view_rotations": None if vr is None else {"deg": vr.deg.tolist(), "std_deg": vr.std_deg.tolist(),
-                                                       "chi2": vr.chi2.tolist()},
-            "t_flange_camera": None if cal.t_flange_camera is None else cal.t_flange_camera.tolist()}
+    """The estimates beside the camera (each None when not estimated): refined
+    translations' std, view rotations, the flange rotations and the hand-eye pose."""
+    vr, he = cal.view_rotations, cal.hand_eye
+    return _tagged({
+        "T_std": cal.T_std,
+        "view_rotations": None if vr is None else {"deg": vr.deg, "std_deg": vr.std_deg, "chi2": vr.chi2},
+        "flange_rotations": cal.flange_rotations,
+        "hand_eye": None if he is None else {"setup": he.setup, **{k: np.asarray(getattr(he, k)) for k in
+                                                                  _HAND_EYE_ARRAYS},
+                                             "session_labels": list(he.session_labels), "notes": list(he.notes)}})
 
 
 def _estimates_from_json(doc: dict) -> dict:
-    from ..types import ViewRotations
+    from ..types import HandEye, ViewRotations
 
-    vr = doc["view_rotations"]
-    return {"T_std": None if doc["T_std"] is None else _matrix(doc["T_std"]),
-            "view_rotations": None if vr is None else ViewRotations(*(_matrix(vr[k]) for k in ("deg", "std_deg", "chi2"))),
-            "t_flange_camera": None if doc["t_flange_camera"] is None else _matrix(doc["t_flange_camera"])}
+    d = _untagged(doc)
+    vr, he = d["view_rotations"], d["hand_eye"]
+    return {"T_std": d["T_std"], "flange_rotations": d["flange_rotations"],
+            "view_rotations": None if vr is None else ViewRotations(vr["deg"], vr["std_deg"], vr["chi2"]),
+            "hand_eye": None if he is None else HandEye(**{**he, "session_labels": tuple(he["session_labels"]),
+                                                           "notes": tuple(he["notes"])})}
 
 
 def _typed_fields(doc: dict) -> dict:
@@ -225,11 +234,9 @@ def _from_version_1(info: dict) -> dict:
         refine=RefineStats(**refine) if len(refine) == len(_V1_REFINE) else None,
         distortion_selection=tuple(DistortionStep(**d) for d in info.pop("distortion_selection", ())),
         sigma_truncation_factor=info.pop("sigma_truncation_factor", None))
-    info.pop("subset", None)
-    flange = info.pop("flange_offset", None)
+    info.pop("subset", None)  # the flange offset of the old sessions model stays in info: no rotations were saved
     return {"stats": stats, "T_std": info.pop("T_std", None), "info": info,
-            "view_rotations": None if rot[0] is None else ViewRotations(*rot),
-            "t_flange_camera": None if flange is None else np.asarray(flange, float)}
+            "view_rotations": None if rot[0] is None else ViewRotations(*rot)}
 
 
 # --------------------------------------------------------------------------------------

@@ -50,13 +50,15 @@ def _opencv_matrix(name: str, a: np.ndarray) -> str:
 def write_opencv_yaml(cal, path, image_size) -> Path:
     """``camera.yaml`` in OpenCV FileStorage form: ``image_width``, ``image_height``,
     ``camera_matrix``, ``distortion_coefficients`` (the five OpenCV coefficients),
-    ``R_cam_world`` (world -> camera), ``distortion_model`` (transcalib's name)."""
+    ``R_cam_world`` (robot -> camera; with flange orientations ``R_cam_flange``, flange
+    -> camera), ``distortion_model`` (transcalib's name)."""
     w, h = image_size
+    rotation = "R_cam_world" if cal.flange_rotations is None else "R_cam_flange"
     text = ("%YAML:1.0\n---\n"
             f"image_width: {int(w)}\nimage_height: {int(h)}\n"
             + _opencv_matrix("camera_matrix", cal.K)
             + _opencv_matrix("distortion_coefficients", cal.dist_opencv[None, :])
-            + _opencv_matrix("R_cam_world", cal.R)
+            + _opencv_matrix(rotation, cal.R)
             + f'distortion_model: "{cal.dist_model}"\n')
     with atomic_write(path, encoding="utf-8", newline="\n") as fh:
         fh.write(text)
@@ -116,15 +118,17 @@ def _points2d(uv_view: np.ndarray, cols: np.ndarray, pid: np.ndarray):
 
 def _write_images(path, cal, uv, seen, pid, names) -> None:
     """``images.txt``: a pose line and a POINTS2D line per view (COLMAP's world to camera
-    ``t = -R T_i``); the line of a view is formatted in chunks of points, on threads."""
+    ``R_i``, ``t = -R_i C_i`` of :meth:`Calibration.camera_poses`); the line of a view is
+    formatted in chunks of points, on threads."""
     from functools import partial
 
-    qx, qy, qz, qw = matrix_to_quaternion(cal.R).tolist()
+    R_cam, C = cal.camera_poses()
 
     def pieces():
         yield f"# Image list with two lines of data per image; {len(names)} images\n".encode()
         for i, name in enumerate(names):  # a loop over views, then chunks of points
-            t = (-cal.R @ cal.T[i]).tolist()
+            qx, qy, qz, qw = matrix_to_quaternion(R_cam[i]).tolist()
+            t = (-R_cam[i] @ C[i]).tolist()
             yield f"{i + 1} {qw!r} {qx!r} {qy!r} {qz!r} {t[0]!r} {t[1]!r} {t[2]!r} 1 {name}\n".encode()
             cols = np.flatnonzero(seen[i])
             for k, s in enumerate(text.chunks(cols.size, CHUNK)):

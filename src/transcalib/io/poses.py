@@ -34,6 +34,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.rotation import euler_zyx_to_matrix, matrix_to_quaternion, quaternion_to_matrix, rotvec_to_matrix
 from ..geometry.units import length_scale
+from ..types import Poses
 from .files import atomic_write
 from .ids import canonical_id
 
@@ -48,48 +49,6 @@ _ALIASES = {"quat": "quaternion", "ros": "quaternion", "ur": "rotvec", "rotation
 #: Largest accepted deviation of a quaternion's norm from 1.
 QUATERNION_NORM_TOL = 1e-3
 _REQUIRED = ("view", "x", "y", "z")
-
-
-@dataclass(frozen=True, eq=False)
-class Poses:
-    """The contents of a pose file.
-
-    Attributes
-    ----------
-    views : list of str (n_views)
-        Canonical view ids (:func:`~transcalib.io.ids.canonical_id`) in file order: the
-        view order.
-    T : (n_views, 3) float
-        Flange positions in the base frame, in ``unit``.
-    R : (n_views, 3, 3) float or None
-        Flange -> base rotations ``R_i``; None when the file has no orientation.
-    images : list of str or None
-        The ``image`` column.
-    session : list of str or None
-        The ``session`` column.
-    unit : str or None
-        Length unit of ``T`` (None: as in the file, not named).
-    rotation_format : str or None
-        The orientation columns read (:data:`ROTATION_FORMATS`), None without.
-    path : str
-        The file read (empty for poses made in code).
-    lines : tuple of int (n_views)
-        The file line of each view, for messages.
-    """
-
-    views: list
-    T: np.ndarray
-    R: np.ndarray | None = None
-    images: list | None = None
-    session: list | None = None
-    unit: str | None = None
-    rotation_format: str | None = None
-    path: str = ""
-    lines: tuple = ()
-
-    @property
-    def n_views(self) -> int:
-        return len(self.views)
 
 
 @dataclass(frozen=True)

@@ -66,8 +66,10 @@ def observed_pixels(cal, uv=None) -> np.ndarray:
     plus the residual (NaN where there is no residual)."""
     if uv is not None:
         return uv
-    pred = cal.camera.project(np.nan_to_num(cal.X), cal.T)
-    return pred + cal.residuals_px
+    from ..geometry.camera import project
+
+    R_cam, C = cal.camera_poses()
+    return project(cal.K, R_cam, np.nan_to_num(cal.X), C, cal.dist) + cal.residuals_px
 
 
 def image_box(cal, uv=None) -> tuple[int, int]:
@@ -364,15 +366,16 @@ VIEWS = (("front (along the optical axis)", 0.0, 0.0), ("oblique", 40.0, -25.0))
 
 
 def reconstruction_data(cal, unit: str = "units") -> dict:
-    """The scene points and the camera positions in the camera frame of ``T = 0``.
+    """The scene points and the camera positions in the axes of the first view's camera.
 
     Returns ``{"X": (k, 3) camera-frame coordinates of at most MAX_POINTS points, "T":
     (n_views, 3) camera centres, "axes": (3, 3) robot x, y, z axes (rows, camera frame),
     "n": points reconstructed, "unit": str}``; lengths in ``unit``.
     """
     ok = np.flatnonzero(np.isfinite(cal.X[:, 0]))
-    R = cal.R  # world -> camera: rows of R are the camera axes in the world
-    return {"X": cal.X[_subsample(ok, MAX_POINTS)] @ R.T, "T": cal.T @ R.T, "axes": R.T.copy(), "n": int(ok.size),
+    R_cam, C = cal.camera_poses()
+    R = R_cam[0]  # world -> camera: rows of R are the camera axes in the world
+    return {"X": cal.X[_subsample(ok, MAX_POINTS)] @ R.T, "T": C @ R.T, "axes": R.T.copy(), "n": int(ok.size),
             "unit": unit}
 
 
@@ -470,7 +473,8 @@ def projection_std(cal, grid=(48, 36), uv=None, *, size=None) -> tuple[np.ndarra
     rays = cal.camera.pixels_to_rays(np.stack([uu, vv], axis=-1))
     ok = np.isfinite(cal.X[:, 0])
     some = _subsample(np.flatnonzero(ok), 100_000)  # the median depth of 10^5 points is as good
-    depth = np.median((cal.X[some] - cal.T.mean(axis=0)) @ cal.R[2]) if some.size else 1.0
+    R_cam, C = cal.camera_poses()
+    depth = np.median((cal.X[some] - C[0]) @ R_cam[0, 2]) if some.size else 1.0
     xc = np.moveaxis(rays * depth, -1, 0)  # (3, gh, gw)
     p = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc, jacobian=True)
     order = ("fx", "fy", "cx", "cy", "skew")

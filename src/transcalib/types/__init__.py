@@ -19,13 +19,14 @@ Options are frozen dataclasses, checked when they are made: a misspelt option na
 
 from ..errors import DegenerateError, Diagnostic, InputError, MirroredError, TranscalibError
 from ..geometry.camera import Camera
-from .options import (FIXABLE, INTRINSIC_NAMES, LOSSES, MIN_SUBSET_POINTS, SUBSET_POINTS, CalibrateOptions,
+from .options import (FIXABLE, INTRINSIC_NAMES, LOSSES, MIN_SUBSET_POINTS, SETUPS, SUBSET_POINTS, CalibrateOptions,
                       RansacOptions, RefineOptions)
+from .poses import Poses
 from .progress import ProgressEvent, report
-from .results import (Calibration, CalibrationStats, DistortionStep, LinearEstimate, RansacStats, RefineStats,
-                      ViewRotations)
+from .results import (Calibration, CalibrationStats, DistortionStep, HandEye, LinearEstimate, RansacStats,
+                      RefineStats, ViewRotations)
 
 __all__ = ["TranscalibError", "InputError", "DegenerateError", "MirroredError", "Diagnostic", "RansacOptions",
            "RefineOptions", "CalibrateOptions", "LinearEstimate", "Calibration", "CalibrationStats", "RansacStats",
-           "RefineStats", "DistortionStep", "ViewRotations", "Camera", "ProgressEvent", "report", "INTRINSIC_NAMES",
-           "FIXABLE", "LOSSES", "SUBSET_POINTS", "MIN_SUBSET_POINTS"]
+           "RefineStats", "DistortionStep", "ViewRotations", "HandEye", "Poses", "SETUPS", "Camera", "ProgressEvent",
+           "report", "INTRINSIC_NAMES", "FIXABLE", "LOSSES", "SUBSET_POINTS", "MIN_SUBSET_POINTS"]

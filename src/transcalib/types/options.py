@@ -21,6 +21,8 @@ INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "skew")
 FIXABLE = INTRINSIC_NAMES + ("k1", "k2", "p1", "p2", "k3")
 #: Robust losses of the refinement.
 LOSSES = ("linear", "huber", "cauchy")
+#: Where the camera is: on the flange (moved by the robot) or fixed, watching the flange.
+SETUPS = ("eye-in-hand", "eye-to-hand")
 
 
 def _positive(name: str, value, *, allow_none: bool = False) -> None:
@@ -215,6 +217,10 @@ class CalibrateOptions:
         (the subset's solution is a few of its standard deviations from it, where the
         cost is nearly quadratic; docs/refinement.md §4a). None: every stage uses every
         track.
+    setup : {"eye-in-hand", "eye-to-hand"}
+        The camera on the flange, or fixed and watching the flange (which carries the scene).
+    session_tolerance_deg : float
+        Views whose flange orientations differ by less than this form one session.
     """
 
     refine: bool = True
@@ -224,8 +230,13 @@ class CalibrateOptions:
     check_rotation: bool = True
     unit: str = "units"
     subset_points: int | None = SUBSET_POINTS
+    setup: str = "eye-in-hand"
+    session_tolerance_deg: float = 1.0
 
     def __post_init__(self):
+        if self.setup not in SETUPS:
+            raise InputError(f"setup must be one of {', '.join(SETUPS)}, got {self.setup!r}")
+        _positive("session_tolerance_deg", self.session_tolerance_deg)
         n = self.subset_points
         if n is not None and (isinstance(n, bool) or int(n) != n or n < MIN_SUBSET_POINTS):
             raise InputError(f"subset_points must be None or an integer >= {MIN_SUBSET_POINTS}, got {n!r}")

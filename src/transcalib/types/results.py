@@ -230,6 +230,71 @@ class ViewRotations:
     __hash__ = None
 
 
+@dataclass(frozen=True, eq=False)
+class HandEye:
+    """The camera's pose relative to the robot (:attr:`Calibration.hand_eye`).
+
+    Eye-in-hand: the camera in the flange frame, ``R_flange_camera``, ``t_flange_camera``
+    (``R_X``, ``t_X``). Eye-to-hand: the fixed camera in the robot base frame,
+    ``R_base_camera``, ``t_base_camera``; the scene points are then in the flange frame.
+
+    Attributes
+    ----------
+    setup : {"eye-in-hand", "eye-to-hand"}
+    R : (3, 3) float
+        Camera -> flange (eye-in-hand) or camera -> base (eye-to-hand) rotation.
+    t : (3,) float
+        The camera centre in that frame (robot units); zero along ``undetermined``.
+    R_std_deg : (3,) float
+        Standard deviation of the small rotation ``w`` in ``R <- R exp(-[w]x)`` (about the
+        camera axes, degrees).
+    t_cov : (3, 3) float
+        Covariance of ``t`` (zero along ``undetermined``).
+    undetermined : (3, k) float
+        Orthonormal directions of ``t`` the motion leaves free; (3, 0) when determined.
+    session_of_view : (n_views,) int
+        Session of each view (views of one flange orientation; a single view at its own
+        orientation is a session of one view).
+    session_labels : tuple of str
+    notes : tuple of str
+        What the motion leaves undetermined and what would determine it; views off their
+        session's orientation.
+    """
+
+    setup: str
+    R: np.ndarray
+    t: np.ndarray
+    R_std_deg: np.ndarray
+    t_cov: np.ndarray
+    undetermined: np.ndarray
+    session_of_view: np.ndarray
+    session_labels: tuple = ()
+    notes: tuple = ()
+
+    def __post_init__(self):
+        _freeze(self, arrays=("R", "t", "R_std_deg", "t_cov", "undetermined", "session_of_view"),
+                sequences=("session_labels", "notes"))
+
+    @property
+    def t_std(self) -> np.ndarray:
+        """(3,) standard deviations of ``t`` (robot units)."""
+        return np.sqrt(np.clip(np.diag(self.t_cov), 0.0, None))
+
+    @property
+    def frame(self) -> str:
+        """The frame ``R`` and ``t`` are in: ``"flange"`` or ``"base"``."""
+        return "flange" if self.setup == "eye-in-hand" else "base"
+
+    @property
+    def n_sessions(self) -> int:
+        return len(self.session_labels)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, HandEye) and _same_fields(self, other)
+
+    __hash__ = None
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
 class Calibration:
     """A complete calibration: what :func:`transcalib.calibrate` returns.
@@ -238,7 +303,9 @@ class Calibration:
     ----------
     camera : Camera
         ``K``, ``R``, distortion and image size (also as the properties ``K``, ``R``,
-        ``dist``, ``dist_model``, ``image_size``).
+        ``dist``, ``dist_model``, ``image_size``). ``R`` maps flange vectors to the camera
+        frame; without orientations in the poses the flange axes are the robot axes, so
+        ``R`` is then the robot -> camera rotation. :meth:`camera_poses` gives each view's.
     X : (n_points, 3) float
         Scene points in world axes and user units; NaN for unused points.
     residuals_px : (n_views, n_points, 2) float
@@ -247,8 +314,9 @@ class Calibration:
     rms_px : float
         ``sqrt(mean(du**2 + dv**2))`` over the used observations (OpenCV's RMS convention).
     T : (n_views, 3) float
-        The translations used (the measured ones, or their refined values when the
-        robot noise was modelled).
+        The flange positions used (the measured ones, or their refined values when the
+        robot noise was modelled); eye-to-hand: the base origin in the flange frame
+        ``-R_i^T T_i``.
     sigma_px : float or None
         Pixel noise per coordinate: estimated from the residuals (or the known value).
     diagnostics : tuple of Diagnostic
@@ -270,9 +338,11 @@ class Calibration:
         Standard deviation of each refined translation (robot noise modelled: ``sigma_T``).
     view_rotations : ViewRotations or None
         Rotations fitted per view (``RefineOptions.estimate_view_rotations``).
-    t_flange_camera : (3,) float or None
-        The camera's position in the flange ``t_X`` (several flange orientations; robot
-        units), zero along the directions the data do not determine.
+    flange_rotations : (n_views, 3, 3) float or None
+        The flange orientation of each view as the model uses it (flange -> base ``R_i``;
+        eye-to-hand: base -> flange ``R_i^T``); None without orientations in the poses.
+    hand_eye : HandEye or None
+        The camera relative to the robot (with orientations in the poses).
     options : CalibrateOptions or None
         What the calibration was asked to do.
     stats : CalibrationStats
@@ -297,13 +367,14 @@ class Calibration:
     inliers: np.ndarray | None = None
     T_std: np.ndarray | None = None
     view_rotations: ViewRotations | None = None
-    t_flange_camera: np.ndarray | None = None
+    flange_rotations: np.ndarray | None = None
+    hand_eye: HandEye | None = None
     options: CalibrateOptions | None = None
     stats: CalibrationStats = field(default_factory=CalibrationStats)
     info: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
-        _freeze(self, arrays=("X", "residuals_px", "T", "cov", "X_std", "inliers", "T_std", "t_flange_camera"),
+        _freeze(self, arrays=("X", "residuals_px", "T", "cov", "X_std", "inliers", "T_std", "flange_rotations"),
                 mappings=("std", "info"), sequences=("diagnostics", "param_names"))
 
     @property
@@ -340,6 +411,21 @@ class Calibration:
     @property
     def n_views(self) -> int:
         return int(self.residuals_px.shape[0])
+
+    def camera_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each view's camera pose in the frame of ``X``: rotations world -> camera
+        ``(n_views, 3, 3)`` and centres ``(n_views, 3)``.
+
+        ``R_cam,i = R R_i^T`` and ``C_i = T_i + R_i t`` with the flange rotations ``R_i``
+        (identity without orientations) and ``t`` the camera's offset (``hand_eye.t``;
+        zero without orientations: the points are then relative to the camera centre at
+        ``T = 0``)."""
+        R = np.asarray(self.R)
+        if self.flange_rotations is None:
+            return np.broadcast_to(R, (self.n_views, 3, 3)).copy(), np.array(self.T, dtype=float)
+        Ri = np.asarray(self.flange_rotations)
+        t = np.zeros(3) if self.hand_eye is None else np.asarray(self.hand_eye.t)
+        return R @ np.transpose(Ri, (0, 2, 1)), self.T + Ri @ t
 
     @property
     def n_points(self) -> int:
