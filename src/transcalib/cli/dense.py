@@ -113,7 +113,7 @@ def check_all(args) -> dict:
         raise OptionError("--reference-view", f"{what}; the views are {', '.join(poses.views[:20])}")
     plan["references"] = refs or None
     try:
-        view_cameras(plan["saved"].calibration, poses.T, poses.R, poses.views)
+        view_cameras(plan["saved"].calibration, poses)
     except InputError as exc:
         raise OptionError("--poses", str(exc)) from None
     return plan

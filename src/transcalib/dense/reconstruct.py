@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from ..errors import DegenerateError, InputError
+from ..types import Poses
 from ..types.progress import report
 from .depth import depth_from_sweep
 from .fuse import fuse
@@ -79,10 +80,11 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
     opts = DenseOptions() if options is None else options
     if not isinstance(opts, DenseOptions):
         raise InputError(f"options must be a DenseOptions, got {type(opts).__name__}")
-    T, R, ids, unit = _poses(poses)
-    unit = unit or getattr(getattr(calibration, "options", None), "unit", None)
-    imgs = _images(images, len(T), getattr(calibration, "camera", calibration))
-    cams = view_cameras(calibration, T, R, ids)
+    poses = _poses(poses)
+    ids = [str(v) for v in poses.views]
+    unit = poses.unit or getattr(getattr(calibration, "options", None), "unit", None)
+    imgs = _images(images, poses.n_views, getattr(calibration, "camera", calibration))
+    cams = view_cameras(calibration, poses)
     refs = _references(reference_views, ids, cams)
     limits = _limits(depth_limits)
     cache: dict = {}
@@ -102,21 +104,20 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
 # --------------------------------------------------------------------------------------
 
 
-def _poses(poses):
-    """``(T, rotations or None, view ids, unit)`` of a Poses-like object or an array."""
-    if hasattr(poses, "T") and hasattr(poses, "views"):
-        T, R, unit = poses.T, getattr(poses, "R", None), getattr(poses, "unit", None)
-        ids = [str(v) for v in poses.views]
-    else:
-        T, R, ids, unit = poses, None, None, None
-    try:
-        T = np.asarray(T, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError("poses must be a Poses (transcalib.io.read_poses) or robot positions (n_views, 3)") from None
-    if T.ndim != 2 or T.shape[1] != 3 or len(T) < 2 or not np.isfinite(T).all():
-        raise InputError(f"poses: need finite robot positions of at least 2 views, shape (n_views, 3); got {T.shape}")
-    ids = [str(i) for i in range(len(T))] if ids is None else ids
-    return T, R, ids, unit
+def _poses(poses) -> Poses:
+    """``poses`` as a :class:`~transcalib.types.Poses` of at least two views."""
+    if not isinstance(poses, Poses):
+        try:
+            T = np.asarray(poses, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError("poses must be a Poses (transcalib.io.read_poses) or robot positions (n_views, 3)") \
+                from None
+        if T.ndim != 2 or T.shape[1] != 3 or not np.isfinite(T).all():
+            raise InputError(f"poses: need finite robot positions, shape (n_views, 3); got {T.shape}")
+        poses = Poses.of(T)
+    if poses.n_views < 2:
+        raise InputError(f"poses: need at least 2 views, got {poses.n_views}")
+    return poses
 
 
 def _read(path) -> np.ndarray:
@@ -209,21 +210,23 @@ def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limit
     canvas = cache[key]
     ref_n, local, noise, _ = _prepared(imgs, ref, canvas, opts.window_px, cache)
     src = [_prepared(imgs, j, canvas, opts.window_px, cache)[3] for j in sources]
-    t = np.array([cams.relative_translation(ref, j) for j in sources])
+    R_rel, t = cams.relative(ref, sources)
     e = t @ canvas.K.T
+    H = _homographies(R_rel, canvas.K)
     k = opts.best_k if opts.best_k is not None else default_best_k(len(sources))
     k = min(k, len(sources))
-    rho_range = _rho_range(ref_n, src, e, canvas, opts, k, progress) if limits is None else \
+    rho_range = _rho_range(ref_n, src, e, H, canvas, opts, k, progress) if limits is None else \
         (0.0 if np.isinf(limits[1]) else 1.0 / limits[1], 1.0 / limits[0])
     rho = np.linspace(rho_range[0], rho_range[1], opts.n_depths)
     step_px = (rho[1] - rho[0]) * _disparity_rate(e, canvas, (w, h))
     exclusion = int(np.clip(np.ceil(EXCLUSION_PX / max(step_px, 1e-9)), 1, opts.n_depths // 4))
-    inp = SweepInput(ref=ref_n, sources=src, epipoles=e, offset=canvas.offset, ref_canvas=canvas.ref, rho=rho,
-                     window=opts.window_px, best_k=k, exclusion=exclusion)
+    inp = SweepInput(ref=ref_n, sources=src, epipoles=e, homographies=H, offset=canvas.offset,
+                     ref_canvas=canvas.ref, rho=rho, window=opts.window_px, best_k=k, exclusion=exclusion)
     res = _run_sweep(inp, opts, progress, f"dense: sweep view {ids[ref]}")
     est = depth_from_sweep(res, rho, local, noise, opts, k)
     ref_camera = type(camera)(camera.K, cams.R[ref], camera.dist, camera.dist_model, (w, h))
-    rel = calibration_depth_std(calibration, ref_camera, t, rho_range, (h, w), est.rho)
+    t_ref = np.einsum("kba,kb->ka", R_rel, t)  # the sources' centres in the reference's frame
+    rel = calibration_depth_std(calibration, ref_camera, t_ref, rho_range, (h, w), est.rho)
     std_cal = None if rel is None else (rel * est.depth).astype(np.float32)
     std = est.std if std_cal is None else np.sqrt(est.std**2 + std_cal**2).astype(np.float32)
     near, far = 1.0 / rho_range[1], (np.inf if rho_range[0] <= 0 else 1.0 / rho_range[0])
@@ -258,7 +261,15 @@ def _disparity_rate(e: np.ndarray, canvas, size) -> float:
     return float(np.max(np.linalg.norm(pts[None] * e[:, None, 2:3] - e[:, None, :2], axis=-1)))
 
 
-def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> tuple[float, float]:
+def _homographies(R_rel: np.ndarray, Kc: np.ndarray):
+    """``H_j = K_c R_j K_c^-1`` (n, 3, 3) of the sources' rotations relative to the
+    reference, or None when none rotates (below 1e-12 rad: the affine warp)."""
+    if np.abs(R_rel - np.eye(3)).max() <= 1e-12:
+        return None
+    return Kc @ R_rel @ np.linalg.inv(Kc)
+
+
+def _rho_range(ref_n, src, e, H, canvas, opts: DenseOptions, k: int, progress) -> tuple[float, float]:
     """Inverse depths to search when no limits are given: a coarse sweep over every
     hypothesis that moves the image by up to ``COARSE_MAX_DISPARITY`` of its width (in
     front of every source camera), then the 1st-99th percentile of what it finds,
@@ -276,8 +287,10 @@ def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> t
 
     A = np.array([[1 / s, 0, 0.5 / s - 0.5], [0, 1 / s, 0.5 / s - 0.5], [0, 0, 1]])
     ref_canvas = None if canvas.ref is None else small(canvas.ref) / s + np.float32(0.5 / s - 0.5)
-    inp = SweepInput(ref=small(ref_n), sources=[small(x) for x in src], epipoles=e @ A.T, offset=canvas.offset / s,
-                     ref_canvas=ref_canvas, rho=rho, window=opts.window_px, best_k=k, exclusion=2)
+    H_small = None if H is None else A @ H @ np.linalg.inv(A)
+    inp = SweepInput(ref=small(ref_n), sources=[small(x) for x in src], epipoles=e @ A.T, homographies=H_small,
+                     offset=canvas.offset / s, ref_canvas=ref_canvas, rho=rho, window=opts.window_px, best_k=k,
+                     exclusion=2)
     res = _run_sweep(inp, opts, progress, "dense: depth range")
     step = rho[1] - rho[0]
     ok = np.isfinite(res.index) & (res.c1 < 0.5) & (res.c1 < 0.7 * res.c2)

@@ -9,8 +9,9 @@ Gauss-Newton on ``rho`` along the reference pixel's new ray, the sources' centre
 ``t_j' = exp([w]x) t_j`` turning with a rotation ``w``), so that
 ``g_k = d rho / d theta_k``. Then ``var(rho) = g^T Sigma g`` with ``Sigma`` the
 calibration's covariance (intrinsics, distortion and rotation; the hand-eye offset and
-robot translations are not carried), ``sigma_z / z = sigma_rho / rho``, interpolated
-trilinearly to every pixel.
+robot translations are not carried, nor the small rotations between the views of a
+session, which change the sources' positions but hardly the derivatives),
+``sigma_z / z = sigma_rho / rho``, interpolated trilinearly to every pixel.
 """
 
 from __future__ import annotations
