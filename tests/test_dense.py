@@ -23,7 +23,8 @@ from transcalib.dense.views import central_view, view_cameras
 from transcalib.errors import DegenerateError, InputError
 from transcalib.geometry.camera import Camera, K_from_params, project_camera_frame
 from transcalib.io import write_poses_csv
-from transcalib.io.folders import MANIFEST, check_output_folder, output_folder, read_manifest
+from transcalib.cli.common import OptionError
+from transcalib.cli.dense import MARK, check_out, written_whole
 from transcalib.synth import render
 from transcalib.synth.degrade import Degradations
 from transcalib.synth.presets import preset_scene
@@ -482,7 +483,7 @@ def test_command_outputs_and_their_formats(files, scene, result):
     doc = json.loads((out / "dense.json").read_text())
     names = {p.name for p in out.iterdir()}
     assert names == {"depth_0.npy", "confidence_0.npy", "depth_std_0.npy", "depth_0.png", "dense.ply", "dense.json",
-                     "report.html", MANIFEST}
+                     "report.html"}
     depth, conf, std = (np.load(out / f"{k}_0.npy") for k in ("depth", "confidence", "depth_std"))
     assert depth.dtype == conf.dtype == std.dtype == np.float32 and depth.shape == (192, 256)
     assert np.array_equal(depth, result.maps[0].depth, equal_nan=True)  # the command is the library
@@ -494,14 +495,6 @@ def test_command_outputs_and_their_formats(files, scene, result):
     assert ply.count == doc["cloud"]["points"] == np.isfinite(depth).sum()
     assert {"x", "y", "z", "red", "green", "blue", "confidence", "depth_std", "view"} <= set(ply.data.dtype.names)
     assert np.allclose(np.column_stack([ply["x"], ply["y"], ply["z"]]), result.points)
-    manifest = read_manifest(out)
-    import hashlib
-
-    listed = {f["path"]: f for f in manifest["files"]}
-    assert set(listed) == names - {MANIFEST} and manifest["command"] == "dense"
-    for name, f in listed.items():
-        data = (out / name).read_bytes()
-        assert f["bytes"] == len(data) and f["sha256"] == hashlib.sha256(data).hexdigest()
     assert "<img" in (out / "report.html").read_text() and "view 0" in r.stdout
 
 
@@ -527,7 +520,7 @@ def test_command_fuses_several_reference_views(files):
     ("confidence", ["--min-confidence"]),
     ("orientation", ["--poses", "orientation"]),
     ("out-file", ["--out", "existing file"]),
-    ("out-foreign", ["--out", "not a transcalib run", "--force"]),
+    ("out-foreign", ["--out", "not a transcalib dense run", "--force"]),
     ("out-input", ["--out", "holds the input"]),
 ])
 def test_command_bad_input_one_line_exit_2(files, tmp_path, case, words):
@@ -580,34 +573,30 @@ def test_command_bad_input_one_line_exit_2(files, tmp_path, case, words):
 def test_output_folder_rule_in_python(tmp_path):
     out = tmp_path / "run"
     with pytest.raises(RuntimeError):
-        with output_folder(out, command="test") as f:
-            f.file("a.txt").write_text("partial")
+        with written_whole(out) as f:
+            (f / "a.txt").write_text("partial")
             raise RuntimeError("failed half way")
     assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing left, not even the temporary folder
-    with output_folder(out, command="test") as f:
-        f.file("a.txt").write_text("one")
-        f.file("sub/b.txt").write_text("two")
-    assert read_manifest(out)["files"][1]["path"] == "sub/b.txt"
+    with written_whole(out) as f:
+        (f / MARK).write_text("{}")
     (out / "stray.txt").write_text("left by hand")
-    with output_folder(out, command="test") as f:  # an earlier run: replaced whole
-        f.file("c.txt").write_text("three")
-    assert sorted(p.name for p in out.iterdir()) == ["c.txt", MANIFEST]
+    check_out(out, force=False)  # an earlier run: accepted, and replaced whole
+    with written_whole(out) as f:
+        (f / "c.txt").write_text("three")
+    assert sorted(p.name for p in out.iterdir()) == ["c.txt"]
     with pytest.raises(InputError):
-        with output_folder(out, command="test") as f:  # failure: the earlier run stays as it was
-            f.file("d.txt").write_text("four")
+        with written_whole(out) as f:  # failure: the earlier run stays as it was
+            (f / "d.txt").write_text("four")
             raise InputError("bad")
-    assert sorted(p.name for p in out.iterdir()) == ["c.txt", MANIFEST]
-    foreign = tmp_path / "mine"
-    foreign.mkdir()
-    (foreign / "thesis.tex").write_text("precious")
-    with pytest.raises(InputError, match="not a transcalib run"):
-        check_output_folder(foreign)
-    with output_folder(foreign, command="test", force=True) as f:
-        f.file("e.txt").write_text("five")
-    assert sorted(p.name for p in foreign.iterdir()) == ["e.txt", MANIFEST]
+    assert sorted(p.name for p in out.iterdir()) == ["c.txt"]
+    with pytest.raises(OptionError, match="not a transcalib dense run"):  # c.txt is not ours
+        check_out(out, force=False)
+    check_out(out, force=True)
+    with pytest.raises(OptionError, match="holds the input"):
+        check_out(tmp_path, force=True, inputs=[out / "c.txt"])
     empty = tmp_path / "empty"
     empty.mkdir()
-    check_output_folder(empty)
+    check_out(empty, force=False)
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
@@ -617,7 +606,7 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
     out = tmp_path / "out"
     if earlier:
         assert run(*_args(files, out, "--no-report")).returncode == 0
-        before = (out / MANIFEST).read_bytes()
+        before = (out / MARK).read_bytes()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, "-m", "transcalib.cli", *map(str, _args(files, out, "--depths", "3000"))],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
@@ -629,7 +618,7 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
     assert p.returncode == 130
     assert sorted(x.name for x in tmp_path.iterdir()) == (["out"] if earlier else [])  # no temporary folder
     if earlier:
-        assert (out / MANIFEST).read_bytes() == before and (out / "depth_0.npy").exists()
+        assert (out / MARK).read_bytes() == before and (out / "depth_0.npy").exists()
 
 
 def test_command_replaces_an_earlier_run_and_forces_a_foreign_folder(files, tmp_path):
@@ -637,7 +626,7 @@ def test_command_replaces_an_earlier_run_and_forces_a_foreign_folder(files, tmp_
     assert run(*_args(files, out, "--no-report")).returncode == 0
     (out / "stray.txt").write_text("x")
     assert run(*_args(files, out, "--no-report")).returncode == 0
-    assert not (out / "stray.txt").exists() and read_manifest(out) is not None
+    assert not (out / "stray.txt").exists() and (out / MARK).is_file()
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")

@@ -6,8 +6,7 @@ NaN unknown) and ``depth_<ID>.png`` (16-bit: ``depth = value * depth_png_scale``
 unknown); ``dense.ply``, the fused cloud (binary little endian: ``x, y, z`` double in
 the robot frame, ``red, green, blue`` uchar, ``confidence``, ``depth_std`` float,
 ``view`` uchar: the index of its reference view in ``dense.json``); ``dense.json``, what
-was done and how to read the files; ``report.html`` (:mod:`.dense_report`); and the
-folder's ``manifest.json`` (:mod:`.folders`: the folder is complete or absent).
+was done and how to read the files; ``report.html`` (:mod:`.dense_report`).
 """
 
 from __future__ import annotations
@@ -20,7 +19,6 @@ import numpy as np
 
 from .dense_report import write_dense_report
 from .files import software_version, write_json
-from .folders import output_folder
 
 __all__ = ["write_dense", "depth_png_scale", "DENSE_JSON", "dense_document"]
 
@@ -91,44 +89,42 @@ def dense_document(result, files: dict, inputs: dict | None = None) -> dict:
             "timings_s": dict(result.timings_s), "inputs": inputs or {}}
 
 
-def write_dense(result, out, *, force: bool = False, inputs: dict | None = None, input_paths=(),
-                report: bool = True) -> list[Path]:
-    """Write ``result`` (a :class:`~transcalib.dense.DenseResult`) to folder ``out``,
-    complete or absent (:func:`~transcalib.io.folders.output_folder`).
+def write_dense(result, folder, *, inputs: dict | None = None, report: bool = True) -> list[str]:
+    """Write ``result`` (a :class:`~transcalib.dense.DenseResult`) into ``folder``.
+
+    The command writes into a temporary folder renamed into place (``--out`` complete
+    or absent); called directly, ``folder`` is made when missing and files of the same
+    names are replaced.
 
     Parameters
     ----------
-    out : path-like
-    force : bool
-        Replace a folder that is not a transcalib run.
+    folder : path-like
     inputs : dict, optional
         What the run read (file names), recorded in ``dense.json``.
-    input_paths : sequence of path-like
-        The input files and folders (``out`` may not hold them).
     report : bool
         Also write ``report.html``.
 
     Returns
     -------
-    list of Path
-        The files written (their final paths), ``manifest.json`` last.
+    list of str
+        The names of the files written, relative to ``folder``.
     """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     names, files = [], {}
-    with output_folder(out, command="dense", force=force, inputs=input_paths) as folder:
-        for m in result.maps:
-            f = {"depth": f"depth_{m.view}.npy", "confidence": f"confidence_{m.view}.npy",
-                 "depth_std": f"depth_std_{m.view}.npy", "depth_png": f"depth_{m.view}.png"}
-            np.save(folder.file(f["depth"]), np.asarray(m.depth, np.float32))
-            np.save(folder.file(f["confidence"]), np.asarray(m.confidence, np.float32))
-            np.save(folder.file(f["depth_std"]), np.asarray(m.depth_std, np.float32))
-            ok, buf = cv2.imencode(".png", _png(m.depth, depth_png_scale(m.depth)))
-            folder.file(f["depth_png"]).write_bytes(buf.tobytes())
-            files[m.view] = f
-            names += list(f.values())
-        _ply(result, folder.file("dense.ply"))
-        write_json(folder.file(DENSE_JSON), dense_document(result, files, inputs))
-        names += ["dense.ply", DENSE_JSON]
-        if report:
-            names += write_dense_report(result, folder.path)
-    final = Path(out)
-    return [final / n for n in names] + [final / "manifest.json"]
+    for m in result.maps:
+        f = {"depth": f"depth_{m.view}.npy", "confidence": f"confidence_{m.view}.npy",
+             "depth_std": f"depth_std_{m.view}.npy", "depth_png": f"depth_{m.view}.png"}
+        np.save(folder / f["depth"], np.asarray(m.depth, np.float32))
+        np.save(folder / f["confidence"], np.asarray(m.confidence, np.float32))
+        np.save(folder / f["depth_std"], np.asarray(m.depth_std, np.float32))
+        ok, buf = cv2.imencode(".png", _png(m.depth, depth_png_scale(m.depth)))
+        (folder / f["depth_png"]).write_bytes(buf.tobytes())
+        files[m.view] = f
+        names += list(f.values())
+    _ply(result, folder / "dense.ply")
+    write_json(folder / DENSE_JSON, dense_document(result, files, inputs))
+    names += ["dense.ply", DENSE_JSON]
+    if report:
+        names += write_dense_report(result, folder)
+    return names
