@@ -25,6 +25,7 @@ from transcalib.geometry.camera import Camera, K_from_params, project_camera_fra
 from transcalib.io import write_poses_csv
 from transcalib.cli.common import OptionError
 from transcalib.cli.dense import MARK, check_out, written_whole
+from transcalib.cli.main import main
 from transcalib.synth import render
 from transcalib.synth.degrade import Degradations
 from transcalib.synth.presets import preset_scene
@@ -523,7 +524,8 @@ def test_command_fuses_several_reference_views(files):
     ("out-foreign", ["--out", "not a transcalib dense run", "--force"]),
     ("out-input", ["--out", "holds the input"]),
 ])
-def test_command_bad_input_one_line_exit_2(files, tmp_path, case, words):
+def test_command_bad_input_one_line_exit_2(files, tmp_path, capsys, case, words):
+    """In this process (the command's own main, as the console script runs it)."""
     d = files
     args = _args(d, tmp_path / "out")
     if case == "no-calibration":
@@ -561,8 +563,12 @@ def test_command_bad_input_one_line_exit_2(files, tmp_path, case, words):
         (tmp_path / "out" / "notes.txt").write_text("mine")
     elif case == "out-input":
         args[args.index("--out") + 1] = d
-    r = run(*args)
-    assert_clean_error(r, *words)
+    try:
+        code = main([str(a) for a in args])
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code
+    captured = capsys.readouterr()
+    assert_clean_error(subprocess.CompletedProcess(args, code, captured.out, captured.err), *words)
     if case == "out-foreign":
         assert (tmp_path / "out" / "notes.txt").read_text() == "mine"
 
@@ -604,8 +610,10 @@ def test_output_folder_rule_in_python(tmp_path):
 def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
     """Ctrl-C or kill during the sweep: exit 130, no temporary folder, an earlier run intact."""
     out = tmp_path / "out"
-    if earlier:
-        assert run(*_args(files, out, "--no-report")).returncode == 0
+    if earlier:  # an earlier run (as far as the folder rule can tell)
+        out.mkdir()
+        (out / MARK).write_text('{"kind": "transcalib dense"}')
+        (out / "depth_0.npy").write_bytes(b"earlier")
         before = (out / MARK).read_bytes()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, "-m", "transcalib.cli", *map(str, _args(files, out, "--depths", "3000"))],
@@ -623,7 +631,8 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
 
 def test_command_replaces_an_earlier_run_and_forces_a_foreign_folder(files, tmp_path):
     out = tmp_path / "out"
-    assert run(*_args(files, out, "--no-report")).returncode == 0
+    out.mkdir()
+    (out / MARK).write_text("{}")  # an earlier run
     (out / "stray.txt").write_text("x")
     assert run(*_args(files, out, "--no-report")).returncode == 0
     assert not (out / "stray.txt").exists() and (out / MARK).is_file()
