@@ -203,8 +203,8 @@ class DenseResult:
     maps : tuple of DepthMap
         One per reference view, in the order asked for.
     points : (n, 3) float
-        The fused metric point cloud in the robot frame (robot units, relative to the
-        camera centre at ``T = 0``, as the calibration's points).
+        The fused metric point cloud in the frame of the calibration's points (robot
+        units; ``frame`` says which).
     colors : (n, 3) uint8
         RGB of each point (its reference image).
     point_view : (n,) int
@@ -217,6 +217,8 @@ class DenseResult:
         Length unit of the robot positions: the poses' (``Poses.unit``), else the
         calibration's (``options.unit``); None when neither names one.
     options : DenseOptions
+    frame : str
+        The cloud's frame in words (:func:`~transcalib.dense.views.cloud_frame`).
     timings_s : mapping of str to float
     """
 
@@ -229,6 +231,7 @@ class DenseResult:
     n_rejected: int
     unit: str | None
     options: DenseOptions
+    frame: str = ""
     timings_s: Mapping = field(default_factory=dict)
 
     def __post_init__(self):

@@ -25,7 +25,7 @@ from .images import grey, make_canvas, noise_std, normalise, rgb
 from .options import DenseOptions, DenseResult, DepthMap, DepthStats, default_best_k
 from .sweep import SweepInput, sweep
 from .uncertainty import calibration_depth_std
-from .views import ViewCameras, central_view, check_baselines, view_cameras
+from .views import ViewCameras, central_view, check_baselines, cloud_frame, view_cameras
 
 __all__ = ["dense"]
 
@@ -96,7 +96,7 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
     timings.update(fuse_s=time.perf_counter() - t_fuse, total_s=time.perf_counter() - t0)
     return DenseResult(maps=tuple(maps), points=cloud.points, colors=cloud.colors, point_view=cloud.view,
                        point_confidence=cloud.confidence, point_std=cloud.std, n_rejected=cloud.n_rejected,
-                       unit=unit, options=opts, timings_s=timings)
+                       unit=unit, options=opts, frame=cloud_frame(calibration), timings_s=timings)
 
 
 # --------------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..pipeline.motion import motion_of
 from ..types import Poses
 
-__all__ = ["ViewCameras", "view_cameras", "central_view", "ORIENTATION_TOL_DEG"]
+__all__ = ["ViewCameras", "view_cameras", "central_view", "cloud_frame", "ORIENTATION_TOL_DEG"]
 
 #: Largest angle (degrees) between the views' orientations with a calibration made at one
 #: orientation (which it does not record).
@@ -162,6 +162,23 @@ def view_cameras(calibration, poses) -> ViewCameras:
     else:  # a bare Camera: one orientation
         R_cam, C = np.broadcast_to(calibration.R, (len(T), 3, 3)).copy(), np.array(T, dtype=float)
     return ViewCameras(R=R_cam, C=C, session=np.asarray(motion.session_of_view, int), known=known)
+
+
+def cloud_frame(calibration) -> str:
+    """The frame of the calibration's points (and of the dense cloud), in words."""
+    if getattr(calibration, "flange_rotations", None) is None:
+        return "robot axes, relative to the camera centre at T = 0 (the calibration's points)"
+    he = calibration.hand_eye
+    if he is not None and he.setup == "eye-to-hand":
+        frame = "the flange frame (eye-to-hand: the scene moves with the flange)"
+    else:
+        frame = "the robot base frame"
+    k = 0 if he is None else np.asarray(he.undetermined).shape[1]
+    if k:
+        d = ", ".join("(" + ", ".join(f"{x:+.3f}" for x in col) + ")" for col in np.asarray(he.undetermined).T)
+        frame += (f", up to a shift along {d} (the hand-eye offset's undetermined direction{'s' * (k > 1)}, "
+                  "zero there as in the calibration)")
+    return frame
 
 
 def central_view(cams: ViewCameras) -> int:

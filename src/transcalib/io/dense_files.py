@@ -4,7 +4,7 @@ For each reference view ``ID``: ``depth_<ID>.npy`` (float32, robot units, NaN un
 ``confidence_<ID>.npy`` (float32, 0-1), ``depth_std_<ID>.npy`` (float32, robot units,
 NaN unknown) and ``depth_<ID>.png`` (16-bit: ``depth = value * depth_png_scale``, 0
 unknown); ``dense.ply``, the fused cloud (binary little endian: ``x, y, z`` double in
-the robot frame, ``red, green, blue`` uchar, ``confidence``, ``depth_std`` float,
+the calibration's frame (``dense.json``'s ``cloud.frame``), ``red, green, blue`` uchar, ``confidence``, ``depth_std`` float,
 ``view`` uchar: the index of its reference view in ``dense.json``); ``dense.json``, what
 was done and how to read the files; ``report.html`` (:mod:`.dense_report`).
 """
@@ -85,7 +85,7 @@ def dense_document(result, files: dict, inputs: dict | None = None) -> dict:
                         "consistency_rel": opts.consistency_rel},
             "reference_views": views,
             "cloud": {"file": "dense.ply", "points": int(len(result.points)), "rejected": int(result.n_rejected),
-                      "frame": "robot (world) axes, relative to the camera centre at T = 0"},
+                      "frame": result.frame},
             "timings_s": dict(result.timings_s), "inputs": inputs or {}}
 
 
