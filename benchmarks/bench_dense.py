@@ -12,7 +12,15 @@ around the reference view 0, the robot frame turned at random against the camera
 - B: the same kind of scene (another draw), a lens with barrel distortion
   (k1 = -0.12, k2 = 0.03) given to ``dense`` through the calibration;
 - C: the ``natural`` scene (a textured wall and two textured boxes, 0.56-1.1 m), a scene
-  kind the defaults were not tuned on.
+  kind the defaults were not tuned on;
+- D: the ``workspace`` scene seen from two flange orientations 15 deg apart, the camera
+  at ``(R_X, t_X)`` in the flange (a hand-eye calibration, true values, saved with the
+  orientations): two views at the first orientation, six at the second (the reference,
+  view 2, and five sources), each source turned by a random rotation of 0.2 deg standard
+  deviation per axis, within ``calibrate``'s session tolerance: each view's camera comes
+  from the calibration and the flange poses (quaternions in ``poses.csv``), the turns
+  enter the sweep as homographies. Its two-view and SGBM rows use the reference and
+  its best horizontal source, their true relative pose.
 
 Methods, each on reference view 0 with the true calibration and depth limits
 0.38-1.3 m (SGBM: the same limits as disparities): ``transcalib dense`` end to end as a
@@ -46,6 +54,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -60,8 +69,9 @@ from transcalib.dense import dense  # noqa: E402
 from transcalib.geometry.camera import Camera  # noqa: E402
 from transcalib.io import write_poses_csv  # noqa: E402
 from transcalib.synth import render  # noqa: E402
-from transcalib.synth.degrade import REALISTIC  # noqa: E402
-from transcalib.types import Calibration  # noqa: E402
+from transcalib.synth.degrade import REALISTIC, overlay_box  # noqa: E402
+from transcalib.synth.presets import default_camera, preset_scene  # noqa: E402
+from transcalib.types import Calibration, HandEye, Poses  # noqa: E402
 
 LIMITS = (380.0, 1300.0)
 TIMING_RUNS = 3
@@ -69,14 +79,76 @@ TIMING_RUNS = 3
 CALIB_MOVE_MM = 80.0
 DIST = np.array([-0.12, 0.03])
 #: name -> (scene kind, ring radius mm, lens distortion, seed)
-SCENES = {"A": ("workspace", 60.0, (), 101), "B": ("workspace", 60.0, DIST, 202), "C": ("natural", 90.0, (), 303)}
+SCENES = {"A": ("workspace", 60.0, (), 101), "B": ("workspace", 60.0, DIST, 202), "C": ("natural", 90.0, (), 303),
+          "D": ("workspace", 60.0, (), 404)}
+#: Scene D: camera in the flange, the second orientation, the turns within the session.
+R_X = Rotation.from_euler("xyz", [180, 10, -20], degrees=True).as_matrix()
+T_X = np.array([10.0, -25.0, 120.0])
+TILT_DEG, TURN_STD_DEG = 15.0, 0.2
 
 
-def make_scene(name, size, folder: Path, calibration_views: bool = False):
-    """Render scene ``name``, write ``cal/``, ``view<i>.png``, ``poses.csv``; return the
-    render and the true camera. With ``calibration_views``, also four views moved 120 mm
-    from view 0 along three orthogonal robot axes and one diagonal (``calib<i>.png`` and
-    ``calib_poses.csv``, view 0 among them): the 3-D motion a calibration needs."""
+@dataclass(frozen=True)
+class Setup:
+    """A scene as the methods see it: ``truth`` (a Rendered whose view 0 is the
+    reference), ``cal`` (what ``dense`` gets), ``poses``, ``images`` and the true
+    cameras of every view (``R_cam``, ``C``), ``ref`` (the reference's index) and the
+    reference's ``camera`` (K, lens) for SGBM."""
+
+    truth: object
+    cal: object
+    poses: Poses
+    images: list
+    R_cam: np.ndarray
+    C: np.ndarray
+    ref: int
+    camera: Camera
+
+
+def make_session_scene(size, folder: Path) -> Setup:
+    """Scene D (module docstring): write ``cal/`` (the true hand-eye calibration),
+    ``view<i>.png`` and ``poses.csv`` with orientations."""
+    kind, radius, _, seed = SCENES["D"]
+    rng = np.random.default_rng(seed)
+    K = default_camera(None, np.eye(3), np.zeros((1, 3)), size, 1, 1.0, rng)[0]
+    axis = np.array([0.0, 1.0, 0.3]) / np.hypot(1.0, 0.3)
+    R_tilt = Rotation.from_rotvec(np.radians(TILT_DEG) * axis).as_matrix()
+    ahead = 800.0 * R_X.T[2]  # the scene's middle, 800 mm ahead of the first camera (at the origin)
+    surfaces = preset_scene(kind, 800.0, K, R_X.T, np.zeros(3), size, seed)[0]
+    C = np.vstack([np.zeros(3), radius * R_X.T[0],
+                   ahead - R_tilt @ ahead + render.ring_translations(6, radius, R_X.T @ R_tilt.T, rng)])
+    turns = Rotation.from_rotvec(rng.normal(0, np.radians(TURN_STD_DEG), (6, 3))).as_matrix()
+    turns[0] = np.eye(3)
+    Rf = np.concatenate([np.repeat(np.eye(3)[None], 2, 0), R_tilt @ turns])
+    R_cam = R_X.T @ np.transpose(Rf, (0, 2, 1))
+    images = [render.render(surfaces, K, R_cam[i], C[i:i + 1], size, degrade=REALISTIC, rng=rng, noise_std=0.0)[0]
+              for i in range(len(C))]
+    T = C - Rf @ T_X
+    he = HandEye(setup="eye-in-hand", R=R_X, t=T_X, R_std_deg=np.zeros(3), t_cov=np.zeros((3, 3)),
+                 undetermined=np.zeros((3, 0)), session_of_view=np.repeat([0, 1], [2, 6]), session_labels=("0", "1"))
+    cal = Calibration(camera=Camera(K, R_X.T, image_size=size), X=np.zeros((0, 3)), residuals_px=np.zeros((8, 0, 2)),
+                      rms_px=0.0, T=T, flange_rotations=Rf, hand_eye=he)
+    _write(folder, cal, images, T, Rf)
+    truth = render.Rendered(images=np.stack(images[2:]), K=K, R=R_cam[2], dist=np.zeros(0), T=C[2:],
+                            surfaces=surfaces, corners=np.zeros((0, 3)), corner_kind=np.zeros(0), image_size=size,
+                            meta={"overlay_box": overlay_box(REALISTIC, size)})
+    return Setup(truth, cal, Poses.of(T, Rf), images, R_cam, C, 2, Camera(K, R_cam[2], image_size=size))
+
+
+def _write(folder: Path, cal, images, T, R=None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    transcalib.save(cal, folder / "cal")
+    for i, img in enumerate(images):
+        cv2.imwrite(str(folder / f"view{i}.png"), img)
+    write_poses_csv(folder / "poses.csv", T, R=R)
+
+
+def make_scene(name, size, folder: Path, calibration_views: bool = False) -> Setup:
+    """Render scene ``name`` (A-C), write ``cal/``, ``view<i>.png``, ``poses.csv``. With
+    ``calibration_views``, also four views moved 120 mm from view 0 along three
+    orthogonal robot axes and one diagonal (``calib<i>.png`` and ``calib_poses.csv``,
+    view 0 among them): the 3-D motion a calibration needs."""
+    if name == "D":
+        return make_session_scene(size, folder)
     kind, radius, dist, seed = SCENES[name]
     rng = np.random.default_rng(seed)
     R = Rotation.from_euler("xyz", rng.uniform(-180, 180, 3), degrees=True).as_matrix()
@@ -94,11 +166,8 @@ def make_scene(name, size, folder: Path, calibration_views: bool = False):
     model = {0: "none", 2: "radial2"}[len(dist)]
     cam = Camera(r.K, r.R, np.asarray(dist, float), model, r.image_size)
     cal = Calibration(camera=cam, X=np.zeros((0, 3)), residuals_px=np.zeros((6, 0, 2)), rms_px=0.0, T=T)
-    transcalib.save(cal, folder / "cal")
-    for i, img in enumerate(r.images[:6]):
-        cv2.imwrite(str(folder / f"view{i}.png"), img)
-    write_poses_csv(folder / "poses.csv", T)
-    return r, cam
+    _write(folder, cal, r.images[:6], T)
+    return Setup(r, cam, Poses.of(T), list(r.images[:6]), np.repeat(r.R[None], 6, 0), T, 0, cam)
 
 
 def _children_cpu() -> float:
@@ -106,45 +175,60 @@ def _children_cpu() -> float:
     return u.ru_utime + u.ru_stime
 
 
-def run_cli(folder: Path, cal: str = "cal") -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+def run_cli(folder: Path, setup: Setup, cal: str = "cal"):
     """``transcalib dense`` as a user runs it: depth, confidence, std, wall and CPU time."""
     out = folder / f"out-{cal}"
     cmd = [sys.executable, "-m", "transcalib.cli", "dense", "--calibration", str(folder / cal), "--images",
-           *[str(folder / f"view{i}.png") for i in range(6)], "--poses", str(folder / "poses.csv"), "--out", str(out),
-           "--depth-limits", f"{LIMITS[0]},{LIMITS[1]}", "--reference-view", "0", "--quiet"]
+           *[str(folder / f"view{i}.png") for i in range(len(setup.images))], "--poses", str(folder / "poses.csv"),
+           "--out", str(out), "--depth-limits", f"{LIMITS[0]},{LIMITS[1]}", "--reference-view", str(setup.ref),
+           "--quiet"]
     c0, t0 = _children_cpu(), time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True)
     wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
     if r.returncode != 0:
         raise RuntimeError(r.stderr)
-    return (np.load(out / "depth_0.npy"), np.load(out / "confidence_0.npy"), np.load(out / "depth_std_0.npy"), wall,
-            cpu)
+    v = setup.ref
+    return (np.load(out / f"depth_{v}.npy"), np.load(out / f"confidence_{v}.npy"), np.load(out / f"depth_std_{v}.npy"),
+            wall, cpu)
 
 
-def pair_source(r) -> int:
-    """The source whose baseline is most nearly horizontal in the reference camera."""
-    t = (r.T[1:6] - r.T[0]) @ r.R.T
-    return 1 + int(np.argmax(np.abs(t[:, 0]) / np.linalg.norm(t, axis=1)))
+def _relative(setup: Setup, j: int):
+    """``(R, t)`` of view ``j`` relative to the reference: ``x_j = R x_ref + t``."""
+    R = setup.R_cam[j] @ setup.R_cam[setup.ref].T
+    return R, setup.R_cam[j] @ (setup.C[setup.ref] - setup.C[j])
 
 
-def two_view_sweep(r, cam, j):
+def pair_source(setup: Setup) -> int:
+    """The source of the reference's session whose baseline is most nearly horizontal in
+    the reference camera."""
+    ref = setup.ref
+    views = [j for j in range(ref + 1, len(setup.C))]
+    t = (setup.C[views] - setup.C[ref]) @ setup.R_cam[ref].T
+    return views[int(np.argmax(np.abs(t[:, 0]) / np.linalg.norm(t, axis=1)))]
+
+
+def two_view_sweep(setup: Setup, j: int):
     c0, t0 = time.process_time(), time.perf_counter()
-    m = dense(cam, [r.images[0], r.images[j]], r.T[[0, j]], reference_views=["0"], depth_limits=LIMITS).maps[0]
+    pair = [setup.ref, j]
+    poses = Poses.of(setup.poses.T[pair], None if setup.poses.R is None else setup.poses.R[pair],
+                     views=[str(v) for v in pair])
+    m = dense(setup.cal, [setup.images[v] for v in pair], poses, reference_views=[str(setup.ref)],
+              depth_limits=LIMITS).maps[0]
     return m.depth, m.confidence, m.depth_std, time.perf_counter() - t0, time.process_time() - c0
 
 
-def sgbm(r, cam, j):
+def sgbm(setup: Setup, j: int):
     """OpenCV StereoSGBM on the rectified pair (reference, source ``j``), depths on the
     reference's original pixels (nearest rectified pixel)."""
     c0, t0 = time.process_time(), time.perf_counter()
-    w, h = r.image_size
-    K, d5 = cam.K, cam.dist5
-    t = r.R @ (r.T[j] - r.T[0])  # the source's centre in the reference camera frame
+    w, h = setup.camera.image_size
+    K, d5 = setup.camera.K, setup.camera.dist5
+    R_rel, t_rel = _relative(setup, j)
     big = (int(1.4 * w), int(1.4 * h))  # every reference pixel in the rectified image, at its resolution
-    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K, d5, K, d5, (w, h), np.eye(3), (-t).reshape(3, 1), alpha=1,
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K, d5, K, d5, (w, h), R_rel, t_rel.reshape(3, 1), alpha=1,
                                                 newImageSize=big)
     maps = [cv2.initUndistortRectifyMap(K, d5, Ri, Pi, big, cv2.CV_32FC1) for Ri, Pi in ((R1, P1), (R2, P2))]
-    left, right = (cv2.remap(r.images[k], *maps[i], cv2.INTER_LINEAR) for i, k in ((0, 0), (1, j)))
+    left, right = (cv2.remap(setup.images[k], *maps[i], cv2.INTER_LINEAR) for i, k in ((0, setup.ref), (1, j)))
     flip = P2[0, 3] > 0  # the source is on the left: mirror both so that the reference is the left image
     if flip:
         left, right = left[:, ::-1].copy(), right[:, ::-1].copy()
@@ -195,24 +279,27 @@ def score(r, depth, conf, std):
 def scene_rows(name, size, tmp: Path, timing: bool):
     folder = tmp / name
     t0 = time.perf_counter()
-    r, cam = make_scene(name, size, folder, calibration_views=timing)
+    setup = make_scene(name, size, folder, calibration_views=timing)
+    r = setup.truth
     print(f"  scene {name}: rendered in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
     rows, times = [], []
     load = [os.getloadavg()[0]]
     for _ in range(TIMING_RUNS if timing else 1):
-        depth, conf, std, wall, cpu = run_cli(folder)
+        depth, conf, std, wall, cpu = run_cli(folder, setup)
         times.append((wall, cpu))
     load.append(os.getloadavg()[0])
-    j = pair_source(r)
+    j = pair_source(setup)
     wall, cpu = min(times)
-    rows.append((name, "transcalib dense, 6 views", score(r, depth, conf, std), wall, cpu))
+    label = "transcalib dense, 6 views" + (" (5 sources turned)" if name == "D" else "")
+    rows.append((name, label, score(r, depth, conf, std), wall, cpu))
     if timing and name == "A":
         estimated = calibrate_from_images(folder)
         if estimated is not None:
-            d2, c2, s2, w2, p2 = run_cli(folder, "cal-est")
+            d2, c2, s2, w2, p2 = run_cli(folder, setup, "cal-est")
             rows.append((name, "  same, calibration from the images", score(r, d2, c2, s2), w2, p2))
-    for label, method in ((f"plane sweep, 2 views (0, {j})", two_view_sweep), (f"OpenCV SGBM, pair (0, {j})", sgbm)):
-        d, c, s, w, p = method(r, cam, j)
+    pair = f"({setup.ref}, {j})"
+    for label, method in ((f"plane sweep, 2 views {pair}", two_view_sweep), (f"OpenCV SGBM, pair {pair}", sgbm)):
+        d, c, s, w, p = method(setup, j)
         rows.append((name, label, score(r, d, c, s), w, p))
     return rows, times, load
 
