@@ -66,7 +66,7 @@ def add_parser(sub) -> None:
     d.add_argument("--depths", type=positive_int, default=256, metavar="N", help="depth hypotheses (default 256)")
     d.add_argument("--window", type=positive_int, default=7, metavar="PX", help="matching window side (odd, default 7)")
     d.add_argument("--best-k", type=positive_int, metavar="K",
-                   help="views summed at each pixel (default: 60 %% of the other views)")
+                   help="views summed at each pixel (default: half of the other views, at least 1)")
     d.add_argument("--min-confidence", type=_fraction, default=0.5, metavar="C",
                    help="pixels of lower confidence are left unknown (default 0.5)")
     d.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],

@@ -10,7 +10,10 @@
   cancels; ``eps`` (twice the noise) keeps untextured windows from blowing noise up.
 - :class:`Canvas`: where the source views are undistorted once to a pinhole camera
   ``K_c = K`` shifted by an offset that keeps the whole image; the reference view stays
-  on its original grid, each pixel's ray from the calibrated lens.
+  on its original grid, each pixel's ray from the calibrated lens. A source turned by
+  ``R_j`` against the reference (a session's small rotations) is resampled once onto the
+  canvas in the reference's axes (:meth:`Canvas.turned`): canvas pixel ``q`` shows the
+  source's pixel of the ray ``R_j K_c^-1 q``, so that the sweep sees pure translations.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 
 from ..geometry.camera import Camera, project_camera_frame
 
-__all__ = ["grey", "rgb", "noise_std", "normalise", "Canvas", "make_canvas"]
+__all__ = ["grey", "rgb", "noise_std", "normalise", "Canvas", "make_canvas", "image_motion_px"]
 
 _LAPLACE_DIFF = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 #: Largest canvas side as a multiple of the image's (strong distortion is cropped).
@@ -92,13 +95,27 @@ class Canvas:
     size: tuple
     maps: np.ndarray | None
     ref: np.ndarray | None
+    camera: Camera | None = None
 
-    def undistort(self, img: np.ndarray) -> np.ndarray:
-        """``img`` (a source view) on the canvas (bicubic; outside the image: 0)."""
-        if self.maps is None:
+    def undistort(self, img: np.ndarray, maps: np.ndarray | None = None) -> np.ndarray:
+        """``img`` (a source view) on the canvas (Lanczos, 8 x 8: a noise-free plane's
+        depth 20 % more precise than bicubic; outside the image: 0), through ``maps``
+        (:meth:`turned`) when given."""
+        maps = self.maps if maps is None else maps
+        if maps is None:
             return img
-        return cv2.remap(img, self.maps[0], self.maps[1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT,
-                         borderValue=0.0)
+        return cv2.remap(img, maps[0], maps[1], cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+
+    def turned(self, R: np.ndarray) -> np.ndarray:
+        """``(2, Hc, Wc)`` float32: the source pixel of every canvas pixel ``q`` for a
+        source turned by ``R`` (3, 3) against the reference (``x_source = R x_ref``): the
+        projection of the ray ``R K_c^-1 [q, 1]`` through the lens."""
+        wc, hc = self.size
+        qx, qy = np.meshgrid(np.arange(wc, dtype=float), np.arange(hc, dtype=float))
+        y = (qy - self.K[1, 2]) / self.K[1, 1]
+        x = (qx - self.K[0, 2] - self.K[0, 1] * y) / self.K[0, 0]
+        rays = np.einsum("ab,bhw->ahw", R, np.stack([x, y, np.ones_like(x)]))
+        return project_camera_frame(self.camera.intrinsics, self.camera.dist5, rays).pred.astype(np.float32)
 
 
 def _pinhole(camera: Camera, uv: np.ndarray) -> np.ndarray:
@@ -111,7 +128,7 @@ def make_canvas(camera: Camera, size: tuple[int, int]) -> Canvas:
     """The canvas of ``camera`` for images of ``size`` (width, height)."""
     w, h = size
     if not np.any(camera.dist5):
-        return Canvas(K=camera.K.copy(), offset=np.zeros(2), size=(w, h), maps=None, ref=None)
+        return Canvas(K=camera.K.copy(), offset=np.zeros(2), size=(w, h), maps=None, ref=None, camera=camera)
     along_u, along_v = np.linspace(-0.5, w - 0.5, 64), np.linspace(-0.5, h - 0.5, 64)
     edge = np.concatenate([np.column_stack([along_u, np.full(64, y)]) for y in (-0.5, h - 0.5)]
                           + [np.column_stack([np.full(64, x), along_v]) for x in (-0.5, w - 0.5)])
@@ -128,4 +145,15 @@ def make_canvas(camera: Camera, size: tuple[int, int]) -> Canvas:
     src = project_camera_frame(camera.intrinsics, camera.dist5, np.stack([x, y, np.ones_like(x)])).pred
     uu, vv = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     ref = _pinhole(camera, np.stack([uu, vv], axis=-1)) + offset
-    return Canvas(K=Kc, offset=offset, size=(wc, hc), maps=src.astype(np.float32), ref=ref.astype(np.float32))
+    return Canvas(K=Kc, offset=offset, size=(wc, hc), maps=src.astype(np.float32), ref=ref.astype(np.float32),
+                  camera=camera)
+
+
+def image_motion_px(R: np.ndarray, canvas: Canvas) -> float:
+    """Largest motion (pixels) of the canvas corners and centre under the rotation
+    ``R`` (3, 3): ``|dehom(K_c R K_c^-1 q) - q|``."""
+    wc, hc = canvas.size
+    q = np.array([[0, 0, 1], [wc - 1, 0, 1], [0, hc - 1, 1], [wc - 1, hc - 1, 1], [(wc - 1) / 2, (hc - 1) / 2, 1]],
+                 float)
+    p = q @ (canvas.K @ R @ np.linalg.inv(canvas.K)).T
+    return float(np.linalg.norm(p[:, :2] / p[:, 2:] - q[:, :2], axis=1).max())

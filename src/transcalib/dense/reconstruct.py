@@ -21,7 +21,7 @@ from ..types import Poses
 from ..types.progress import report
 from .depth import depth_from_sweep
 from .fuse import fuse
-from .images import grey, make_canvas, noise_std, normalise, rgb
+from .images import grey, image_motion_px, make_canvas, noise_std, normalise, rgb
 from .options import DenseOptions, DenseResult, DepthMap, DepthStats, default_best_k
 from .sweep import SweepInput, sweep
 from .uncertainty import calibration_depth_std
@@ -35,7 +35,7 @@ COARSE_FACTOR, COARSE_DEPTHS = 4, 64
 COARSE_MAX_DISPARITY = 0.3
 #: Disparity (pixels, longest baseline) that ``c2`` keeps away from the best hypothesis.
 EXCLUSION_PX = 2.0
-#: Image motion (pixels) below which the sources' rotations relative to the reference are
+#: Image motion (pixels) below which a source's rotation relative to the reference is
 #: left out (a third of the sweep's noise-free accuracy, 0.011-0.017 px).
 ROTATION_PX = 0.005
 
@@ -198,6 +198,20 @@ def _prepared(imgs, view: int, canvas, window: int, cache: dict):
     return cache[view]
 
 
+def _source(imgs, view: int, R: np.ndarray, canvas, window: int, cache: dict) -> np.ndarray:
+    """The normalised source ``view`` on the canvas in the reference's axes: the cached
+    canvas image when its rotation ``R`` against the reference moves the image by less
+    than :data:`ROTATION_PX`, else resampled once through :meth:`Canvas.turned` (cached
+    by view and rotation)."""
+    n, _, noise, src = _prepared(imgs, view, canvas, window, cache)
+    if image_motion_px(R, canvas) < ROTATION_PX:
+        return src
+    key = ("turned", view, R.tobytes())
+    if key not in cache:
+        cache[key] = normalise(canvas.undistort(grey(imgs[view]), canvas.turned(R)), window, 2.0 * noise)[0]
+    return cache[key]
+
+
 def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limits, opts: DenseOptions, cache,
                       progress) -> DepthMap:
     """The :class:`DepthMap` of reference view ``ref`` (module docstring)."""
@@ -212,24 +226,23 @@ def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limit
         cache[key] = make_canvas(camera, (w, h))
     canvas = cache[key]
     ref_n, local, noise, _ = _prepared(imgs, ref, canvas, opts.window_px, cache)
-    src = [_prepared(imgs, j, canvas, opts.window_px, cache)[3] for j in sources]
-    R_rel, t = cams.relative(ref, sources)
+    R_rel, t_j = cams.relative(ref, sources)
+    t = np.einsum("kba,kb->ka", R_rel, t_j)  # the sources' centres in the reference's frame: R_ref (C_j - C_ref)
     e = t @ canvas.K.T
-    H = _homographies(R_rel, canvas, (w, h))
+    src = [_source(imgs, j, R, canvas, opts.window_px, cache) for j, R in zip(sources, R_rel)]
     k = opts.best_k if opts.best_k is not None else default_best_k(len(sources))
     k = min(k, len(sources))
-    rho_range = _rho_range(ref_n, src, e, H, canvas, opts, k, progress) if limits is None else \
+    rho_range = _rho_range(ref_n, src, e, canvas, opts, k, progress) if limits is None else \
         (0.0 if np.isinf(limits[1]) else 1.0 / limits[1], 1.0 / limits[0])
     rho = np.linspace(rho_range[0], rho_range[1], opts.n_depths)
     step_px = (rho[1] - rho[0]) * _disparity_rate(e, canvas, (w, h))
     exclusion = int(np.clip(np.ceil(EXCLUSION_PX / max(step_px, 1e-9)), 1, opts.n_depths // 4))
-    inp = SweepInput(ref=ref_n, sources=src, epipoles=e, homographies=H, offset=canvas.offset,
-                     ref_canvas=canvas.ref, rho=rho, window=opts.window_px, best_k=k, exclusion=exclusion)
+    inp = SweepInput(ref=ref_n, sources=src, epipoles=e, offset=canvas.offset, ref_canvas=canvas.ref, rho=rho,
+                     window=opts.window_px, best_k=k, exclusion=exclusion)
     res = _run_sweep(inp, opts, progress, f"dense: sweep view {ids[ref]}")
     est = depth_from_sweep(res, rho, local, noise, opts, k)
     ref_camera = type(camera)(camera.K, cams.R[ref], camera.dist, camera.dist_model, (w, h))
-    t_ref = np.einsum("kba,kb->ka", R_rel, t)  # the sources' centres in the reference's frame
-    rel = calibration_depth_std(calibration, ref_camera, t_ref, rho_range, (h, w), est.rho)
+    rel = calibration_depth_std(calibration, ref_camera, t, rho_range, (h, w), est.rho)
     std_cal = None if rel is None else (rel * est.depth).astype(np.float32)
     std = est.std if std_cal is None else np.sqrt(est.std**2 + std_cal**2).astype(np.float32)
     near, far = 1.0 / rho_range[1], (np.inf if rho_range[0] <= 0 else 1.0 / rho_range[0])
@@ -264,19 +277,7 @@ def _disparity_rate(e: np.ndarray, canvas, size) -> float:
     return float(np.max(np.linalg.norm(pts[None] * e[:, None, 2:3] - e[:, None, :2], axis=-1)))
 
 
-def _homographies(R_rel: np.ndarray, canvas, size):
-    """``H_j = K_c R_j K_c^-1`` (n, 3, 3) of the sources' rotations relative to the
-    reference, or None when none moves a corner or the centre of the image by
-    :data:`ROTATION_PX` or more (the affine warp, a quarter cheaper)."""
-    H = canvas.K @ R_rel @ np.linalg.inv(canvas.K)
-    w, h = size
-    pts = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1], [(w - 1) / 2, (h - 1) / 2]], float) + canvas.offset
-    q = np.concatenate([pts, np.ones((5, 1))], axis=1) @ np.swapaxes(H, -1, -2)  # (n, 5, 3)
-    moved = np.linalg.norm(q[..., :2] / q[..., 2:] - pts, axis=-1).max()
-    return H if moved >= ROTATION_PX else None
-
-
-def _rho_range(ref_n, src, e, H, canvas, opts: DenseOptions, k: int, progress) -> tuple[float, float]:
+def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> tuple[float, float]:
     """Inverse depths to search when no limits are given: a coarse sweep over every
     hypothesis that moves the image by up to ``COARSE_MAX_DISPARITY`` of its width (in
     front of every source camera), then the 1st-99th percentile of what it finds,
@@ -294,10 +295,8 @@ def _rho_range(ref_n, src, e, H, canvas, opts: DenseOptions, k: int, progress) -
 
     A = np.array([[1 / s, 0, 0.5 / s - 0.5], [0, 1 / s, 0.5 / s - 0.5], [0, 0, 1]])
     ref_canvas = None if canvas.ref is None else small(canvas.ref) / s + np.float32(0.5 / s - 0.5)
-    H_small = None if H is None else A @ H @ np.linalg.inv(A)
-    inp = SweepInput(ref=small(ref_n), sources=[small(x) for x in src], epipoles=e @ A.T, homographies=H_small,
-                     offset=canvas.offset / s, ref_canvas=ref_canvas, rho=rho, window=opts.window_px, best_k=k,
-                     exclusion=2)
+    inp = SweepInput(ref=small(ref_n), sources=[small(x) for x in src], epipoles=e @ A.T, offset=canvas.offset / s,
+                     ref_canvas=ref_canvas, rho=rho, window=opts.window_px, best_k=k, exclusion=2)
     res = _run_sweep(inp, opts, progress, "dense: depth range")
     step = rho[1] - rho[0]
     ok = np.isfinite(res.index) & (res.c1 < 0.5) & (res.c1 < 0.7 * res.c2)

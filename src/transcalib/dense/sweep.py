@@ -1,19 +1,17 @@
 """The multi-baseline plane sweep in inverse depth (Okutomi & Kanade 1993).
 
-Views of one session are translations of the reference view (up to the small rotation
-``R_j`` the session's tolerance allows), so a hypothesis of inverse depth ``rho``
-(``1 / z``, ``z`` along the reference's optical axis) at a reference pixel with ray
-``r = [x, y, 1]`` (lens included) lands in source view ``j`` at::
+Views of one session are pure translations of the reference view, so a hypothesis of
+inverse depth ``rho`` (``1 / z``, ``z`` along the reference's optical axis) at a
+reference pixel with ray ``r = [x, y, 1]`` (lens included) lands in source view ``j`` at::
 
-    x_j = R_j r / rho - t_j                          camera frame of view j
-    u_j ~ (H_j - rho e_j [0 0 1]) u~                 H_j = K_c R_j K_c^-1,  e_j = K_c t_j,  u~ = K_c r
+    x_j = r / rho - t_j                            camera frame of view j (reference axes)
+    u_j = (u~ - rho e_j) / (1 - rho t_j,z)          e_j = K_c t_j,  u~ = K_c r
 
 on the source's pinhole canvas (:mod:`.images`: the source undistorted once, intrinsics
-``K_c``). Without rotation (``H_j = I``) the map is ``(u~ - rho e_j) / (1 - rho e_j,z)``,
-a scaling about the epipole. Without distortion ``u~`` is the pixel itself plus the
-canvas offset, and the warp is affine (``cv2.warpAffine``; with rotations
-``cv2.warpPerspective``); with distortion ``u~`` is computed once per pixel and the warp
-is a remap.
+``K_c``, and turned to the reference's axes when a session's small rotation moves it):
+a scaling about the epipole. Without distortion ``u~`` is the pixel itself
+plus the canvas offset, and the warp is affine (``cv2.warpAffine``); with distortion
+``u~`` is computed once per pixel and the warp is a remap.
 
 The cost of a hypothesis at a pixel is, for each source view, the sum over the window of
 the truncated squared difference of the locally normalised images (``min(d^2, 2)``:
@@ -36,7 +34,7 @@ import numpy as np
 
 from ..types.progress import report
 
-__all__ = ["SweepInput", "SweepResult", "sweep", "warp_matrix", "warp_homography", "TRUNCATION"]
+__all__ = ["SweepInput", "SweepResult", "sweep", "warp_matrix", "TRUNCATION"]
 
 #: Truncation of the squared difference of normalised intensities (per pixel).
 TRUNCATION = 2.0
@@ -57,8 +55,6 @@ class SweepInput:
         The normalised source views on their pinhole canvas.
     epipoles : (n_sources, 3) float
         ``e_j = K_c t_j`` of each source.
-    homographies : (n_sources, 3, 3) float or None
-        ``H_j = K_c R_j K_c^-1`` of each source; None when no source rotates.
     offset : (2,) float
         Canvas offset: ``u~ = pixel + offset`` when ``ref_canvas`` is None.
     ref_canvas : (H, W, 2) float32 or None
@@ -74,7 +70,6 @@ class SweepInput:
     ref: np.ndarray
     sources: list
     epipoles: np.ndarray
-    homographies: np.ndarray | None
     offset: np.ndarray
     ref_canvas: np.ndarray | None
     rho: np.ndarray
@@ -106,60 +101,18 @@ def warp_matrix(e: np.ndarray, rho: float, offset, row0: int = 0) -> np.ndarray:
     return np.array([[s, 0.0, (offset[0] - rho * e[0]) * s], [0.0, s, (offset[1] + row0 - rho * e[1]) * s]])
 
 
-def warp_homography(H: np.ndarray, e: np.ndarray, rho: float, offset, row0: int = 0) -> np.ndarray:
-    """``P`` (3, 3): the canvas position of the hypothesis ``rho`` of reference pixel
-    ``(u, v)`` (row ``v - row0`` of a band) in a source with ``H = K_c R_j K_c^-1`` and
-    ``e = K_c t_j`` is ``P [u, v - row0, 1]`` (homogeneous) - the module docstring's
-    ``(H - rho e [0 0 1]) u~`` with ``u~ = pixel + offset``."""
-    S = np.array([[1.0, 0.0, offset[0]], [0.0, 1.0, offset[1] + row0], [0.0, 0.0, 1.0]])
-    return (H - rho * np.outer(e, [0.0, 0.0, 1.0])) @ S
-
-
-def _invalid(rows: int, w: int) -> np.ndarray:
-    return np.full((rows, w), 1e3, np.float32)
-
-
 def _warp(src: np.ndarray, inp: SweepInput, j: int, rho: float, a0: int, rows: int, w: int, buf) -> np.ndarray:
     """Source ``j`` sampled at hypothesis ``rho`` for reference rows ``a0 .. a0 + rows``
-    (out of its canvas, or behind the source camera: 1e3, which the truncation makes the
-    worst match)."""
+    (out of its canvas: 0, the truncation makes it the worst match)."""
     e = inp.epipoles[j]
-    if inp.homographies is not None:
-        return _warp_projective(src, inp, j, rho, a0, rows, w, buf)
     if 1.0 - rho * e[2] < 0.05:  # the hypothesis is behind (or at) the source camera: nothing to see
-        return _invalid(rows, w)
+        return np.full((rows, w), 1e3, np.float32)
     if inp.ref_canvas is None:
         return cv2.warpAffine(src, warp_matrix(e, rho, inp.offset, a0), (w, rows),
                               flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
                               borderValue=1e3)
     maps = cv2.transform(inp.ref_canvas[a0:a0 + rows], warp_matrix(e, rho, (0.0, 0.0)), buf)  # s u~ - rho s e
     return cv2.remap(src, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1e3)
-
-
-def _warp_projective(src, inp: SweepInput, j: int, rho: float, a0: int, rows: int, w: int, buf) -> np.ndarray:
-    """:func:`_warp` of a source that rotates: the homography ``warp_homography``; pixels
-    whose hypothesis is behind (or at) the source camera (third coordinate below 0.05 of
-    the reference's depth) are invalid."""
-    if inp.ref_canvas is None:
-        P = warp_homography(inp.homographies[j], inp.epipoles[j], rho, inp.offset, a0)
-        out = cv2.warpPerspective(src, P, (w, rows), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                  borderMode=cv2.BORDER_CONSTANT, borderValue=1e3)
-        corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, rows - 1, 1], [w - 1, rows - 1, 1]], float) @ P[2]
-        if corners.min() >= 0.05:
-            return out
-        uu, vv = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(rows, dtype=np.float32))
-        behind = P[2, 0] * uu + P[2, 1] * vv + P[2, 2] < 0.05
-    else:
-        P = warp_homography(inp.homographies[j], inp.epipoles[j], rho, (0.0, 0.0))
-        band = inp.ref_canvas[a0:a0 + rows]
-        third = band @ P[2, :2].astype(np.float32) + np.float32(P[2, 2])
-        behind = third < 0.05
-        out = cv2.remap(src, cv2.perspectiveTransform(band, P, buf), None, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=1e3)
-        if not behind.any():
-            return out
-    out[behind] = 1e3
-    return out
 
 
 def _hypothesis_cost(inp: SweepInput, rho: float, a0: int, rows: int, bufs) -> np.ndarray:
