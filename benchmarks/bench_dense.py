@@ -1,6 +1,10 @@
 """Dense reconstruction on renders with exact depth, against two-view methods.
 
-    python benchmarks/bench_dense.py [--quick]      (--quick: one scene of 512 x 384)
+    python benchmarks/bench_dense.py [--quick | --timing-only]
+
+(``--quick``: one scene of 512 x 384; ``--timing-only``: scene A, the command timed
+``TIMING_RUNS`` times with the load average, printed and not written - to time it again
+when the machine is quiet.)
 
 Scenes (``transcalib.synth.render``, the realistic degradations ``degrade.REALISTIC`` on:
 vignetting, exposure changes, shot and read noise, JPEG 85, a specular highlight, a
@@ -323,7 +327,28 @@ def table(rows) -> str:
     return md_table(header, body)
 
 
+def timing_only(size=(1024, 768)) -> str:
+    """Scene A's command timed alone (module docstring)."""
+    with tempfile.TemporaryDirectory(prefix="bench-dense-") as tmp:
+        setup = make_scene("A", size, Path(tmp) / "A")
+        load = [os.getloadavg()[0]]
+        times = [run_cli(Path(tmp) / "A", setup)[3:] for _ in range(TIMING_RUNS)]
+        load.append(os.getloadavg()[0])
+    return _timing_line(size, times, load)
+
+
+def _timing_line(size, times, load) -> str:
+    walls, cpus = sorted(w for w, _ in times), sorted(c for _, c in times)
+    return (f"`transcalib dense` end to end on scene A (6 x {size[0]}x{size[1]}, one reference view, 256 hypotheses), "
+            f"{len(walls)} runs: wall {', '.join(f'{w:.2f}' for w in walls)} s; CPU "
+            f"{', '.join(f'{c:.2f}' for c in cpus)} s; load average {load[0]:.2f} before, {load[1]:.2f} "
+            f"after, on {os.cpu_count()} cores.")
+
+
 def main(argv: list[str] = ()) -> list:
+    if "--timing-only" in argv:
+        print(timing_only())
+        return []
     quick = "--quick" in argv
     size = (512, 384) if quick else (1024, 768)
     names = ["A"] if quick else list(SCENES)
@@ -334,14 +359,8 @@ def main(argv: list[str] = ()) -> list:
             rows += r
             if name == "A":
                 timing = (times, load)
-    walls = sorted(w for w, _ in timing[0])
-    cpus = sorted(c for _, c in timing[0])
     lines = [f"Dense reconstruction, renders with exact depth, 6 views of {size[0]}x{size[1]}, realistic degradations; "
-             "`python benchmarks/bench_dense.py`", "", table(rows), "",
-             f"`transcalib dense` end to end on scene A (6 x {size[0]}x{size[1]}, one reference view, 256 hypotheses), "
-             f"{len(walls)} runs: wall {', '.join(f'{w:.2f}' for w in walls)} s; CPU "
-             f"{', '.join(f'{c:.2f}' for c in cpus)} s; load average {timing[1][0]:.2f} before, {timing[1][1]:.2f} "
-             f"after, on {os.cpu_count()} cores."]
+             "`python benchmarks/bench_dense.py`", "", table(rows), "", _timing_line(size, *timing)]
     text = "\n".join(lines)
     print(text)
     out = results_dir(quick) / "dense.md"

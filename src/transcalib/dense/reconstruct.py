@@ -55,8 +55,11 @@ def dense(calibration, images, poses, *, reference_views=None, depth_limits=None
     images : sequence of (H, W) or (H, W, 3|4) uint8/uint16 arrays, or of paths
         One per view, in the order of ``poses`` (colour as OpenCV reads it: BGR).
     poses : Poses or (n_views, 3) float
-        ``transcalib.io.read_poses(...)`` (view ids, positions ``T``, orientations), or
-        the positions alone (view ids ``"0"``, ``"1"``, ...), in the calibration's unit.
+        ``transcalib.io.read_poses(...)`` (view ids, flange positions ``T``,
+        orientations, sessions), or the positions alone (view ids ``"0"``, ``"1"``,
+        ...), in the calibration's unit. A calibration made with orientations needs
+        them: each view's camera is the calibration's ``camera_poses`` of its flange
+        pose (:func:`~transcalib.dense.views.view_cameras`).
     reference_views : sequence of str, optional
         View ids (as in ``poses.views``: canonical, ``01`` is ``1``). Default: the most
         central view of the largest session (:func:`~transcalib.dense.views.central_view`).

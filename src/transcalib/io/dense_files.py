@@ -4,8 +4,9 @@ For each reference view ``ID``: ``depth_<ID>.npy`` (float32, robot units, NaN un
 ``confidence_<ID>.npy`` (float32, 0-1), ``depth_std_<ID>.npy`` (float32, robot units,
 NaN unknown) and ``depth_<ID>.png`` (16-bit: ``depth = value * depth_png_scale``, 0
 unknown); ``dense.ply``, the fused cloud (binary little endian: ``x, y, z`` double in
-the calibration's frame (``dense.json``'s ``cloud.frame``), ``red, green, blue`` uchar, ``confidence``, ``depth_std`` float,
-``view`` uchar: the index of its reference view in ``dense.json``); ``dense.json``, what
+the calibration's frame (``dense.json``'s ``cloud.frame``), ``red, green, blue`` uchar,
+``confidence``, ``depth_std`` float, ``view`` uchar: the index of its reference view in
+``dense.json``); ``dense.json``, what
 was done and how to read the files; ``report.html`` (:mod:`.dense_report`).
 """
 
