@@ -35,7 +35,7 @@ def test_opencv_yaml_read_by_cv2(cal, tmp_path):
     assert fs.isOpened()
     np.testing.assert_array_equal(fs.getNode("camera_matrix").mat(), cal.K)
     np.testing.assert_array_equal(fs.getNode("distortion_coefficients").mat().ravel(), cal.dist_opencv)
-    np.testing.assert_array_equal(fs.getNode("R_cam_flange").mat(), cal.R)  # flange orientations: flange -> camera
+    np.testing.assert_array_equal(fs.getNode("R_cam_base").mat(), cal.R)  # eye-to-hand: robot base -> camera
     assert fs.getNode("image_width").real() == 640 and fs.getNode("image_height").real() == 480
     assert fs.getNode("distortion_model").string() == "radial2"
     fs.release()

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import MirroredError
 
 __all__ = ["rotvec_to_matrix", "matrix_to_rotvec", "quaternion_to_matrix", "matrix_to_quaternion",
-           "euler_zyx_to_matrix", "skew", "rotation_angle_deg", "rotation_defect", "ROTATION_TOL", "rq_decompose"]
+           "euler_zyx_to_matrix", "skew", "rotation_angle_deg", "rotation_defect", "ROTATION_TOL", "rq_decompose", "nearest_rotation", "central_mean_rotation"]
 
 #: Largest ``max |R R^T - I|`` of an input matrix accepted as a rotation.
 ROTATION_TOL = 1e-6
@@ -171,6 +171,36 @@ def rotation_angle_deg(R: np.ndarray):
     cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
     angle = np.degrees(np.arctan2(sin, cos))
     return float(angle) if R.ndim == 2 else angle
+
+
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation nearest to ``M`` (3, 3) in the Frobenius norm (SVD, det +1)."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def central_mean_rotation(R: np.ndarray, tolerance_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """A mean that strays do not pull: the chordal mean of the rotations within
+    ``tolerance_deg`` of the most central one (least median angle to the others; the first
+    on a tie).
+
+    Parameters
+    ----------
+    R : (k, 3, 3) float
+    tolerance_deg : float
+
+    Returns
+    -------
+    mean : (3, 3) float
+    near : (k,) bool
+        The rotations averaged.
+    """
+    R = np.asarray(R, dtype=float)
+    angles = rotation_angle_deg(np.swapaxes(R[:, None], -1, -2) @ R[None, :])  # (k, k)
+    centre = int(np.argmin(np.median(angles, axis=1)))
+    near = angles[centre] <= tolerance_deg
+    return nearest_rotation(R[near].sum(axis=0)), near
 
 
 def rotation_defect(R: np.ndarray) -> np.ndarray:

@@ -4,10 +4,17 @@ After the sessions' start (``K``, ``R_X``, the offset ``t_0`` zero along its und
 directions ``U``, the points ``X^0``), each single view ``i`` (flange pose ``R_i, T_i``)
 sees some of those points. Its camera pose follows from the images alone (PnP with known
 K: the linear 6-point DLT inside the project's robust loop, then Gauss-Newton), and it is
-checked against the recorded orientation: the camera rotation should be
-``R_X^T R_i^T``; a view whose image says otherwise by more than the session tolerance,
-significantly, is named with the angle and left out (a wrong pose, or the camera moved on
-the flange).
+checked against the recorded orientation: the camera rotation ``R_c`` should be
+``R_X^T R_i^T``, i.e. each view implies the camera's rotation in the flange
+``Q_i = R_i^T R_c^T``. The start's own ``R_X`` carries the error of its sessions (a weak
+session: ~1 deg, and a principal point error turns every PnP rotation alike), so the views
+are judged against the consensus of ``R_X`` and all ``Q_i`` (the chordal mean around the
+most central, :func:`~transcalib.geometry.rotation.central_mean_rotation`): a view whose
+``Q_i`` differs from it by more than the session tolerance — or, when the other views
+scatter more, by more than their scatter allows — significantly, is named with the angle
+and left out (a wrong pose, or the camera moved on the flange). Each view's pose has its
+own inlier rule, from its own residuals: the start's ``K`` and points are off by more
+than the pixel noise.
 
 The view's centre then gives the offset along ``U``. Moving the offset by ``U c`` moves
 every point of the start by the same ``R_r U c`` (``R_r`` the orientation of any session:
@@ -30,12 +37,15 @@ from ..estimate.distributions import chi2_ppf
 from ..estimate.noise import SIGMA_FLOOR_PX
 from ..estimate.ransac import lo_ransac
 from ..geometry.camera import pixels_to_rays
-from ..geometry.rotation import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
+from ..geometry.rotation import central_mean_rotation, matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 
 #: Fewest correspondences with the start's points for a view to get its own pose.
 MIN_POINTS = 6
 #: False-alarm rate of the orientation check (chi-square(3) of the rotation difference).
 ORIENTATION_ALPHA = 1e-3
+#: Median of the angle of a rotation whose rotation vector has unit std per axis (the
+#: Maxwell distribution's median).
+MAXWELL_MEDIAN = 1.5382
 #: Relative singular value below which a direction of the offset counts as undetermined.
 OFFSET_RTOL = 1e-9
 
@@ -44,15 +54,15 @@ OFFSET_RTOL = 1e-9
 class ViewPose:
     """A single view's camera pose from its images: rotation world -> camera ``R``, centre
     ``C`` (in the start's frame), inlier observations ``inliers (n_points,)``, the
-    rotation's difference to the recorded orientation ``off_deg`` and its chi-square
-    statistic ``chi2`` (3 degrees of freedom)."""
+    rotation's covariance at unit pixel noise ``rotation_cov (3, 3)`` (``R <- exp([w]x) R``)
+    and the pixel noise of its own residuals ``sigma_px``."""
 
     view: int
     R: np.ndarray
     C: np.ndarray
     inliers: np.ndarray
-    off_deg: float
-    chi2: float
+    rotation_cov: np.ndarray
+    sigma_px: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,8 +79,7 @@ class Joined:
     off_views: tuple
 
 
-def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, sigma_px: float, tolerance_deg: float,
-                      rng=None) -> Joined:
+def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, tolerance_deg: float, rng=None) -> Joined:
     """Join the single ``views`` to a start from the sessions (module docstring).
 
     Parameters
@@ -92,21 +101,20 @@ def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, sigma_px: float
         The start's points (NaN: none).
     R_ref : (3, 3) float
         The orientation of a session of the start.
-    sigma_px : float
-        Pixel noise per coordinate (the sessions' estimate).
     tolerance_deg : float
         The session tolerance: a larger difference between a view's recorded orientation
         and the one its image shows, when significant, leaves the view out.
     """
+    found = [p for p in (view_pose(uv[i], X0, K, i, rng) for i in views) if p is not None]
+    R_X_agreed = central_mean_rotation(np.stack([R_X] + [R[p.view].T @ p.R.T for p in found]), tolerance_deg)[0]
+    errors = [orientation_error(p, R_X_agreed.T @ R[p.view].T) for p in found]
+    limits = _spread_limits(np.array([deg for deg, _ in errors]), tolerance_deg)
     poses, off = [], []
-    for i in views:
-        pose = view_pose(uv[i], X0, K, R_X.T @ R[i].T, sigma_px, i, rng)
-        if pose is None:
-            continue
-        if pose.off_deg > tolerance_deg and pose.chi2 > chi2_ppf(1.0 - ORIENTATION_ALPHA, 3):
-            off.append((int(i), pose.off_deg))
+    for p, (off_deg, chi2), limit in zip(found, errors, limits):
+        if off_deg > limit and chi2 > chi2_ppf(1.0 - ORIENTATION_ALPHA, 3):
+            off.append((p.view, off_deg))
         else:
-            poses.append(pose)
+            poses.append(p)
     t, undetermined, shift = np.asarray(t0, float), U, np.zeros(3)
     if U.shape[1] and poses:
         G = np.concatenate([(R[p.view] - R_ref) @ U for p in poses])  # (3 m, k)
@@ -118,27 +126,51 @@ def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, sigma_px: float
     return Joined(t, undetermined, X0 + shift, tuple(poses), tuple(off))
 
 
-def view_pose(uv_i: np.ndarray, X: np.ndarray, K: np.ndarray, R_pred: np.ndarray, sigma_px: float, view: int,
-              rng=None) -> ViewPose | None:
+def _spread_limits(angles_deg: np.ndarray, tolerance_deg: float) -> np.ndarray:
+    """The angle ``(m,)`` above which each of ``m`` views' orientation is off: the session
+    tolerance, or more when the other views scatter more (the start's ``K`` turns every
+    view's rotation a little, differently): the ``1 - ORIENTATION_ALPHA`` quantile of an
+    isotropic rotation error whose scale is the median of the others' angles (a rotation
+    with per-axis std ``s`` has median angle ``1.538 s``). Needs >= 2 other views."""
+    limits = np.full(len(angles_deg), float(tolerance_deg))
+    if len(angles_deg) < 3:
+        return limits
+    quantile = np.sqrt(chi2_ppf(1.0 - ORIENTATION_ALPHA, 3)) / MAXWELL_MEDIAN
+    others = np.array([np.median(np.delete(angles_deg, i)) for i in range(len(angles_deg))])
+    return np.maximum(limits, quantile * others)
+
+
+def view_pose(uv_i: np.ndarray, X: np.ndarray, K: np.ndarray, view: int, rng=None) -> ViewPose | None:
     """The camera pose of one view from its observations ``uv_i (n_points, 2)`` of the
     points ``X (n_points, 3)`` (NaN: not used), robust (6-point DLT in
-    :func:`~transcalib.estimate.ransac.lo_ransac` with the noise ``sigma_px``), refined by
-    Gauss-Newton, and compared with the predicted rotation ``R_pred``; None with fewer
-    than :data:`MIN_POINTS` correspondences or no consensus."""
+    :func:`~transcalib.estimate.ransac.lo_ransac`), refined by Gauss-Newton; None with
+    fewer than :data:`MIN_POINTS` correspondences or no consensus.
+
+    The inlier rule's noise is estimated from the view's own residuals, not taken from the
+    sessions: the start's ``K`` and points are only the start's (a few pixels off at the
+    edges of a weak session), and a rule at the pixel noise would reject most of the
+    view's correct observations with them."""
     use = np.flatnonzero(np.isfinite(uv_i[:, 0]) & np.all(np.isfinite(X), axis=1))
     if len(use) < MIN_POINTS:
         return None
     problem = _PnP(pixels_to_rays(K, uv_i[use])[:, :2], X[use], K)
-    best = lo_ransac(problem, sigma=max(float(sigma_px), SIGMA_FLOOR_PX), rng=rng, stage="single view")
+    best = lo_ransac(problem, sigma=None, rng=rng, stage="single view")
     if best.hypothesis is None or best.n_inliers < MIN_POINTS:
         return None
     R, C = _polish(problem, best.hypothesis, best.inliers)
-    w = matrix_to_rotvec(R @ R_pred.T)  # the recorded orientation's error, camera frame
-    cov_w = _rotation_covariance(problem, R, C, best.inliers) * max(float(sigma_px), SIGMA_FLOOR_PX) ** 2
-    chi2 = float(w @ np.linalg.lstsq(cov_w, w, rcond=None)[0])
     inliers = np.zeros(len(uv_i), bool)
     inliers[use[best.inliers]] = True
-    return ViewPose(int(view), R, C, inliers, rotation_angle_deg(R @ R_pred.T), chi2)
+    sigma_px = max(float(best.sigma), SIGMA_FLOOR_PX)
+    return ViewPose(int(view), R, C, inliers, _rotation_covariance(problem, R, C, best.inliers), sigma_px)
+
+
+def orientation_error(pose: ViewPose, R_pred: np.ndarray) -> tuple[float, float]:
+    """``(angle_deg, chi2)``: how far the pose's rotation is from the predicted one
+    ``R_pred`` (world -> camera), and the chi-square statistic (3 degrees of freedom) of
+    that difference under the pose's covariance at its own noise."""
+    w = matrix_to_rotvec(pose.R @ R_pred.T)  # camera frame
+    cov_w = pose.rotation_cov * pose.sigma_px ** 2
+    return rotation_angle_deg(pose.R @ R_pred.T), float(w @ np.linalg.lstsq(cov_w, w, rcond=None)[0])
 
 
 class _PnP:

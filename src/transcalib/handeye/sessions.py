@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..geometry.rotation import rotation_angle_deg
+from ..geometry.rotation import central_mean_rotation, rotation_angle_deg
 
 __all__ = ["SessionGrouping", "group_sessions", "SESSION_TOLERANCE_DEG"]
 
@@ -27,23 +27,6 @@ SESSION_TOLERANCE_DEG = 1.0
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     """Angles (degrees) of ``Ra^T Rb``, broadcast over stacks ``(..., 3, 3)``."""
     return rotation_angle_deg(np.swapaxes(Ra, -1, -2) @ Rb)
-
-
-def _project_so3(M: np.ndarray) -> np.ndarray:
-    """The rotation nearest to ``M`` (3, 3) in the Frobenius norm."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
-def _session_rotation(R: np.ndarray, tolerance_deg: float) -> np.ndarray:
-    """Orientation of one session: the chordal mean of the views within the tolerance of
-    its most central view (least median angle to the others), so that a stray view does
-    not pull it."""
-    angles = _angle_deg(R[:, None], R[None, :])  # (k, k)
-    centre = int(np.argmin(np.median(angles, axis=1)))
-    near = angles[centre] <= tolerance_deg
-    return _project_so3(R[near].sum(axis=0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,7 +121,8 @@ def group_sessions(R: np.ndarray, tolerance_deg: float = SESSION_TOLERANCE_DEG, 
                 k = len(firsts) - 1
             of_view[i] = k
         labels = tuple(str(k) for k in range(len(firsts)))
-    rotations = np.stack([_session_rotation(R[of_view == s], tolerance_deg) for s in range(len(labels))])
+    # each session's orientation: a mean that a stray view does not pull
+    rotations = np.stack([central_mean_rotation(R[of_view == s], tolerance_deg)[0] for s in range(len(labels))])
     angle = _angle_deg(rotations[of_view], R)
     off = tuple((int(i), float(angle[i])) for i in np.flatnonzero(angle > tolerance_deg))
     return SessionGrouping(of_view, rotations, angle, float(tolerance_deg), off, labels)

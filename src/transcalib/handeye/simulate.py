@@ -167,7 +167,9 @@ def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, 
         raise InputError(f"moves must be '3d', 'xy' or 'line', got {moves!r}")
     if setup not in SETUPS:
         raise InputError(f"setup must be one of {SETUPS}, got {setup!r}")
-    if rotations is None:
+    if rotations is None and n_sessions == 0:
+        rotations = np.zeros((0, 3, 3))
+    elif rotations is None:
         axes = [np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([1.0, 1.0, 0]) / np.sqrt(2),
                 np.array([1.0, -1.0, 0]) / np.sqrt(2)]
         dirs = [rotvec_to_matrix(np.radians(tilt_deg) * axes[s % len(axes)]) @ [0, 0, -1.0] for s in range(n_sessions)]

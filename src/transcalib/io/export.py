@@ -72,7 +72,7 @@ def _write_csv(cal, folder, ids):
 def _report_data(cal, ids, ctx):
     from ..report import report_data
 
-    return report_data(cal, uv=ctx.uv, truth=ctx.truth, point_ids=ids)
+    return report_data(cal, uv=ctx.uv, truth=ctx.truth, point_ids=ids, colors=ctx.colors, view_names=ctx.view_names)
 
 
 def _write_report(cal, folder, ids, ctx):

@@ -51,9 +51,12 @@ def write_opencv_yaml(cal, path, image_size) -> Path:
     """``camera.yaml`` in OpenCV FileStorage form: ``image_width``, ``image_height``,
     ``camera_matrix``, ``distortion_coefficients`` (the five OpenCV coefficients),
     ``R_cam_world`` (robot -> camera; with flange orientations ``R_cam_flange``, flange
-    -> camera), ``distortion_model`` (transcalib's name)."""
+    -> camera, or eye-to-hand ``R_cam_base``, robot base -> camera), ``distortion_model``
+    (transcalib's name)."""
     w, h = image_size
-    rotation = "R_cam_world" if cal.flange_rotations is None else "R_cam_flange"
+    he = getattr(cal, "hand_eye", None)
+    eye_to_hand = he is not None and he.setup == "eye-to-hand"
+    rotation = "R_cam_world" if cal.flange_rotations is None else "R_cam_base" if eye_to_hand else "R_cam_flange"
     text = ("%YAML:1.0\n---\n"
             f"image_width: {int(w)}\nimage_height: {int(h)}\n"
             + _opencv_matrix("camera_matrix", cal.K)

@@ -9,7 +9,11 @@
   join through their tracks (:mod:`transcalib.handeye.join`: each one's pose from its
   images, checked against the recorded orientation, and the offset ``t_X``). Needed: one
   session of >= 4 views whose translations span 3-D, or two sessions of >= 4 views at
-  different orientations; otherwise the start refuses, naming why.
+  different orientations.
+- **General motion** (no such session: every view at its own orientation, or sessions
+  too small): the start from the view pairs' epipolar geometry and the flange rotations
+  (:mod:`transcalib.handeye.general`), which refuses, naming why, when the turns cannot
+  fix the camera's orientation.
 
 :func:`explain_motion` says, before any estimation, what the motion cannot determine.
 """
@@ -20,14 +24,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import DegenerateError, Diagnostic
+from ..errors import Diagnostic
 from ..estimate.coplanar import fit_coplanar, fit_coplanar_robust
 from ..estimate.degeneracy import explain_span, translation_rank
 from ..estimate.layout import FlangeModel
 from ..estimate.linear import fit_linear
-from ..estimate.noise import mad_sigma
+from ..estimate.noise import inlier_rule, median_sigma, track_dof
 from ..estimate.robust import fit_robust
 from ..geometry.camera import project
+from ..handeye.general import check_turns, general_start
 from ..handeye.join import join_single_views
 from ..handeye.linear import check_flange_span, sessions_linear
 from ..handeye.observability import offset_observability
@@ -84,18 +89,22 @@ def explain_motion(motion: Motion, opts: CalibrateOptions) -> Diagnostic | None:
         return explain_span(motion.T, r.fix, r.square_pixels, opts.unit, estimate_skew=r.estimate_skew,
                             distortion=model, tol=COPLANAR_RTOL)
     g, sizes = motion.grouping, motion.session_sizes()
-    big = np.flatnonzero(sizes >= MIN_SESSION_VIEWS)
-    spanning = [s for s in big if translation_rank(motion.T[g.session_of_view == s]) == 3]
-    if not spanning and len(big) < 2:
-        raise DegenerateError(
-            f"the views fall into {len(sizes)} orientation(s) (sessions of {', '.join(map(str, sizes))} views; "
-            f"tolerance {g.tolerance_deg:g} deg), and no start is possible: it needs one session of >= "
-            f"{MIN_SESSION_VIEWS} views at one flange orientation whose translations span 3-D, or two such sessions "
-            "of 2-axis moves at different orientations. Record a pure-translation session of 4 or more views (the "
-            "robot moving along x, y and z without turning), then any further views at other orientations.")
+    if not _session_start_possible(motion):  # the start from general motion: turns about two axes
+        a, b = np.triu_indices(g.n_sessions, 1)
+        check_turns(np.einsum("pba,pbc->pac", g.rotations[b], g.rotations[a]))
+        return None
     in_session = sizes[g.session_of_view] >= 2
     check_flange_span(motion.T[in_session], g.restricted(in_session))
     return None
+
+
+def _session_start_possible(motion: Motion) -> bool:
+    """A session of >= :data:`MIN_SESSION_VIEWS` views whose translations span 3-D, or two
+    such sessions (any span) at different orientations."""
+    g, sizes = motion.grouping, motion.session_sizes()
+    big = np.flatnonzero(sizes >= MIN_SESSION_VIEWS)
+    spanning = [s for s in big if translation_rank(motion.T[g.session_of_view == s]) == 3]
+    return bool(spanning) or len(big) >= 2
 
 
 def initial_estimate(uv, motion: Motion, opts: CalibrateOptions, rng, progress, coplanar: bool = False,
@@ -105,6 +114,8 @@ def initial_estimate(uv, motion: Motion, opts: CalibrateOptions, rng, progress, 
     robust = n_tracked >= ROBUST_MIN_POINTS if opts.robust is None else bool(opts.robust)
     if motion.constant:
         return _one_orientation(uv, motion.T, opts, robust, rng, progress, coplanar, image_size)
+    if not _session_start_possible(motion):
+        return _from_general_motion(uv, motion, opts, robust, rng, progress)
     return _from_sessions(uv, motion, opts, robust, rng, progress)
 
 
@@ -157,11 +168,10 @@ def _from_sessions(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng
     report(progress, "robust (sessions)" if robust else "linear (sessions)", sessions=sub.n_sessions,
            **({} if lin.ransac is None else {"inliers": lin.ransac.n_inliers, "sigma_px": lin.ransac.sigma_px}))
     inliers = None if lin.inliers is None else _track_inliers(lin.inliers, uv[in_session], sub)
-    sigma = lin.ransac.sigma_px if lin.ransac is not None else _start_sigma(uv[in_session], motion, in_session, lin)
     singles = np.flatnonzero(~in_session)
     X0 = lin.X if inliers is None else np.where(inliers[:, None], lin.X, np.nan)
     joined = join_single_views(uv, motion.T, motion.R, singles, lin.K, lin.R_X, lin.t_X, lin.undetermined, X0,
-                               sub.rotations[0], sigma, g.tolerance_deg, rng)
+                               sub.rotations[0], g.tolerance_deg, rng)
     left_out = np.zeros(motion.n_views, bool)
     left_out[[i for i, _ in joined.off_views]] = True
     if inliers is not None:
@@ -199,13 +209,34 @@ def _track_inliers(inliers: np.ndarray, uv: np.ndarray, grouping) -> np.ndarray:
     return np.all(inliers | ~judged, axis=0) & judged.any(axis=0)
 
 
-def _start_sigma(uv, motion: Motion, in_session, lin) -> float:
-    """Pixel noise per coordinate of the sessions' start (MAD of its residuals)."""
-    Rs, Ts = motion.R[in_session], motion.T[in_session]
-    res = uv - project(lin.K, lin.R_X.T @ np.transpose(Rs, (0, 2, 1)), np.nan_to_num(lin.X), Ts + Rs @ lin.t_X)
-    known = np.isfinite(lin.X[:, 0])
-    res[:, ~known] = np.nan
-    return mad_sigma(res, 3 * int(known.sum()) + 9)
+def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng, progress) -> Start:
+    """Views at their own orientations, no session to start from: the pairs' epipolar
+    geometry against the flange rotations (:mod:`transcalib.handeye.general`); tracks far
+    off the start's cameras flagged (the refinement judges them again)."""
+    gs = general_start(uv, motion.T, motion.R, rng)
+    report(progress, "start (general motion)", pairs=len(gs.pairs), focal_px=float(gs.K[0, 0]))
+    g = motion.grouping
+    F = np.transpose(motion.R, (0, 2, 1))
+    inliers = None
+    if robust:
+        seen = np.isfinite(uv[..., 0])
+        R_cam, C = np.einsum("ab,vcb->vac", gs.R_X.T, motion.R), motion.T + motion.R @ gs.t_X
+        res = uv - project(gs.K, R_cam, np.nan_to_num(gs.X), C)
+        sse = np.where(np.isfinite(gs.X[:, 0]), np.nansum(res ** 2, axis=(0, 2)), np.inf)
+        k = seen.sum(axis=0)
+        sigma = median_sigma(sse, track_dof(k))
+        inliers = inlier_rule(sse, k, sigma, opts.ransac.false_rejection)
+    X = gs.X if inliers is None else np.where(inliers[:, None], gs.X, np.nan)
+    obs = offset_observability(gs.K, np.zeros(5), gs.R_X.T, gs.t_X, X, uv, motion.T, F, g.rotations, list(g.labels),
+                               fix=opts.refinement.fix, estimate_skew=opts.refinement.estimate_skew,
+                               square_pixels=opts.refinement.square_pixels, distortion=_start_model(opts),
+                               frame="flange" if motion.setup == "eye-in-hand" else "base")
+    used = np.all(np.isfinite(X), axis=1)
+    linear = LinearEstimate(K=gs.K, R=gs.R_X.T, A=gs.K @ gs.R_X.T, X=X, depth=np.full(uv.shape[:2], np.nan),
+                            singular_values=np.zeros(0), n_used_points=int(used.sum()), used=used, method="general")
+    notes = tuple(m for m in [obs.message, *g.messages()] if m)
+    return Start(linear, inliers, ["robust" if robust else "linear"], None,
+                 FlangeModel(F, gs.t_X, obs.determined), np.zeros(motion.n_views, bool), (), notes)
 
 
 def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -> LinearEstimate:

@@ -1,14 +1,19 @@
 """The calibration report: ``report.html`` (one self-contained file) and its figures as PNG.
 
 :func:`write_report` writes ``report.html`` with the parameters and their uncertainty,
-every diagnostic, the residuals (arrows per view and histogram), the reconstruction
-(front and oblique, with the camera positions), the projection-uncertainty map and, for
-simulated input, the errors against the truth. Figures are embedded as base64 PNG and
-also written to ``figures/``. No scripts, no external resources: the page opens offline.
+every diagnostic, an interactive 3-D view (:mod:`.viewer`: the points, the camera
+frustum of every view, the robot axes, the flange (or eye-to-hand the base) where known,
+an optional extra cloud),
+the residuals (arrows per view and histogram), the reconstruction (front and oblique,
+with the camera positions), the projection-uncertainty map and, for simulated input, the
+errors against the truth. Figures are embedded as base64 PNG and also written to
+``figures/``; the 3-D view's data, three.js (vendored, ``vendor/``) and its script are
+inline. No external resources: the page opens offline and loads nothing.
 
-Two steps: :func:`report_data` reduces the calibration to a :class:`ReportData` of a
-few kilobytes (numpy, at any number of points); :func:`render_report` draws and writes
-it (matplotlib). ``transcalib calibrate`` runs the second in a
+Two steps: :func:`report_data` reduces the calibration to a :class:`ReportData` (numpy,
+at any number of points: the figures' data are kilobytes, the 3-D view's at most
+:data:`~transcalib.report.viewer.MAX_POINTS` points, about 1.3 MB); :func:`render_report`
+draws and writes it (matplotlib). ``transcalib calibrate`` runs the second in a
 :class:`~transcalib.report.worker.ReportWorker` process.
 """
 
@@ -22,9 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ..io.files import atomic_write
+from .poses import ViewPoses, view_poses
+from .viewer import MAX_POINTS, VIEWER_CSS, PointCloud, ViewerData, viewer_data, viewer_html
 
-__all__ = ["write_report", "report_data", "render_report", "ReportData", "FIGURES"]
+__all__ = ["write_report", "report_data", "render_report", "ReportData", "FIGURES", "PointCloud", "ViewerData",
+           "ViewPoses", "view_poses", "viewer_data"]
 
 #: Figure files, in report order.
 FIGURES = ("residuals.png", "residual_histogram.png", "reconstruction.png", "uncertainty.png", "truth_errors.png")
@@ -79,11 +88,11 @@ def _diagnostics(cal) -> str:
     return f"<ul class='warn'>{items}</ul>"
 
 
-def _figure_data(cal, uv, truth, point_ids, unit) -> dict:
+def _figure_data(cal, uv, truth, point_ids, unit, size) -> dict:
     """``{file name: (title, data)}`` of every figure, reduced by ``figures.*_data``."""
     from . import figures as F
 
-    size, norm = F.image_box(cal, uv), F.residual_norms(cal)  # once, for every figure
+    norm = F.residual_norms(cal)  # once, for every figure
     out = {"residuals.png": ("Residuals per view", F.residuals_data(cal, uv, size=size, norm=norm)),
            "residual_histogram.png": ("Residual histogram", F.histogram_data(cal, norm=norm)),
            "reconstruction.png": ("Reconstruction", F.reconstruction_data(cal, unit)),
@@ -100,7 +109,8 @@ _CSS = ("body{font-family:sans-serif;max-width:1150px;margin:2em auto;color:#222
 
 @dataclass(frozen=True)
 class ReportData:
-    """Everything the report shows, reduced: kilobytes whatever the number of points.
+    """Everything the report shows, reduced: at most a megabyte or two whatever the
+    number of points.
 
     Attributes
     ----------
@@ -110,14 +120,19 @@ class ReportData:
     figures : dict
         ``{file name: (title, data)}`` in report order; ``data`` is what the file's
         ``figures.DRAW`` function draws.
+    viewer : ViewerData or None
+        The 3-D view (:func:`~transcalib.report.viewer.viewer_data`), between the
+        sections and the figures; None: no 3-D view.
     """
 
     title: str
     sections: list
     figures: dict
+    viewer: ViewerData | None = None
 
 
-def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report") -> ReportData:
+def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report", colors=None,
+                view_names=None, extra: PointCloud | None = None, viewer_points: int = MAX_POINTS) -> ReportData:
     """Reduce a calibration to its :class:`ReportData` (numpy only: no matplotlib).
 
     Parameters as :func:`write_report`.
@@ -125,16 +140,21 @@ def report_data(cal, *, uv=None, truth=None, point_ids=None, title: str = "trans
     from ..io.files import software_version
 
     unit = cal.options.unit if getattr(cal, "options", None) is not None else "units"
-    if uv is None:
-        from .figures import observed_pixels
+    if not isinstance(viewer_points, (int, np.integer)) or viewer_points < 1:
+        raise InputError(f"viewer_points must be a positive integer, got {viewer_points!r}")
+    from .figures import image_box, observed_pixels
 
-        uv = observed_pixels(cal)  # once, for every figure
+    uv = observed_pixels(cal, uv)  # once, for every figure
+    size = image_box(cal, uv)
+    viewer = viewer_data(cal, uv=uv, colors=colors, point_ids=point_ids, view_names=view_names, extra=extra,
+                         image_size=size, unit=unit, max_points=int(viewer_points))
     sections = [f"<h1>{html.escape(title)}</h1>",
                 f"<p>{cal.n_points} points in {cal.n_views} views; lengths in {html.escape(unit)}; "
                 f"stages {html.escape(' → '.join(cal.stats.stages))}; transcalib {software_version()}; "
                 f"{time.strftime('%Y-%m-%d %H:%M')}</p>",
                 "<h2>Parameters</h2>", _parameters(cal, truth), "<h2>Diagnostics</h2>", _diagnostics(cal)]
-    return ReportData(title=title, sections=sections, figures=_figure_data(cal, uv, truth, point_ids, unit))
+    return ReportData(title=title, sections=sections, figures=_figure_data(cal, uv, truth, point_ids, unit, size),
+                      viewer=viewer)
 
 
 def render_report(data: ReportData, folder) -> list:
@@ -144,6 +164,8 @@ def render_report(data: ReportData, folder) -> list:
 
     folder = Path(folder)
     sections, written = list(data.sections), []
+    if data.viewer is not None:
+        sections.append(viewer_html(data.viewer))
     for name, (fig_title, fig_data) in data.figures.items():
         image = png(DRAW[name](fig_data))
         with atomic_write(folder / "figures" / name, "wb") as fh:
@@ -153,13 +175,14 @@ def render_report(data: ReportData, folder) -> list:
                         f"src='data:image/png;base64,{base64.b64encode(image).decode('ascii')}'>")
     title = html.escape(data.title)
     page = (f"<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>{title}</title>"
-            f"<style>{_CSS}</style></head><body>\n" + "\n".join(sections) + "\n</body></html>\n")
+            f"<style>{_CSS}{VIEWER_CSS if data.viewer is not None else ''}</style></head><body>\n" + "\n".join(sections) + "\n</body></html>\n")
     with atomic_write(folder / "report.html", encoding="utf-8", newline="\n") as fh:
         fh.write(page)
     return [folder / "report.html"] + written
 
 
-def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report") -> list:
+def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str = "transcalib report", colors=None,
+                 view_names=None, extra: PointCloud | None = None, viewer_points: int = MAX_POINTS) -> list:
     """Write ``folder/report.html`` and ``folder/figures/*.png`` (in this process).
 
     :func:`report_data` then :func:`render_report`; the CLI runs the second in a
@@ -176,10 +199,20 @@ def write_report(cal, folder, *, uv=None, truth=None, point_ids=None, title: str
     point_ids : (n_points,) sequence, optional
         Ids of the points (integers or text); simulated ids index ``truth["points"]``.
     title : str
+    colors : (n_points, 3) uint8, optional
+        Image colour of each point (the 3-D view; default: coloured by depth).
+    view_names : sequence of str (n_views), optional
+        Image names, shown with the view indices in the 3-D view.
+    extra : PointCloud, optional
+        Another cloud for the 3-D view (a dense reconstruction), in the same frame.
+    viewer_points : int
+        Most points the 3-D view draws (of the calibration, and of ``extra``); a random
+        subsample beyond, the number stated on the page.
 
     Returns
     -------
     list of Path
         ``report.html`` and the PNG files.
     """
-    return render_report(report_data(cal, uv=uv, truth=truth, point_ids=point_ids, title=title), folder)
+    return render_report(report_data(cal, uv=uv, truth=truth, point_ids=point_ids, title=title, colors=colors,
+                                     view_names=view_names, extra=extra, viewer_points=viewer_points), folder)

@@ -56,9 +56,9 @@ def _serve(conn) -> None:
         gc.disable()  # no collection pauses in the one job: its garbage (megabytes) ends with the process
         conn.send(("ready", None))
         data, folder = conn.recv()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         paths = render_report(data, folder)
-        conn.send(("done", ([str(p) for p in paths], time.perf_counter() - t0)))
+        conn.send(("done", ([str(p) for p in paths], time.perf_counter() - t0, time.process_time() - c0)))
     except (EOFError, BrokenPipeError):
         return  # the main process closed the pipe: nothing more to do
     except SystemExit:
@@ -77,6 +77,7 @@ class PendingReport:
     def __init__(self, worker: "ReportWorker"):
         self._worker = worker
         self.worker_s = None  # seconds the worker spent drawing and writing, once done
+        self.worker_cpu_s = None  # and its CPU seconds
 
     def result(self) -> list[Path]:
         """Wait for the worker; return ``report.html`` and the PNG paths.
@@ -88,7 +89,7 @@ class PendingReport:
         OSError
             Writing a file failed (disk full, folder removed meanwhile).
         """
-        paths, self.worker_s = self._worker._receive("done")
+        paths, self.worker_s, self.worker_cpu_s = self._worker._receive("done")
         return [Path(p) for p in paths]
 
 
