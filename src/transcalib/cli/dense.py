@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import OptionError, Progress, existing_file, positive_int, print_json
+from .common import OptionError, Progress, existing_file, positive_float, positive_int, print_json
 
 NAME = "dense"
 HELP = "dense depth maps and a metric point cloud of calibrated views (multi-baseline stereo)"
@@ -67,6 +67,9 @@ def add_parser(sub) -> None:
     d.add_argument("--window", type=positive_int, default=7, metavar="PX", help="matching window side (odd, default 7)")
     d.add_argument("--best-k", type=positive_int, metavar="K",
                    help="views summed at each pixel (default: half of the other views, at least 1)")
+    d.add_argument("--max-turn-deg", type=positive_float, metavar="DEG",
+                   help="also match views turned by up to DEG degrees against the reference (default: only the "
+                        "views of its session, its flange orientation); for calibrations from general motion")
     d.add_argument("--min-confidence", type=_fraction, default=0.5, metavar="C",
                    help="pixels of lower confidence are left unknown (default 0.5)")
     d.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
@@ -84,9 +87,10 @@ def _options(args):
 
     try:
         return DenseOptions(n_depths=args.depths, window_px=args.window, best_k=args.best_k,
-                            min_confidence=args.min_confidence)
+                            min_confidence=args.min_confidence, max_turn_deg=args.max_turn_deg)
     except InputError as exc:
-        option = "--window" if "window_px" in str(exc) else "--depths" if "n_depths" in str(exc) else "--best-k"
+        names = {"window_px": "--window", "n_depths": "--depths", "max_turn_deg": "--max-turn-deg"}
+        option = next((o for k, o in names.items() if k in str(exc)), "--best-k")
         raise OptionError(option, str(exc).removeprefix("DenseOptions: ")) from None
 
 

@@ -54,6 +54,11 @@ class DenseOptions:
         contradicts).
     threads : int or None
         Threads of the sweep (None: ``min(2, os.cpu_count())``).
+    max_turn_deg : float or None
+        Sources of a reference view: None, the other views of its session (one flange
+        orientation); a number, every view whose camera is turned by at most this angle
+        (degrees) against the reference's, whatever its session (a calibration from
+        general motion, whose views each have an orientation of their own).
     """
 
     n_depths: int = 256
@@ -63,6 +68,7 @@ class DenseOptions:
     min_confidence: float = 0.5
     consistency_rel: float = 0.01
     threads: int | None = None
+    max_turn_deg: float | None = None
 
     def __post_init__(self):
         bad = []
@@ -80,6 +86,9 @@ class DenseOptions:
             bad.append(f"consistency_rel must be in (0, 1), got {self.consistency_rel!r}")
         if self.threads is not None and (not isinstance(self.threads, (int, np.integer)) or self.threads < 1):
             bad.append(f"threads must be None or an integer >= 1, got {self.threads!r}")
+        if self.max_turn_deg is not None and not (isinstance(self.max_turn_deg, (int, float, np.floating))
+                                                  and 0 < self.max_turn_deg <= 45):
+            bad.append(f"max_turn_deg must be None or a number of degrees in (0, 45], got {self.max_turn_deg!r}")
         if bad:
             raise InputError("DenseOptions: " + "; ".join(bad))
 

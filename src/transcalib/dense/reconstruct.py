@@ -220,8 +220,7 @@ def _reconstruct_view(calibration, imgs, cams: ViewCameras, ids, ref: int, limit
     """The :class:`DepthMap` of reference view ``ref`` (module docstring)."""
     t0 = time.perf_counter()
     camera = getattr(calibration, "camera", calibration)
-    session = cams.session_of(ref)
-    sources = session[session != ref]
+    sources = cams.sources(ref, opts.max_turn_deg)
     check_baselines(cams, ref, sources, ids)
     h, w = imgs[ref].shape[:2]
     key = ("canvas",)

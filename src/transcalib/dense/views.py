@@ -70,6 +70,16 @@ class ViewCameras:
         """Indices of the views in ``view``'s session (itself included), ascending."""
         return np.flatnonzero(self.session == self.session[view])
 
+    def sources(self, ref: int, max_turn_deg: float | None = None) -> np.ndarray:
+        """The views matched with ``ref`` (ascending, ``ref`` left out): its session's,
+        or with ``max_turn_deg`` every view whose camera is turned by at most that angle
+        against ``ref``'s."""
+        if max_turn_deg is None:
+            views = self.session_of(ref)
+        else:
+            views = np.flatnonzero(rotation_angle_deg(self.R @ self.R[ref].T) <= max_turn_deg)
+        return views[views != ref]
+
     def relative(self, ref: int, views) -> tuple[np.ndarray, np.ndarray]:
         """Pose of ``views`` relative to ``ref``: ``R_rel (k, 3, 3) = R_j R_ref^T`` and
         ``t (k, 3) = R_j (C_j - C_ref)``, so that a point ``x`` of ``ref``'s camera frame
@@ -195,7 +205,8 @@ def check_baselines(cams: ViewCameras, ref: int, sources: np.ndarray, view_ids) 
     :class:`DegenerateError` when no other view of the session moved."""
     if len(sources) == 0:
         raise InputError(f"reference view {view_ids[ref]} has no other view at its orientation to match; give at "
-                         "least two views of one session")
+                         "least two views of one session, or allow views turned against it (max_turn_deg, "
+                         "--max-turn-deg DEG)")
     base = np.linalg.norm(cams.C[sources] - cams.C[ref], axis=1)
     if np.all(base <= 1e-9 * max(np.abs(cams.C).max(), 1.0)):
         raise DegenerateError(f"the views of reference view {view_ids[ref]}'s session are all at its position: "

@@ -83,7 +83,7 @@ def dense_document(result, files: dict, inputs: dict | None = None) -> dict:
             "depth_png": "depth = value * depth_png_scale; 0 = unknown",
             "options": {"n_depths": opts.n_depths, "window_px": opts.window_px, "best_k": opts.best_k,
                         "min_texture": opts.min_texture, "min_confidence": opts.min_confidence,
-                        "consistency_rel": opts.consistency_rel},
+                        "consistency_rel": opts.consistency_rel, "max_turn_deg": opts.max_turn_deg},
             "reference_views": views,
             "cloud": {"file": "dense.ply", "points": int(len(result.points)), "rejected": int(result.n_rejected),
                       "frame": result.frame},
