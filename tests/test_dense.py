@@ -538,11 +538,11 @@ def test_command_outputs_and_their_formats(files, scene, result):
     assert "<img" in (out / "report.html").read_text() and "view 0" in r.stdout
 
 
-def test_command_fuses_several_reference_views(files):
+def test_command_fuses_several_reference_views(files, capsys):
     out = files / "two"
-    r = run(*_args(files, out, "--reference-view", "0", "--reference-view", "03", "--json", "--no-report"))
-    assert r.returncode == 0, r.stderr
-    summary = json.loads(r.stdout)
+    assert main([str(a) for a in _args(files, out, "--reference-view", "0", "--reference-view", "03", "--json",
+                                       "--no-report")]) == 0
+    summary = json.loads(capsys.readouterr().out)
     assert [v["view"] for v in summary["reference_views"]] == ["0", "3"]
     assert (out / "depth_3.npy").exists() and not (out / "report.html").exists()
 
@@ -676,13 +676,12 @@ def test_command_replaces_an_earlier_run_and_forces_a_foreign_folder(files, tmp_
     out.mkdir()
     (out / MARK).write_text("{}")  # an earlier run
     (out / "stray.txt").write_text("x")
-    assert run(*_args(files, out, "--no-report")).returncode == 0
+    assert main([str(a) for a in _args(files, out, "--no-report", "--quiet", "--depths", "16")]) == 0
     assert not (out / "stray.txt").exists() and (out / MARK).is_file()
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
-    r = run(*_args(files, foreign, "--no-report", "--force"))
-    assert r.returncode == 0, r.stderr
+    assert main([str(a) for a in _args(files, foreign, "--no-report", "--force", "--quiet", "--depths", "16")]) == 0
     assert not (foreign / "notes.txt").exists() and (foreign / "depth_0.npy").exists()
 
 
