@@ -35,12 +35,23 @@ def test_fifteen_views_exact(setup):
 
 def test_start_lands_near_the_truth():
     """The start itself (no refinement), noise-free: the focal length from the pairs'
-    rotations within 2 %, R_X within 1 deg, t_X within 10 mm, independently of the
-    bundle adjuster that then makes them exact."""
+    rotations within 2 %, R_X within 2 deg, t_X within 30 mm (the principal point starts
+    ~15 px off), independently of the bundle adjuster that then makes them exact."""
     sc = _scene(8)
     g = general_start(sc.uv, sc.T, sc.R, rng=0)
     assert abs(g.K[0, 0] / sc.K[0, 0] - 1) < 0.02
-    assert rotation_angle_deg(g.R_X.T @ sc.R_X) < 1.0 and np.linalg.norm(g.t_X - sc.t_X) < 10.0
+    assert rotation_angle_deg(g.R_X.T @ sc.R_X) < 2.0 and np.linalg.norm(g.t_X - sc.t_X) < 30.0
+
+
+@pytest.mark.parametrize("relief_mm", [0.0, 5.0])
+def test_a_flat_scene(relief_mm):
+    """A flat table (or 5 mm of relief over 300 mm): the fundamental matrices are
+    undetermined or weak, the pairs' homographies give the start; 0.5 px noise."""
+    X = np.random.default_rng(0).uniform([-150, -150, 0], [150, 150, relief_mm], (80, 3))
+    sc = session_scene(1, n_sessions=0, single_views=10, single_tilt_deg=(15, 60), X=X, n_points=80, noise_px=0.5)
+    cal = calibrate(sc.uv, Poses.of(sc.T, sc.R), distortion="none", rng=0)
+    assert abs(cal.K[0, 0] - sc.K[0, 0]) < 5 * cal.std["fx"]
+    assert np.all(np.abs(cal.hand_eye.t - sc.t_X) < 5 * cal.hand_eye.t_std)
 
 
 def test_turns_about_one_axis_are_refused():

@@ -18,6 +18,7 @@ from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
 from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, existing_file, image_size, import_in_background,
                      nonnegative_float, positive_float, positive_int, print_json)
+from .extract import add_bag_arguments
 
 NAME = "calibrate"
 HELP = "calibrate from tracks (or images) and robot poses; write calibration, exports and report"
@@ -38,9 +39,12 @@ def add_parser(sub) -> None:
     src = c.add_mutually_exclusive_group(required=True)
     src.add_argument("--tracks", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
     src.add_argument("--images", nargs="+", metavar="IMAGE", help="images in view order (or named in poses.csv)")
-    c.add_argument("--poses", required=True,
+    src.add_argument("--bag", metavar="RUN", help="a ROS 2 bag folder, .mcap or .db3 file, or ROS 1 .bag: its still "
+                                                  "images and their flange poses from tf (see ROS bag input)")
+    c.add_argument("--poses",
                    help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]: the flange pose of "
-                        "each view; with orientations, the camera's pose on the flange (hand-eye) too")
+                        "each view; with orientations, the camera's pose on the flange (hand-eye) too "
+                        "(required, except with --bag)")
     c.add_argument("--rotation-format", default=None,
                    choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
@@ -52,7 +56,8 @@ def add_parser(sub) -> None:
                    help="eye-in-hand: the camera on the flange (default); eye-to-hand: the camera fixed, watching "
                         "an object carried by the flange (the points are then in the flange frame)")
     c.add_argument("--out", required=True, help="output folder (created if missing)")
-    c.add_argument("--unit", default="mm", help="length unit of the poses; every output length is in it (default mm)")
+    c.add_argument("--unit", default=None,
+                   help="length unit of the poses; every output length is in it (default mm; with --bag m, tf's unit)")
     c.add_argument("--image-size", type=image_size, metavar="WxH",
                    help="image size in pixels, e.g. 640x480 (default: from the images or --truth)")
     c.add_argument("--target", choices=["squares"], help="with --images: detect the corners of dark squares")
@@ -85,6 +90,7 @@ def add_parser(sub) -> None:
     c.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
     c.add_argument("--strict", action="store_true", help="exit with status 4 when the calibration has warnings")
     c.add_argument("--quiet", action="store_true", help="no progress messages")
+    add_bag_arguments(c, with_bag=False)
     c.set_defaults(func=run)
 
 
@@ -168,21 +174,28 @@ def build_options(args, size=None):
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
                                unit=args.unit, subset_points=args.subset_points, setup=args.setup,
                                session_tolerance_deg=args.session_tolerance_deg)
-    if args.target and not args.images:
-        raise OptionError("--target", "applies to --images only")
+    if args.target and not (args.images or args.bag):
+        raise OptionError("--target", "applies to --images or --bag only")
     return options
 
 
 def check_all(args) -> dict:
     """Every check of step (1); returns what the later steps need."""
     from ..io import check_writable_dir, read_poses
+    from .extract import bag_options
 
+    args.unit = _input_unit(args)
     out = check_writable_dir(args.out, "--out")
     plan = {"out": out, "formats": parse_formats(args.formats)}
     build_options(args, args.image_size or (1, 1))  # every option but the image size checked now
     plan["truth"] = read_truth(args.truth) if args.truth else None
+    bag = bag_options(args)
     if args.tracks:
         plan["tracks"] = existing_file("--tracks", args.tracks)
+    if bag is not None:
+        return _plan_bag(args, plan, bag)
+    if args.poses is None:
+        raise OptionError("--poses", "required with --tracks or --images (the flange pose of each view)")
     poses = read_poses(existing_file("--poses", args.poses), rotation_format=args.rotation_format)
     plan["poses"] = poses
     plan["sessions"] = _sessions(poses, args.session_tolerance_deg)
@@ -198,6 +211,33 @@ def check_all(args) -> dict:
         size = tuple(int(v) for v in plan["truth"]["image_size"])
     plan["image_size"] = size
     plan["options"] = build_options(args, size)
+    return plan
+
+
+def _input_unit(args) -> str:
+    """``--unit``: mm by default; with ``--bag`` metres, tf's unit, and nothing else."""
+    if not args.bag:
+        return args.unit or "mm"
+    if args.unit not in (None, "m"):
+        raise OptionError("--unit", f"tf lengths are in metres: a --bag run takes --unit m (or none), got {args.unit!r}")
+    return "m"
+
+
+def _plan_bag(args, plan: dict, options) -> dict:
+    """The rest of :func:`check_all` for ``--bag``: the bag read (its still images and
+    flange poses), the sessions, the image size and the options."""
+    from .extract import check_bag_path, read_bag_views
+
+    for option, value in (("--poses", args.poses), ("--rotation-format", args.rotation_format)):
+        if value is not None:
+            raise OptionError(option, "not with --bag: the flange poses come from the bag's tf")
+    check_bag_path(args)
+    views = read_bag_views(args, options, args._progress)
+    args._progress.log(f"  {views.describe(options)}")
+    plan.update(bag=views, poses=views.poses(), images=list(views.images))
+    plan["sessions"] = _sessions(plan["poses"], args.session_tolerance_deg)
+    plan["image_size"] = args.image_size or (views.images[0].shape[1], views.images[0].shape[0])
+    plan["options"] = build_options(args, plan["image_size"])
     return plan
 
 
@@ -242,17 +282,18 @@ def track_images(images, target, progress: Progress, T=None, sessions=None):
     """Tracks from images: ``target="squares"`` finds the corners of dark squares; with
     the robot translations ``T`` the epipoles are checked against them; several
     ``sessions`` are tracked each alone and linked."""
+    images = [p if isinstance(p, np.ndarray) else str(p) for p in images]  # paths, or a bag's pixels
     if sessions is not None:
         from ..images import track_sessions
 
-        return track_sessions([str(p) for p in images], sessions.session_of_view, T=T)
+        return track_sessions(images, sessions.session_of_view, T=T)
     if target == "squares":
         from ..images import track_squares
 
-        return track_squares([str(p) for p in images], progress=progress)
+        return track_squares(images, progress=progress)
     from ..images import track
 
-    return track([str(p) for p in images], progress=progress, T=T)
+    return track(images, progress=progress, T=T)
 
 
 def _observations(args, plan, progress: Progress):
@@ -261,12 +302,13 @@ def _observations(args, plan, progress: Progress):
     from ..io.ids import point_id_array
 
     poses = plan["poses"]
-    if args.images:
+    if args.images or args.bag:
         progress.log(f"tracking {len(plan['images'])} images ...")
         tracks = track_images(plan["images"], args.target, progress, T=poses.T, sessions=plan["sessions"])
         ids = point_id_array(tracks.ids)
         tio.write_tracks_csv(plan["out"] / "tracks.csv", tracks.uv, ids, poses.views)
-        return tracks.uv, ids, tracks.colors, [p.name for p in plan["images"]]
+        names = plan["bag"].names if args.bag else [p.name for p in plan["images"]]
+        return tracks.uv, ids, tracks.colors, names
     uv, ids = tio.tracks_to_uv(plan["tracks"], poses)
     names = poses.images or [f"view{v}.png" for v in poses.views]
     return uv, ids, None, names
@@ -317,8 +359,10 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     hand_eye = cal.hand_eye
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
-    inputs = {"tracks": None if args.tracks is None else str(args.tracks), "poses": str(args.poses),
+    inputs = {"tracks": None if args.tracks is None else str(args.tracks),
+              "poses": None if args.poses is None else str(args.poses),
               "images": None if not args.images else [str(p) for p in plan["images"]],
+              **({} if not args.bag else {"bag": str(args.bag), "bag_images": plan["bag"].counts()}),
               "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
               "image_size_from": _size_source(args, plan)}
     ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
@@ -330,7 +374,7 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
     notes = _size_notes(cal, uv, plan)
     for note in notes:
         progress.log(f"note: {note}")
-    if args.images:
+    if args.images or args.bag:
         written.insert(0, plan["out"] / "tracks.csv")
     t_end = time.perf_counter()
     memory["after_write"] = _peak_rss_gib()
@@ -377,7 +421,7 @@ def _size_notes(cal, uv, plan) -> list[str]:
 def _size_source(args, plan) -> str | None:
     if args.image_size:
         return "--image-size"
-    if args.images:
+    if args.images or args.bag:
         return "images"
     if plan["image_size"] is not None:
         return "--truth"

@@ -68,8 +68,11 @@ class GeneralStart:
         Triangulated points (base frame; NaN where fewer than 2 views).
     pairs : (m, 2) int
         The view pairs used.
+    planar : (m,) bool
+        Pairs whose motion came from their homography (its rotation nearer the flange's:
+        a flat scene, or one of little relief, leaves the epipolar geometry weak).
     pair_inliers : (m,) int
-        Correspondences consistent with each pair's epipolar geometry.
+        Correspondences consistent with each pair's better supported model.
     """
 
     K: np.ndarray
@@ -77,6 +80,7 @@ class GeneralStart:
     t_X: np.ndarray
     X: np.ndarray
     pairs: np.ndarray
+    planar: np.ndarray
     pair_inliers: np.ndarray
 
 
@@ -102,20 +106,20 @@ def general_start(uv: np.ndarray, T: np.ndarray, R: np.ndarray, rng=None) -> Gen
     pairs = view_pairs(uv)
     geometry = [_pair_geometry(uv[i], uv[j], rng) for i, j in pairs]
     keep = np.array([g is not None for g in geometry], bool)
-    pairs = pairs[keep]
-    F = np.stack([g[0] for g in geometry if g is not None]) if keep.any() else np.zeros((0, 3, 3))
-    n_inliers = np.array([g[1] for g in geometry if g is not None], int)
+    pairs, geometry = pairs[keep], [g for g in geometry if g is not None]
+    F = np.stack([g.F for g in geometry]) if geometry else np.zeros((0, 3, 3))
+    H = np.stack([g.H for g in geometry]) if geometry else np.zeros((0, 3, 3))
     flange = np.einsum("pba,pbc->pac", R[pairs[:, 1]], R[pairs[:, 0]])  # R_j^T R_i
     check_turns(flange)
     centre, extent = _pixel_centre_and_extent(uv)
-    f = _best_focal(F, flange, centre, extent)
+    f = _best_focal(F, H, flange, centre, extent)
     K = _intrinsics(f, centre)
-    R_E, t_dir = _pair_motions(F, K, flange)
+    R_E, t_dir, planar = _pair_motions(F, H, K, flange)
     R_X = _procrustes(R_E, flange)
     t_X = _offset(R_X, R, T, pairs, t_dir)
     R_cam = np.transpose(R @ R_X, (0, 2, 1))
     X = triangulate(K @ R_cam, uv, T + R @ t_X)
-    return GeneralStart(K, R_X, t_X, X, pairs, n_inliers)
+    return GeneralStart(K, R_X, t_X, X, pairs, planar, np.array([g.n_inliers for g in geometry], int))
 
 
 def view_pairs(uv: np.ndarray) -> np.ndarray:
@@ -159,10 +163,10 @@ def _intrinsics(f: float, centre: np.ndarray) -> np.ndarray:
     return np.array([[f, 0.0, centre[0]], [0.0, f, centre[1]], [0.0, 0.0, 1.0]])
 
 
-def _best_focal(F: np.ndarray, flange: np.ndarray, centre: np.ndarray, extent: float) -> float:
+def _best_focal(F: np.ndarray, H: np.ndarray, flange: np.ndarray, centre: np.ndarray, extent: float) -> float:
     """The focal length (px) whose pair rotations agree best with the flange's."""
     def cost(log_f: float) -> float:
-        R_E, _ = _pair_motions(F, _intrinsics(np.exp(log_f), centre), flange)
+        R_E = _pair_motions(F, H, _intrinsics(np.exp(log_f), centre), flange)[0]
         return _rotation_misfit(R_E, flange, _procrustes(R_E, flange))
 
     grid = np.log(extent) + np.linspace(np.log(FOCAL_RANGE[0]), np.log(FOCAL_RANGE[1]), FOCAL_GRID)
@@ -173,19 +177,61 @@ def _best_focal(F: np.ndarray, flange: np.ndarray, centre: np.ndarray, extent: f
     return float(np.exp(res.x if res.fun <= costs[k] else grid[k]))
 
 
-def _pair_motions(F: np.ndarray, K: np.ndarray, flange: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pair_motions(F: np.ndarray, H: np.ndarray, K: np.ndarray,
+                  flange: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each pair's camera rotation ``R_E (m, 3, 3)`` and translation direction ``t (m, 3)``
-    from ``E = K^T F K``; of the two rotations ``E`` allows, the one whose angle is nearer
-    the flange's relative rotation ``flange (m, 3, 3)``."""
-    E = np.einsum("ba,pbc,cd->pad", K, F, K)
+    (``x_j = R_E x_i + t``) with the camera ``K``: of the two rotations its essential
+    matrix ``K^T F K`` allows and the two its calibrated homography ``K^-1 H K`` allows
+    (``F``, ``H`` (m, 3, 3), NaN where not fitted), the one whose angle is nearest the
+    flange's relative rotation ``flange (m, 3, 3)`` (conjugation keeps the angle); and
+    whether it came from the homography ``(m,)``."""
+    R_e, t_e = _essential_motions(np.einsum("ba,pbc,cd->pad", K, np.nan_to_num(F), K))
+    R_h, t_h = _homography_motions(np.einsum("ab,pbc,cd->pad", np.linalg.inv(K), np.nan_to_num(H), K))
+    candidates = np.concatenate([R_e, R_h], axis=1)  # (m, 4, 3, 3)
+    t = np.concatenate([np.repeat(t_e[:, None], 2, axis=1), t_h], axis=1)  # (m, 4, 3)
+    off = np.abs(rotation_angle_deg(candidates) - rotation_angle_deg(flange)[:, None])
+    fitted = np.repeat(np.stack([np.isfinite(F[:, 0, 0]), np.isfinite(H[:, 0, 0])], axis=1), 2, axis=1)
+    take = np.argmin(np.where(fitted, off, np.inf), axis=1)
+    rows = np.arange(len(F))
+    return candidates[rows, take], t[rows, take], take >= 2
+
+
+def _essential_motions(E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two rotations ``(m, 2, 3, 3)`` and the translation direction ``(m, 3)`` an
+    essential matrix ``E = [t]x R`` allows (Hartley & Zisserman, result 9.19)."""
     U, _, Vt = np.linalg.svd(E)
     U = U * np.sign(np.linalg.det(U))[:, None, None]
     Vt = Vt * np.sign(np.linalg.det(Vt))[:, None, None]
     W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    Ra, Rb = U @ W @ Vt, U @ W.T @ Vt
-    target = rotation_angle_deg(flange)
-    take_a = np.abs(rotation_angle_deg(Ra) - target) <= np.abs(rotation_angle_deg(Rb) - target)
-    return np.where(take_a[:, None, None], Ra, Rb), U[:, :, 2]
+    return np.stack([U @ W @ Vt, U @ W.T @ Vt], axis=1), U[:, :, 2]
+
+
+def _homography_motions(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two rotations ``(m, 2, 3, 3)`` and translation directions ``(m, 2, 3)`` a
+    calibrated plane homography ``H ~ R + t n^T`` allows (Ma, Soatto, Kosecka & Sastry,
+    *An Invitation to 3-D Vision*, section 5.3.3): with ``H`` scaled to its middle
+    singular value 1 and positive determinant, ``H^T H = V diag(s1^2, 1, s3^2) V^T``,
+    ``u = (sqrt(1 - s3^2) v1 +- sqrt(s1^2 - 1) v3) / sqrt(s1^2 - s3^2)``,
+    ``R = [H v2, H u, [H v2]x H u] [v2, u, [v2]x u]^T``, ``n = [v2]x u``, ``t = (H - R) n``.
+    Without translation (``s1 = s3``) ``H`` is the rotation and ``t = 0``."""
+    sv = np.linalg.svd(H, compute_uv=False)
+    H = H / sv[:, 1:2, None] * np.sign(np.linalg.det(H))[:, None, None]
+    w, V = np.linalg.eigh(np.transpose(H, (0, 2, 1)) @ H)  # ascending: s3^2, 1, s1^2
+    s3, s1 = w[:, 0], w[:, 2]
+    v1, v2, v3 = V[:, :, 2], V[:, :, 1], V[:, :, 0]
+    spread = np.sqrt(np.maximum(s1 - s3, 1e-300))[:, None]
+    a, b = np.sqrt(np.clip(1 - s3, 0, None))[:, None], np.sqrt(np.clip(s1 - 1, 0, None))[:, None]
+    Rs, ts = [], []
+    for u in ((a * v1 + b * v3) / spread, (a * v1 - b * v3) / spread):
+        n = np.cross(v2, u)
+        Hv2, Hu = np.einsum("pab,pb->pa", H, v2), np.einsum("pab,pb->pa", H, u)
+        Rm = np.stack([Hv2, Hu, np.cross(Hv2, Hu)], axis=2) @ np.transpose(np.stack([v2, u, n], axis=2), (0, 2, 1))
+        Rs.append(Rm)
+        ts.append(np.einsum("pab,pb->pa", H - Rm, n))
+    R, t = np.stack(Rs, axis=1), np.stack(ts, axis=1)
+    still = (s1 - s3 < 1e-12)[:, None]
+    nearest = np.stack([nearest_rotation(h) for h in H])[:, None]
+    return np.where(still[..., None, None], nearest, R), np.where(still[..., None], 0.0, t)
 
 
 def _procrustes(R_E: np.ndarray, flange: np.ndarray) -> np.ndarray:
@@ -210,17 +256,32 @@ def _offset(R_X: np.ndarray, R: np.ndarray, T: np.ndarray, pairs: np.ndarray, t_
     return np.linalg.lstsq(A, b, rcond=1e-9)[0]
 
 
-def _pair_geometry(uv_i: np.ndarray, uv_j: np.ndarray, rng) -> tuple[np.ndarray, int] | None:
-    """The fundamental matrix ``(3, 3)`` of two views (pixels, ``p_j^T F p_i = 0``) and
-    its number of inliers, or None without a consensus of :data:`MIN_COMMON`."""
+@dataclass(frozen=True, eq=False)
+class _PairGeometry:
+    """Two views' fundamental matrix ``F`` and homography ``H`` (pixels, ``i -> j``; NaN
+    where its robust fit found no consensus) and the inliers of the better supported."""
+
+    F: np.ndarray
+    H: np.ndarray
+    n_inliers: int
+
+
+def _pair_geometry(uv_i: np.ndarray, uv_j: np.ndarray, rng) -> _PairGeometry | None:
+    """The epipolar geometry of two views (``p_j^T F p_i = 0``) and their homography (a
+    flat scene, or one of little relief, leaves ``F`` undetermined or ill-conditioned;
+    the homography then gives the motion); None without a consensus of
+    :data:`MIN_COMMON` for either."""
     both = np.isfinite(uv_i[:, 0]) & np.isfinite(uv_j[:, 0])
     if both.sum() < MIN_COMMON:
         return None
-    problem = _EightPoint(uv_i[both], uv_j[both])
-    best = lo_ransac(problem, sigma=None, rng=rng, stage="view pair")
-    if best.hypothesis is None or best.n_inliers < MIN_COMMON:
+    p1, p2 = uv_i[both], uv_j[both]
+    fits = [lo_ransac(problem, sigma=None, rng=rng, stage="view pair") for problem in
+            (_EightPoint(p1, p2), _FourPoint(p1, p2))]
+    ok = [f.hypothesis is not None and f.n_inliers >= MIN_COMMON for f in fits]
+    if not any(ok):
         return None
-    return best.hypothesis.reshape(3, 3), int(best.n_inliers)
+    F, H = (f.hypothesis.reshape(3, 3) if good else np.full((3, 3), np.nan) for f, good in zip(fits, ok))
+    return _PairGeometry(F, H, int(max(f.n_inliers for f, good in zip(fits, ok) if good)))
 
 
 def _normaliser(p: np.ndarray) -> np.ndarray:
@@ -274,3 +335,50 @@ class _EightPoint:
         F = self.N2.T @ (U * s[:, None, :]) @ Vt @ self.N1
         F /= np.linalg.norm(F, axis=(1, 2))[:, None, None]
         return F.reshape(-1, 9), np.all(np.isfinite(F), axis=(1, 2))
+
+
+class _FourPoint:
+    """Two views' homography as hooks of the generic loop: data are the correspondences
+    ``p1, p2 (n, 2)`` (pixels); a hypothesis is ``H`` flattened (9,), in pixels; errors
+    are squared transfer errors in the second view (px^2, 2 degrees of freedom)."""
+
+    sample_size = 4
+
+    def __init__(self, p1: np.ndarray, p2: np.ndarray):
+        n = len(p1)
+        self.h1, self.p2 = np.c_[p1, np.ones(n)], p2
+        self.N1, self.N2 = _normaliser(p1), _normaliser(p2)
+        self.q1, self.q2 = self.h1 @ self.N1.T, np.c_[p2, np.ones(n)] @ self.N2.T
+        self.dof = np.full(n, 2)
+        self.scorable = np.ones(n, bool)
+        self.samplable = np.ones(n, bool)
+
+    def sample(self, rng, size: int) -> np.ndarray:
+        return np.argsort(rng.random((size, len(self.h1))), axis=1)[:, : self.sample_size]
+
+    def solve(self, samples: np.ndarray):
+        return self._fit(self.q1[samples], self.q2[samples])
+
+    def refit(self, inliers: np.ndarray):
+        return self._fit(self.q1[inliers][None], self.q2[inliers][None])
+
+    def errors(self, hypotheses: np.ndarray) -> np.ndarray:
+        q = np.einsum("hab,nb->hna", hypotheses.reshape(-1, 3, 3), self.h1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = q[..., :2] / q[..., 2:3] - self.p2[None]
+        e = np.sum(d * d, axis=2)
+        return np.where(np.isfinite(e), e, np.inf)
+
+    def _fit(self, q1: np.ndarray, q2: np.ndarray):
+        """Batched DLT (m >= 4) on normalised coordinates ``(B, m, 3)``: ``q2 x (H q1) = 0``,
+        returned in pixels with unit norm ``(B, 9)`` and validity."""
+        B, m = q1.shape[:2]
+        A = np.zeros((B, 2 * m, 9))
+        A[:, 0::2, 3:6] = -q2[..., 2:3] * q1
+        A[:, 0::2, 6:9] = q2[..., 1:2] * q1
+        A[:, 1::2, 0:3] = q2[..., 2:3] * q1
+        A[:, 1::2, 6:9] = -q2[..., 0:1] * q1
+        Hn = np.linalg.svd(A)[2][:, -1].reshape(-1, 3, 3)
+        H = np.linalg.inv(self.N2) @ Hn @ self.N1
+        H /= np.linalg.norm(H, axis=(1, 2))[:, None, None]
+        return H.reshape(-1, 9), np.all(np.isfinite(H), axis=(1, 2))

@@ -10,15 +10,18 @@ Every sample of every pixel follows::
 
 so a scene point ``X`` appears exactly at ``camera.project(K, R, X, T, dist)``: the
 centre of the top-left pixel is (0, 0) (OpenCV). :func:`surface_hits` and
-:func:`on_surface` are the ray-rectangle intersection, also used for the ground truth
-of rendered pixels (:meth:`transcalib.synth.render.Rendered.backproject`).
+:func:`on_surface` are the ray-rectangle intersection and :func:`nearest_hits` the
+z-buffer of a few rays, also used for the ground truth of rendered pixels
+(:meth:`transcalib.synth.render.Rendered.backproject`,
+:meth:`transcalib.synth.robot.RobotRendered.ray_hits`). Each surface is cast only over the
+pixels its rays can reach (:func:`_crop`; through a lens, :func:`_distorted_box`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.camera import undistort
+from ..geometry.camera import distort, pad_dist, pixels_to_rays, undistort
 
 __all__ = ["sample_rays", "surface_hits", "on_surface", "nearest_hits", "render_view"]
 
@@ -43,23 +46,62 @@ def sample_rays(K, R, dist, image_size, S):
 
 
 def _crop(sf, K, R, dist, C, image_size, S):
-    """Sample-grid rows/cols slice covering surface ``sf`` in the view at ``C``."""
+    """Sample-grid rows/cols slice covering surface ``sf`` in the view at ``C`` (None: not
+    in view)."""
     w, h = image_size
     if sf.cull_back and np.dot(sf.normal, C - sf.origin) <= 0:
         return None  # back face of a closed solid: hidden by the front faces
     full = (slice(0, h * S), slice(0, w * S))
-    if np.asarray(dist).size and np.any(np.asarray(dist) != 0):
-        return full  # distortion can fold far-off points: render the whole frame
     P = sf.point(np.array([[0, 0], [sf.size[0], 0], [sf.size[0], sf.size[1]], [0, sf.size[1]]], float))
     Xc = (P - C) @ R.T
     if np.any(Xc[:, 2] <= 1e-9 * np.abs(Xc).max()):
         return full
-    uv = Xc[:, :2] / Xc[:, 2:] @ K[:2, :2].T + K[:2, 2]
-    lo = np.floor((uv.min(0) - 2.0 + 0.5) * S - 0.5).astype(int)
-    hi = np.ceil((uv.max(0) + 2.0 + 0.5) * S - 0.5).astype(int) + 1
+    xy = Xc[:, :2] / Xc[:, 2:]
+    if np.asarray(dist).size and np.any(np.asarray(dist) != 0):
+        box = _distorted_box(xy.min(0), xy.max(0), K, dist, image_size)
+        if box is None:
+            return None
+        uv_lo, uv_hi = box
+    else:
+        uv = xy @ K[:2, :2].T + K[:2, 2]
+        uv_lo, uv_hi = uv.min(0), uv.max(0)
+    lo = np.floor((uv_lo - 2.0 + 0.5) * S - 0.5).astype(int)
+    hi = np.ceil((uv_hi + 2.0 + 0.5) * S - 0.5).astype(int) + 1
     if hi[0] <= 0 or hi[1] <= 0 or lo[0] >= w * S or lo[1] >= h * S:
         return None
     return (slice(max(lo[1], 0), min(hi[1], h * S)), slice(max(lo[0], 0), min(hi[0], w * S)))
+
+
+def _distorted_box(lo, hi, K, dist, image_size, n_side: int = 64):
+    """Pixel bounding box ``(uv_lo, uv_hi)`` of the rays that can meet a surface whose
+    pinhole (undistorted, normalised) bounding box is ``[lo, hi]``, through the lens
+    ``dist``: None when no ray of the image reaches it, the whole image when the lens
+    folds.
+
+    Only the part of ``[lo, hi]`` inside the undistorted field of view (the bounding box of
+    the image border undistorted, +1 %) can be hit. There the lens is checked to be
+    monotonic in the radius (``d r_d / d r > 0``, the radial terms), so the image of the
+    clipped box is bounded by the image of its border, sampled ``n_side`` times a side.
+    """
+    w, h = image_size
+    dist5 = pad_dist(dist)
+    t = np.linspace(0.0, 1.0, n_side)
+    border = np.concatenate([np.c_[t * w, 0 * t], np.c_[t * w, 0 * t + h], np.c_[0 * t, t * h],
+                             np.c_[0 * t + w, t * h]]) - 0.5  # the samples reach half a pixel out
+    field = pixels_to_rays(K, border, dist5)[:, :2]
+    pad = 0.01 * (field.max(0) - field.min(0))
+    lo, hi = np.maximum(lo, field.min(0) - pad), np.minimum(hi, field.max(0) + pad)
+    if np.any(lo > hi):
+        return None
+    r2 = np.linspace(0.0, 1.0, 256) * np.max(np.maximum(lo**2, hi**2).sum())
+    k1, k2, _, _, k3 = dist5
+    if np.any(1.0 + r2 * (3 * k1 + r2 * (5 * k2 + r2 * 7 * k3)) <= 0.05):
+        return np.array([-1.0, -1.0]), np.array([w, h], float)  # the whole image
+    x = np.concatenate([lo[0] + t * (hi[0] - lo[0]), lo[0] + t * (hi[0] - lo[0]), 0 * t + lo[0], 0 * t + hi[0]])
+    y = np.concatenate([0 * t + lo[1], 0 * t + hi[1], lo[1] + t * (hi[1] - lo[1]), lo[1] + t * (hi[1] - lo[1])])
+    d = distort(x, y, dist5)
+    uv = np.c_[d.xd, d.yd] @ K[:2, :2].T + K[:2, 2]
+    return uv.min(0), uv.max(0)
 
 
 def surface_hits(sf, d, C, sl=slice(None)):
@@ -86,20 +128,36 @@ def on_surface(sf, z, s, t) -> np.ndarray:
 
 
 def nearest_hits(surfaces, d, C) -> tuple[np.ndarray, np.ndarray]:
-    """The nearest surface along every ray ``C + z d``: depth ``z`` (inf where no surface
-    is hit; camera z when ``d`` has unit camera z) and the index into ``surfaces`` of the
-    surface hit (-1: none), each ``d[0].shape`` - the z-buffer of :func:`render_view`
-    without its crops, for the exact truth of every pixel."""
+    """The nearest surface along each ray ``C + z d`` (the render's z-buffer, for a few rays).
+
+    Parameters
+    ----------
+    surfaces : list of Surface
+    d : (3, n) float
+        World ray directions (unit camera z gives camera depths).
+    C : (3,) float
+        Ray origin (camera centre).
+
+    Returns
+    -------
+    depth : (n,) float
+        ``z`` of the nearest hit, ``inf`` where no surface is hit.
+    which : (n,) int
+        Index into ``surfaces`` of the surface hit, -1 where none.
+
+    Back faces are skipped as in the render (``cull_back``). Any shape of ``d[0]`` works
+    (a whole image of rays: the exact depth of every pixel, ``Rendered.depth_map``).
+    """
     best = np.full(np.shape(d[0]), np.inf)
-    owner = np.full(np.shape(d[0]), -1, dtype=np.int32)
-    for k, sf in enumerate(surfaces):  # a loop over surfaces, vectorised over the rays
+    which = np.full(np.shape(d[0]), -1)
+    for k, sf in enumerate(surfaces):  # a loop over surfaces, vectorised over rays
         if sf.cull_back and np.dot(sf.normal, C - sf.origin) <= 0:
             continue
         z, s, t = surface_hits(sf, d, C)
         hit = on_surface(sf, z, s, t) & (z < best)
         best[hit] = z[hit]
-        owner[hit] = k
-    return best, owner
+        which[hit] = k
+    return best, which
 
 
 def render_view(surfaces, d, C, S, background, K, R, dist, image_size):

@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.camera import pixels_to_rays, project
 from .degrade import Degradations, degrade_view, draw_view_effects, overlay_box
-from .raycast import nearest_hits, on_surface, render_view, sample_rays, surface_hits
+from .raycast import nearest_hits, render_view, sample_rays
 from .presets import SCENE_KINDS, default_camera, preset_scene, ring_translations, robot_translations
 from .simulate import Scene
 from .surfaces import Surface, box, checker_board, paper_board, plane
@@ -159,8 +159,43 @@ def _float_view(radiance, blur_sigma, noise_std, rng):
     return img
 
 
+class PixelTruth:
+    """The ground truth of tracked pixels, for a rendering whose ``backproject(view, uv,
+    return_surface=True)`` gives the point seen at each pixel (NaN: none) and the index of
+    its surface (-1: none): :class:`Rendered` and
+    :class:`~transcalib.synth.robot.RobotRendered`."""
+
+    def track_truth(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ground truth of tracks ``uv (n_views, n, 2)``: the point ``(n, 3)`` (in the frame
+        of ``backproject``; NaN: background) seen at each track's first observation, and
+        ``(n,)`` bool, True where that observation is next to an occlusion edge (a
+        T-junction of two depths has no fixed 3-D point)."""
+        seen = np.isfinite(uv[..., 0])
+        first = np.argmax(seen, axis=0)
+        X = np.full((uv.shape[1], 3), np.nan)
+        junction = np.zeros(uv.shape[1], bool)
+        for v in range(uv.shape[0]):
+            mine = first == v
+            X[mine] = self.backproject(v, uv[v, mine])
+            junction[mine] = self.near_occlusion(v, uv[v, mine])
+        return X, junction
+
+    def near_occlusion(self, view: int, uv: np.ndarray, radius_px: float = 10.0) -> np.ndarray:
+        """``(n,)`` bool: a different surface (or background) lies within ``radius_px`` of
+        pixels ``uv`` in ``view`` - features there may be occlusion ghosts (T-junctions),
+        which have no fixed 3-D point."""
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        if len(uv) == 0:
+            return np.zeros(0, bool)
+        ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        offs = np.concatenate([f * radius_px * np.column_stack([np.cos(ang), np.sin(ang)]) for f in (0.5, 1.0)])
+        _, s0 = self.backproject(view, uv, return_surface=True)
+        _, s = self.backproject(view, (uv[:, None, :] + offs[None]).reshape(-1, 2), return_surface=True)
+        return np.any(s.reshape(len(uv), -1) != s0[:, None], axis=1)
+
+
 @dataclass(frozen=True, eq=False)
-class Rendered:
+class Rendered(PixelTruth):
     """Rendered images with their exact ground truth.
 
     Attributes
@@ -202,13 +237,7 @@ class Rendered:
         uv = np.asarray(uv, float).reshape(-1, 2)
         d = pixels_to_rays(self.K, uv, self.dist) @ self.R  # world directions, unit camera z
         C = self.T[view]
-        best = np.full(len(uv), np.inf)
-        which = np.full(len(uv), -1)
-        for k, sf in enumerate(self.surfaces):  # a loop over surfaces: nearest hit, as in the render
-            z, s, t = surface_hits(sf, d.T, C)
-            hit = on_surface(sf, z, s, t) & (z < best)
-            best[hit] = z[hit]
-            which[hit] = k
+        best, which = nearest_hits(self.surfaces, d.T, C)  # as in the render
         X = C + best[:, None] * d
         X[~np.isfinite(best)] = np.nan
         return (X, which) if return_surface else X
@@ -231,33 +260,6 @@ class Rendered:
         """``(n_surfaces,)`` bool: the surface has a texture (anything but
         :class:`~transcalib.synth.textures.Constant`)."""
         return np.array([not isinstance(sf.texture, Constant) for sf in self.surfaces], bool)
-
-    def track_truth(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ground truth of tracks ``uv (n_views, n, 2)``: the world point ``(n, 3)`` seen at
-        each track's first observation, and ``(n,)`` bool, True where that observation is
-        next to an occlusion edge (a T-junction of two depths has no fixed 3-D point)."""
-        seen = np.isfinite(uv[..., 0])
-        first = np.argmax(seen, axis=0)
-        X = np.full((uv.shape[1], 3), np.nan)
-        junction = np.zeros(uv.shape[1], bool)
-        for v in range(uv.shape[0]):
-            mine = first == v
-            X[mine] = self.backproject(v, uv[v, mine])
-            junction[mine] = self.near_occlusion(v, uv[v, mine])
-        return X, junction
-
-    def near_occlusion(self, view: int, uv: np.ndarray, radius_px: float = 10.0) -> np.ndarray:
-        """``(n,)`` bool: a different surface (or background) lies within ``radius_px`` of
-        pixels ``uv`` in ``view`` - features there may be occlusion ghosts (T-junctions),
-        which have no fixed 3-D point."""
-        uv = np.asarray(uv, float).reshape(-1, 2)
-        if len(uv) == 0:
-            return np.zeros(0, bool)
-        ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-        offs = np.concatenate([f * radius_px * np.column_stack([np.cos(ang), np.sin(ang)]) for f in (0.5, 1.0)])
-        _, s0 = self.backproject(view, uv, return_surface=True)
-        _, s = self.backproject(view, (uv[:, None, :] + offs[None]).reshape(-1, 2), return_surface=True)
-        return np.any(s.reshape(len(uv), -1) != s0[:, None], axis=1)
 
     def visible(self, X: np.ndarray, margin_px: float = 0.0, tol: float = 1e-6) -> np.ndarray:
         """``(n_views, n)`` bool: point inside the image (by ``margin_px``) and not occluded."""

@@ -8,7 +8,7 @@ world coordinates of their corners (the ground truth of the target mode).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,6 +51,19 @@ class Surface:
         """World points ``(n, 3)`` of surface coordinates ``st`` ``(n, 2)``."""
         st = np.asarray(st, float)
         return self.origin + st[:, :1] * self.axis_s + st[:, 1:2] * self.axis_t
+
+    def moved(self, R: np.ndarray, t: np.ndarray) -> "Surface":
+        """The surface moved rigidly by ``x -> R x + t``: origin ``R o + t``, axes ``R a``;
+        the same texture (in its own ``(s, t)``), size, name and culling.
+
+        Parameters
+        ----------
+        R : (3, 3) float
+            A rotation (det +1; not checked here: callers check their poses once).
+        t : (3,) float
+        """
+        R, t = np.asarray(R, float), np.asarray(t, float)
+        return replace(self, origin=R @ self.origin + t, axis_s=R @ self.axis_s, axis_t=R @ self.axis_t)
 
 
 def plane(center, normal_rot, size, texture, name: str = "") -> Surface:
