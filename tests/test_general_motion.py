@@ -93,3 +93,17 @@ def test_corrupted_tracks_do_not_derail_the_start():
         assert abs(cal.K[0, 0] - base.K[0, 0]) < 6 * cal.std["fx"]
         assert np.all(np.abs(cal.hand_eye.t - base.t_X) < 6 * cal.hand_eye.t_std)
         assert (~cal.inliers).sum() >= 0.8 * (uv.shape[1] // 5)
+
+
+def test_a_view_with_its_orientation_off_is_named_and_left_out():
+    """One view's recorded orientation 5 deg off: every pair it belongs to disagrees with
+    the flange; it is named with about its angle and left out, and the rest calibrates
+    as if it were absent (without the check: fx 87 px off, t_X 1.7 m)."""
+    sc = session_scene(1, n_sessions=0, single_views=10, single_tilt_deg=(15, 60), n_points=80, noise_px=0.5)
+    R = sc.R.copy()
+    R[4] = rotvec_to_matrix(np.radians([3.0, -4.0, 0.0])) @ R[4]
+    cal = calibrate(sc.uv, Poses.of(sc.T, R), distortion="none", rng=0)
+    off = [d for d in cal.diagnostics if d.code == "pose_orientation_off"]
+    assert len(off) == 1 and "view 4:" in off[0]
+    assert np.isnan(cal.residuals_px[4]).all()
+    assert abs(cal.K[0, 0] - sc.K[0, 0]) < 5 * cal.std["fx"]

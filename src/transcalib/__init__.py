@@ -43,6 +43,7 @@ _LAZY = {
     "export": (".io.export", "export_calibration"),
     "crlb": (".estimate.covariance", "crlb"),
     "diagnose": (".check", "diagnose"),
+    "validate_views": (".pipeline.validate", "validate_views"),
     "track": (".images", "track"),
     "track_squares": (".images", "track_squares"),
     "Tracks": (".images.frames", "Tracks"),

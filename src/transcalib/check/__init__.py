@@ -3,7 +3,7 @@
 Every check returns a list of :class:`~transcalib.types.Diagnostic` (a ``str`` with a
 stable ``code``); an empty list means nothing suspicious. :func:`diagnose` runs them all
 and is silent on healthy data. Modules: :mod:`.translations`, :mod:`.linear`,
-:mod:`.points`, :mod:`.tracks`, :mod:`.rotation` (and the start's
+:mod:`.points`, :mod:`.tracks`, :mod:`.rotation`, :mod:`.poses`, :mod:`.fixed` (and the start's
 ``pose_orientation_off``, :mod:`transcalib.handeye.join`).
 
 =========================  ==============================================================
@@ -20,6 +20,10 @@ code                       meaning
 ``outliers``               gross outliers left in the residuals (mismatched tracks)
 ``view_rotation``          model violation: the camera turned otherwise than the poses say
 ``pose_orientation_off``   a single view whose recorded orientation its image contradicts (left out)
+``fix_contradicted``       a known parameter held fixed (``fix``, CLI ``--fix``) that the data contradict
+``pose_outlier``           a view whose recorded position its image contradicts, with the size of the error
+``pose_repeated``          two views at the same recorded pose whose images differ (a row copied)
+``unit_implausible``       the scene's distance or the robot's moves are implausible in the unit given
 ``static_tracks``          tracks that do not move at all (left out)
 ``low_parallax``           tracks whose motion is below 5 x the pixel noise
 ``inliers_few``            fewer than half of the tracked points are inliers
@@ -38,6 +42,8 @@ from ..types import Calibration, LinearEstimate
 from ..validate import WEAK_SPAN_RATIO, as_uv_T
 from .common import camera_poses, depths
 from .linear import check_null_space
+from .fixed import check_fixed
+from .poses import check_pose_outliers, check_repeated_poses, check_unit
 from .points import check_outliers, check_points_behind, check_views
 from .rotation import check_view_rotations, locate_view_rotation, view_rotation_test
 from .tracks import check_inliers, check_intrinsics, check_parallax, check_threshold
@@ -54,7 +60,8 @@ def skipped(check: str, reason) -> Diagnostic:
 
 
 def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_rotation: bool = True,
-             unit: str = "units", all_uv=None, rotation_data=None, sessions=None, views_left_out=None) -> list:
+             unit: str = "units", all_uv=None, rotation_data=None, sessions=None, views_left_out=None,
+             view_ids=None, setup: str = "eye-in-hand") -> list:
     """Run every check on a calibration; an empty list on healthy data.
 
     Parameters
@@ -86,19 +93,28 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
         determines the camera, and where image motion is parallax.
     views_left_out : (n_views,) bool, optional
         Views the start left out (their poses contradict their images; reported there).
+    view_ids : sequence of str, optional
+        The user's view ids, for the pose checks' messages (default the indices).
+    setup : {"eye-in-hand", "eye-to-hand"}
+        Eye-to-hand ``T`` holds the inverted poses: a pose error is named in the robot's terms.
 
     Returns
     -------
     list of Diagnostic
-        In the order: translations, null space, points behind, tracks (parallax, inliers,
-        threshold, plausibility), views, outliers, rotation; a ``check_skipped`` entry for
-        each check that could not run.
+        In the order: contradicted fixed parameters, repeated poses, translations, unit,
+        null space, points behind, tracks (parallax, inliers, threshold, plausibility),
+        views, outliers, an outlying pose or else the rotation (neither with a
+        contradicted fixed parameter); a ``check_skipped`` entry for each check that
+        could not run.
     """
     uv, T = as_uv_T(uv, T, min_views=2)
     K, X = np.asarray(calibration.K, float), np.asarray(calibration.X, float)
     sessions = _sessions(calibration, sessions, len(T))
     R_cam, C = camera_poses(calibration, T)
+    R_model = getattr(calibration, "flange_rotations", None)
     out = []
+    if isinstance(calibration, Calibration):
+        out += check_repeated_poses(uv, T, R_model, sigma_px=calibration.sigma_px, view_ids=view_ids, unit=unit)
     sizes = np.bincount(sessions)
     if np.sum(sizes == 1) < 2:  # >= 2 single views determine K and R whatever the moves
         moves, frame = _session_moves(T, calibration, sessions)
@@ -107,6 +123,7 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
         ratio = WEAK_SPAN_RATIO if np.sum(sizes >= 1) == 1 else 0.0
         out += check_translations(moves, focal_px=0.5 * (K[0, 0] + K[1, 1]), distance=_scene_distance(R_cam, X, C),
                                   unit=unit, frame=frame, coplanar_ratio=ratio)
+    out += check_unit(_scene_distance(R_cam, X, C), T, unit)
     if linear is None:
         linear = calibration if isinstance(calibration, LinearEstimate) else calibration.linear
     if linear is not None:
@@ -117,12 +134,38 @@ def diagnose(uv, T, calibration, *, linear: LinearEstimate | None = None, check_
         out += check_views(uv, calibration.residuals_px, used=calibration.inliers, left_out=views_left_out)
         out += check_outliers(calibration.residuals_px, used=calibration.inliers)
         if check_rotation:
-            rot_uv, rot_cal = rotation_data if rotation_data is not None else (uv, calibration)
-            try:
-                out += check_view_rotations(rot_uv, T, rot_cal)
-            except DegenerateError as exc:
-                out.append(skipped("rotation test (did the camera turn otherwise than the poses say?)", exc))
+            fit = rotation_data if rotation_data is not None else (uv, calibration)
+            fixed = _fixed_check(fit, T)
+            out = fixed + out  # the likely cause of much of the rest: named first
+            wrong_fix = any(d.code == "fix_contradicted" for d in fixed)
+            out += _pose_checks(fit, T, view_ids, unit, setup, R_model) if not wrong_fix else [skipped(
+                "test of the poses and the rotation test", "a parameter held fixed contradicts the data (see "
+                "fix_contradicted): their residuals would be blamed on the poses")]
     return out
+
+
+def _fixed_check(data, T) -> list:
+    """The score test of the fixed parameters on the calibration's fit ``(uv, cal)``."""
+    try:
+        return check_fixed(data[0], T, data[1])
+    except DegenerateError as exc:
+        return [skipped("test of the fixed parameters (fix, CLI --fix)", exc)]
+
+
+def _pose_checks(data, T, view_ids, unit, setup, R_model) -> list:
+    """An outlying pose (named with its error) or else a rotated view: both tests on
+    the calibration's fit ``data = (uv, calibration)``."""
+    rot_uv, rot_cal = data
+    try:
+        found = check_pose_outliers(rot_uv, T, rot_cal, view_ids=view_ids, unit=unit, setup=setup, R_model=R_model)
+    except DegenerateError as exc:
+        found = [skipped("outlying-pose test (does every view's image agree with its pose?)", exc)]
+    if any(d.code == "pose_outlier" for d in found):
+        return found  # the rotation test would name the same error as a turned camera
+    try:
+        return found + check_view_rotations(rot_uv, T, rot_cal)
+    except DegenerateError as exc:
+        return found + [skipped("rotation test (did the camera turn otherwise than the poses say?)", exc)]
 
 
 def _sessions(calibration, sessions, n_views: int) -> np.ndarray:

@@ -198,6 +198,8 @@ def check_all(args) -> dict:
         raise OptionError("--poses", "required with --tracks or --images (the flange pose of each view)")
     poses = read_poses(existing_file("--poses", args.poses), rotation_format=args.rotation_format)
     plan["poses"] = poses
+    if plan["truth"] is not None:
+        _check_truth(plan["truth"], poses, args)
     plan["sessions"] = _sessions(poses, args.session_tolerance_deg)
     size = args.image_size
     if args.images:
@@ -239,6 +241,21 @@ def _plan_bag(args, plan: dict, options) -> dict:
     plan["image_size"] = args.image_size or (views.images[0].shape[1], views.images[0].shape[0])
     plan["options"] = build_options(args, plan["image_size"])
     return plan
+
+
+def _check_truth(truth: dict, poses, args) -> None:
+    """``--truth`` must be the truth of this scene: its setup, and its translations those
+    of ``--poses`` within its robot noise (when it records them)."""
+    from ..check.poses import truth_mismatch
+
+    if truth.get("setup", args.setup) != args.setup:
+        raise OptionError("--truth", f"{args.truth!r} is the truth of an {truth['setup']} scene, but --setup is "
+                          f"{args.setup}; give the truth.json of this scene (or the right --setup)")
+    if "T_true" in truth:
+        why = truth_mismatch(truth["T_true"], poses.T, float(truth.get("robot_noise") or 0.0), _input_unit(args))
+        if why is not None:
+            raise OptionError("--truth", f"{args.truth!r} is not the truth of the scene of --poses {args.poses!r}: "
+                              f"{why}; give the truth.json written with these poses")
 
 
 def _sessions(poses, tolerance_deg: float):

@@ -16,7 +16,7 @@ from .. import __version__
 from .common import Parser, run_guarded
 
 #: Subcommand modules of this package, in ``--help`` order.
-COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "dense")
+COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate", "dense")
 
 
 def build_parser() -> Parser:

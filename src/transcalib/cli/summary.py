@@ -32,6 +32,17 @@ def _counts(cal, uv=None) -> tuple[int, int]:
     return int(seen.sum()), int(np.sum(inl & seen))
 
 
+def prediction_lines(loo: dict | None) -> list[str]:
+    """The leave-one-view-out prediction error beside the covariance's prediction."""
+    if not loo or loo.get("rms_px") is None:
+        return []
+    worst = max(loo["per_view"], key=lambda p: p["rms_px"])
+    return [f"Views predicted from the others: RMS {loo['rms_px']:.4f} px (the covariance predicts "
+            f"{loo['predicted_rms_px']:.4f} px), median {loo['median_px']:.4f} px, max {loo['max_px']:.4g} px over "
+            f"{loo['n_points']} observations; worst view {worst['view']}: {worst['rms_px']:.4g} px (predicted "
+            f"{worst['predicted_rms_px']:.4g} px)"]
+
+
 def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> str:
     """Parameters with standard deviations, rotation, RMS, inliers, truth errors, warnings."""
     K = cal.K
@@ -68,6 +79,7 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
     if cal.inliers is not None:
         tracked, inl = _counts(cal, uv)
         lines.append(f"Inliers: {inl} of {tracked} points seen in 2 or more views")
+    lines += prediction_lines(cal.info.get("leave_one_view_out"))
     err = point_errors(cal, truth, point_ids)
     if err is not None and np.isfinite(err).any():
         lines.append(f"Point error vs truth: median {np.nanmedian(err):.4g} {unit}, max {np.nanmax(err):.4g} {unit}")
@@ -92,6 +104,7 @@ def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         "stages": list(cal.stats.stages),
         "diagnostics": [{"code": getattr(d, "code", ""), "message": str(d)} for d in cal.diagnostics],
         "timings_s": dict(cal.stats.timings_s),
+        "leave_one_view_out": cal.info.get("leave_one_view_out"),
     }
     if truth is not None:
         Kt = np.asarray(truth["K"], float)

@@ -24,6 +24,10 @@ turns its axis by ``R_X``. Hence:
    least squares (the minimum-norm solution where the rotations leave it free).
 4. **The points** triangulated with every view's camera.
 
+A view whose recorded orientation is wrong makes every pair it belongs to misfit by about
+its error: a view whose median misfit exceeds the session tolerance and the other views'
+spread is named with that angle and left out, and the start is made again without it.
+
 It only has to land in the basin of the bundle adjuster, which refines everything.
 """
 
@@ -38,6 +42,7 @@ from ..errors import DegenerateError
 from ..estimate.ransac import lo_ransac
 from ..geometry.rotation import matrix_to_rotvec, nearest_rotation, rotation_angle_deg, skew
 from ..geometry.triangulate import triangulate
+from .join import spread_limits
 
 __all__ = ["GeneralStart", "general_start", "check_turns"]
 
@@ -71,8 +76,9 @@ class GeneralStart:
     planar : (m,) bool
         Pairs whose motion came from their homography (its rotation nearer the flange's:
         a flat scene, or one of little relief, leaves the epipolar geometry weak).
-    pair_inliers : (m,) int
-        Correspondences consistent with each pair's better supported model.
+    off_views : tuple of (int, float)
+        Views left out, with the angle (deg) by which their images contradict their
+        recorded orientation.
     """
 
     K: np.ndarray
@@ -81,10 +87,11 @@ class GeneralStart:
     X: np.ndarray
     pairs: np.ndarray
     planar: np.ndarray
-    pair_inliers: np.ndarray
+    off_views: tuple = ()
 
 
-def general_start(uv: np.ndarray, T: np.ndarray, R: np.ndarray, rng=None) -> GeneralStart:
+def general_start(uv: np.ndarray, T: np.ndarray, R: np.ndarray, tolerance_deg: float = 1.0,
+                  rng=None) -> GeneralStart:
     """The start of a calibration from views at any flange poses (module docstring).
 
     Parameters
@@ -95,6 +102,9 @@ def general_start(uv: np.ndarray, T: np.ndarray, R: np.ndarray, rng=None) -> Gen
         Flange positions (robot units).
     R : (n_views, 3, 3) float
         Flange -> base rotations.
+    tolerance_deg : float
+        The session tolerance: a view whose recorded orientation its images contradict by
+        more (and by more than the other views' spread) is left out.
     rng : seed or Generator
 
     Raises
@@ -112,14 +122,37 @@ def general_start(uv: np.ndarray, T: np.ndarray, R: np.ndarray, rng=None) -> Gen
     flange = np.einsum("pba,pbc->pac", R[pairs[:, 1]], R[pairs[:, 0]])  # R_j^T R_i
     check_turns(flange)
     centre, extent = _pixel_centre_and_extent(uv)
-    f = _best_focal(F, H, flange, centre, extent)
-    K = _intrinsics(f, centre)
-    R_E, t_dir, planar = _pair_motions(F, H, K, flange)
-    R_X = _procrustes(R_E, flange)
+    motion = _motion(F, H, flange, centre, extent)
+    off = _views_off(motion[3], pairs, len(T), tolerance_deg)
+    if off:  # the rest without them
+        use = ~np.isin(pairs, [v for v, _ in off]).any(axis=1)
+        check_turns(flange[use])
+        pairs, F, H, flange = pairs[use], F[use], H[use], flange[use]
+        motion = _motion(F, H, flange, centre, extent)
+    K, R_X, (R_E, t_dir, planar), _ = motion
     t_X = _offset(R_X, R, T, pairs, t_dir)
     R_cam = np.transpose(R @ R_X, (0, 2, 1))
     X = triangulate(K @ R_cam, uv, T + R @ t_X)
-    return GeneralStart(K, R_X, t_X, X, pairs, planar, np.array([g.n_inliers for g in geometry], int))
+    return GeneralStart(K, R_X, t_X, X, pairs, planar, tuple(off))
+
+
+def _motion(F, H, flange, centre, extent):
+    """``(K, R_X, (R_E, t_dir, planar), misfit_deg (m,))`` of the pairs."""
+    K = _intrinsics(_best_focal(F, H, flange, centre, extent), centre)
+    pair = _pair_motions(F, H, K, flange)
+    R_X = _procrustes(pair[0], flange)
+    misfit = rotation_angle_deg(R_X @ pair[0] @ R_X.T @ np.transpose(flange, (0, 2, 1)))
+    return K, R_X, pair, misfit
+
+
+def _views_off(misfit_deg: np.ndarray, pairs: np.ndarray, n_views: int, tolerance_deg: float) -> list:
+    """Views whose recorded orientation their images contradict, with the angle: each
+    view's median misfit over its pairs, beyond the tolerance and the other views' spread
+    (:func:`~transcalib.handeye.join.spread_limits`)."""
+    angle = np.array([np.median(misfit_deg[(pairs == v).any(axis=1)]) if (pairs == v).any() else 0.0
+                      for v in range(n_views)])
+    limits = spread_limits(angle, tolerance_deg)
+    return [(int(v), float(angle[v])) for v in np.flatnonzero(angle > limits)]
 
 
 def view_pairs(uv: np.ndarray) -> np.ndarray:
@@ -259,11 +292,10 @@ def _offset(R_X: np.ndarray, R: np.ndarray, T: np.ndarray, pairs: np.ndarray, t_
 @dataclass(frozen=True, eq=False)
 class _PairGeometry:
     """Two views' fundamental matrix ``F`` and homography ``H`` (pixels, ``i -> j``; NaN
-    where its robust fit found no consensus) and the inliers of the better supported."""
+    where its robust fit found no consensus)."""
 
     F: np.ndarray
     H: np.ndarray
-    n_inliers: int
 
 
 def _pair_geometry(uv_i: np.ndarray, uv_j: np.ndarray, rng) -> _PairGeometry | None:
@@ -281,7 +313,7 @@ def _pair_geometry(uv_i: np.ndarray, uv_j: np.ndarray, rng) -> _PairGeometry | N
     if not any(ok):
         return None
     F, H = (f.hypothesis.reshape(3, 3) if good else np.full((3, 3), np.nan) for f, good in zip(fits, ok))
-    return _PairGeometry(F, H, int(max(f.n_inliers for f, good in zip(fits, ok) if good)))
+    return _PairGeometry(F, H)
 
 
 def _normaliser(p: np.ndarray) -> np.ndarray:

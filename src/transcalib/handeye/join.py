@@ -108,7 +108,7 @@ def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, tolerance_deg: 
     found = [p for p in (view_pose(uv[i], X0, K, i, rng) for i in views) if p is not None]
     R_X_agreed = central_mean_rotation(np.stack([R_X] + [R[p.view].T @ p.R.T for p in found]), tolerance_deg)[0]
     errors = [orientation_error(p, R_X_agreed.T @ R[p.view].T) for p in found]
-    limits = _spread_limits(np.array([deg for deg, _ in errors]), tolerance_deg)
+    limits = spread_limits(np.array([deg for deg, _ in errors]), tolerance_deg)
     poses, off = [], []
     for p, (off_deg, chi2), limit in zip(found, errors, limits):
         if off_deg > limit and chi2 > chi2_ppf(1.0 - ORIENTATION_ALPHA, 3):
@@ -126,7 +126,7 @@ def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, tolerance_deg: 
     return Joined(t, undetermined, X0 + shift, tuple(poses), tuple(off))
 
 
-def _spread_limits(angles_deg: np.ndarray, tolerance_deg: float) -> np.ndarray:
+def spread_limits(angles_deg: np.ndarray, tolerance_deg: float) -> np.ndarray:
     """The angle ``(m,)`` above which each of ``m`` views' orientation is off: the session
     tolerance, or more when the other views scatter more (the start's ``K`` turns every
     view's rotation a little, differently): the ``1 - ORIENTATION_ALPHA`` quantile of an

@@ -26,6 +26,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +50,9 @@ _ALIASES = {"quat": "quaternion", "ros": "quaternion", "ur": "rotvec", "rotation
 #: Largest accepted deviation of a quaternion's norm from 1.
 QUATERNION_NORM_TOL = 1e-3
 _REQUIRED = ("view", "x", "y", "z")
+#: Names of columns that hold an orientation in some robot's or tool's convention.
+_ORIENTATION_LIKE = re.compile(r"^(roll|pitch|yaw|alpha|beta|gamma|phi|theta|psi|q[0-3wxyz]|qw|"
+                               r"r[xyz]_?(deg|rad)?|rot.*|orient.*|euler.*|quat.*|angle.*|[abc]_?(deg|rad))$")
 
 
 @dataclass(frozen=True)
@@ -111,6 +115,7 @@ def read_poses(path, *, rotation_format: str | None = None, unit: str | None = N
     if not path.is_file():
         raise InputError(f"poses file {str(path)!r} does not exist")
     table = _read_json(path) if path.suffix.lower() == ".json" else _read_csv(path)
+    _unused_orientation(table, fmt)
     fmt = _rotation_format(table, fmt)
     views = _views(table)
     T = _numbers(table, ("x", "y", "z")) * scale
@@ -259,6 +264,22 @@ def _rotation_format(table: _Table, given: str | None) -> str | None:
             f"{','.join(ROTATION_FORMATS[f])} ({f})" for f in complete) + "; choose the one to use with "
             f"rotation_format ({' or '.join(complete)}), or remove the other {table.kind}s")
     return complete[0] if complete else None
+
+
+def _unused_orientation(table: _Table, given: str | None) -> None:
+    """Refuse columns that look like an orientation but no format reads (every view would
+    silently be taken at one orientation); with ``rotation_format`` given, the user chose."""
+    if given is not None:
+        return
+    read = {c for cols in ROTATION_FORMATS.values() for c in cols} | set(_REQUIRED) | {"session", "image"}
+    odd = [h for h in table.header if h not in read and _ORIENTATION_LIKE.match(h)]
+    if odd:
+        raise InputError(f"{_where_header(table.path, table.kind)}: {table.kind}(s) {','.join(odd)} look like an "
+                         "orientation, but no orientation format reads them: they would be ignored and every view "
+                         "taken at one orientation. Give the orientation as qx,qy,qz,qw (rotation_format "
+                         "quaternion), rx,ry,rz (rotvec: radians) or a,b,c (euler_zyx: KUKA, degrees, R = Rz(a) "
+                         "Ry(b) Rx(c); roll, pitch, yaw about fixed x, y, z are c, b, a), or rename those "
+                         f"{table.kind}s if they are not an orientation")
 
 
 def _views(table: _Table) -> list:

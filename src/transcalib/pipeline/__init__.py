@@ -20,7 +20,8 @@ from dataclasses import replace
 import numpy as np
 
 from ..check import diagnose, skipped
-from ..errors import InputError
+from ..check.prediction import LOO_MIN_VIEWS, leave_one_view_out
+from ..errors import DegenerateError, InputError
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions, report
 from ..validate import as_uv_T
@@ -146,16 +147,32 @@ def calibrate(
     found = list(start.diagnostics) + diagnose(
         uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
         unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
-        views_left_out=start.views_left_out)
+        views_left_out=start.views_left_out, view_ids=getattr(poses, "views", None), setup=setup)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     if opts.check_rotation and not opts.refine:
         found.append(skipped("rotation test (did the camera turn otherwise than the poses say?)",
                              "it needs the refined calibration (refine=False, CLI --no-refine)"))
     report(progress, "diagnostics", warnings=len(found))
-    timings = {**result.stats.timings_s, "diagnostics_s": time.perf_counter() - t2}
-    result = replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings))
+    t3 = time.perf_counter()
+    info = _prediction(rotation_data or (uv, result), motion, opts, getattr(poses, "views", None))
+    report(progress, "prediction", **({} if not info else {"rms_px": info["leave_one_view_out"]["rms_px"]}))
+    timings = {**result.stats.timings_s, "diagnostics_s": t3 - t2, "prediction_s": time.perf_counter() - t3}
+    result = replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings),
+                     info={**result.info, **info})
     return with_motion(result, motion, start.notes)
+
+
+def _prediction(fit, motion: Motion, opts: CalibrateOptions, view_ids) -> dict:
+    """``{"leave_one_view_out": ...}`` (:func:`transcalib.check.prediction.leave_one_view_out`
+    on the fit ``(uv, calibration)``) for a refined calibration of at least
+    ``LOO_MIN_VIEWS`` views, else empty."""
+    if not opts.refine or motion.n_views < LOO_MIN_VIEWS:
+        return {}
+    try:
+        return {"leave_one_view_out": leave_one_view_out(fit[0], motion.T, fit[1], view_ids=view_ids)}
+    except DegenerateError:  # too few observations to refit without a view
+        return {}
 
 
 def _fit(uv, T, subset, start, opts: CalibrateOptions, progress):

@@ -213,9 +213,12 @@ def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: boo
     """Views at their own orientations, no session to start from: the pairs' epipolar
     geometry against the flange rotations (:mod:`transcalib.handeye.general`); tracks far
     off the start's cameras flagged (the refinement judges them again)."""
-    gs = general_start(uv, motion.T, motion.R, rng)
-    report(progress, "start (general motion)", pairs=len(gs.pairs), focal_px=float(gs.K[0, 0]))
     g = motion.grouping
+    gs = general_start(uv, motion.T, motion.R, g.tolerance_deg, rng)
+    left_out = np.zeros(motion.n_views, bool)
+    left_out[[v for v, _ in gs.off_views]] = True
+    uv = np.where(left_out[:, None, None], np.nan, uv)
+    report(progress, "start (general motion)", pairs=len(gs.pairs), focal_px=float(gs.K[0, 0]))
     F = np.transpose(motion.R, (0, 2, 1))
     inliers = None
     if robust:
@@ -235,8 +238,9 @@ def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: boo
     linear = LinearEstimate(K=gs.K, R=gs.R_X.T, A=gs.K @ gs.R_X.T, X=X, depth=np.full(uv.shape[:2], np.nan),
                             singular_values=np.zeros(0), n_used_points=int(used.sum()), used=used, method="general")
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
+    diagnostics = tuple(_orientation_off(v, a, g.tolerance_deg) for v, a in gs.off_views)
     return Start(linear, inliers, ["robust" if robust else "linear"], None,
-                 FlangeModel(F, gs.t_X, obs.determined), np.zeros(motion.n_views, bool), (), notes)
+                 FlangeModel(F, gs.t_X, obs.determined), left_out, diagnostics, notes)
 
 
 def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -> LinearEstimate:

@@ -65,6 +65,10 @@ def _parameters(cal, truth) -> str:
         if name in cal.std:
             rows.append(_row(f"rotation {name}", None, cal.std[name], unit="deg"))
     rows.append(_row("RMS reprojection", cal.rms_px, unit="px"))
+    loo = cal.info.get("leave_one_view_out")
+    if loo and loo.get("rms_px") is not None:  # check/prediction.py
+        rows.append(_row("RMS of each view predicted from the others", loo["rms_px"], unit="px"))
+        rows.append(_row("the same, as the covariance predicts it", loo["predicted_rms_px"], unit="px"))
     if cal.sigma_px is not None:
         rows.append(_row("pixel noise sigma", cal.sigma_px, unit="px per coordinate"))
     R = "<br>".join(" ".join(f"{x:+.6f}" for x in r) for r in cam.R)
