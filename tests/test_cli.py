@@ -55,7 +55,7 @@ def calibrated(simulated, tmp_path_factory):
 
 
 def test_simulate_writes_three_files(simulated):
-    assert sorted(p.name for p in simulated.iterdir()) == ["poses.csv", "tracks.csv", "truth.json"]
+    assert sorted(p.name for p in simulated.iterdir()) == ["manifest.json", "poses.csv", "tracks.csv", "truth.json"]
     truth = json.loads((simulated / "truth.json").read_text())
     assert np.array(truth["K"]).shape == (3, 3) and truth["units"] == "mm"
     for p in simulated.iterdir():
@@ -135,7 +135,8 @@ def test_no_refine_gives_linear(simulated, tmp_path):
     assert r.returncode == 0, r.stderr
     cal = load_calibration(tmp_path)
     assert cal.stats.stages == ("linear",) and cal.dist.size == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["arrays.npz", "calibration.json", "points.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["arrays.npz", "calibration.json", "manifest.json",
+                                                          "points.csv"]
 
 
 def test_json_summary_and_show(calibrated, tmp_path):
@@ -452,7 +453,7 @@ def test_undistort_matches_opencv(tmp_path):
     np.testing.assert_array_equal(got, cv2.undistort(img, cal.K, cal.dist_opencv))
     assert not np.array_equal(got, img)
     r = run("undistort", tmp_path / "a.png", "--calibration", tmp_path / "cal", "--out", tmp_path)
-    assert_clean_error(r, "--out", "overwrite")
+    assert_clean_error(r, "--out", "holds the input", "would delete it")
     cv2.imwrite(str(tmp_path / "small.png"), img[:100])
     r = run("undistort", tmp_path / "small.png", "--calibration", tmp_path / "cal", "--out", tmp_path / "u")
     assert_clean_error(r, "640x480")

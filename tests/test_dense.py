@@ -22,8 +22,7 @@ from transcalib.dense.views import central_view, view_cameras
 from transcalib.errors import DegenerateError, InputError
 from transcalib.geometry.camera import Camera, K_from_params, project_camera_frame
 from transcalib.io import write_poses_csv
-from transcalib.cli.common import OptionError
-from transcalib.cli.dense import MARK, check_out, written_whole
+from transcalib.io.folders import MANIFEST, read_manifest
 from transcalib.cli.main import main
 from transcalib.synth import render
 from transcalib.synth.degrade import Degradations
@@ -523,7 +522,9 @@ def test_command_outputs_and_their_formats(files, scene, result):
     doc = json.loads((out / "dense.json").read_text())
     names = {p.name for p in out.iterdir()}
     assert names == {"depth_0.npy", "confidence_0.npy", "depth_std_0.npy", "depth_0.png", "dense.ply", "dense.json",
-                     "report.html"}
+                     "report.html", MANIFEST}
+    manifest = read_manifest(out)
+    assert manifest["command"] == "dense" and {f["path"] for f in manifest["files"]} == names - {MANIFEST}
     depth, conf, std = (np.load(out / f"{k}_0.npy") for k in ("depth", "confidence", "depth_std"))
     assert depth.dtype == conf.dtype == std.dtype == np.float32 and depth.shape == (192, 256)
     assert np.array_equal(depth, result.maps[0].depth, equal_nan=True)  # the command is the library
@@ -561,7 +562,7 @@ def test_command_fuses_several_reference_views(files, capsys):
     ("turn", ["--max-turn-deg", "(0, 45]"]),
     ("orientation", ["--poses", "orientation"]),
     ("out-file", ["--out", "existing file"]),
-    ("out-foreign", ["--out", "not a transcalib dense run", "--force"]),
+    ("out-foreign", ["--out", "not a transcalib run", "--force"]),
     ("out-input", ["--out", "holds the input"]),
 ])
 def test_command_bad_input_one_line_exit_2(files, tmp_path, capsys, case, words):
@@ -618,45 +619,15 @@ def test_command_bad_input_one_line_exit_2(files, tmp_path, capsys, case, words)
 # --------------------------------------------------------------------------- complete or absent
 
 
-def test_output_folder_rule_in_python(tmp_path):
-    out = tmp_path / "run"
-    with pytest.raises(RuntimeError):
-        with written_whole(out) as f:
-            (f / "a.txt").write_text("partial")
-            raise RuntimeError("failed half way")
-    assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing left, not even the temporary folder
-    with written_whole(out) as f:
-        (f / MARK).write_text("{}")
-    (out / "stray.txt").write_text("left by hand")
-    check_out(out, force=False)  # an earlier run: accepted, and replaced whole
-    with written_whole(out) as f:
-        (f / "c.txt").write_text("three")
-    assert sorted(p.name for p in out.iterdir()) == ["c.txt"]
-    with pytest.raises(InputError):
-        with written_whole(out) as f:  # failure: the earlier run stays as it was
-            (f / "d.txt").write_text("four")
-            raise InputError("bad")
-    assert sorted(p.name for p in out.iterdir()) == ["c.txt"]
-    with pytest.raises(OptionError, match="not a transcalib dense run"):  # c.txt is not ours
-        check_out(out, force=False)
-    check_out(out, force=True)
-    with pytest.raises(OptionError, match="holds the input"):
-        check_out(tmp_path, force=True, inputs=[out / "c.txt"])
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    check_out(empty, force=False)
-    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
-
-
 @pytest.mark.parametrize("earlier, sig", [(False, signal.SIGINT), (True, signal.SIGTERM)])
 def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
     """Ctrl-C or kill during the sweep: exit 130, no temporary folder, an earlier run intact."""
     out = tmp_path / "out"
     if earlier:  # an earlier run (as far as the folder rule can tell)
         out.mkdir()
-        (out / MARK).write_text('{"kind": "transcalib dense"}')
+        (out / MANIFEST).write_text('{"kind": "transcalib run", "files": []}')
         (out / "depth_0.npy").write_bytes(b"earlier")
-        before = (out / MARK).read_bytes()
+        before = (out / MANIFEST).read_bytes()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, "-m", "transcalib.cli", *map(str, _args(files, out, "--depths", "3000"))],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
@@ -668,16 +639,16 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
     assert p.returncode == 130
     assert sorted(x.name for x in tmp_path.iterdir()) == (["out"] if earlier else [])  # no temporary folder
     if earlier:
-        assert (out / MARK).read_bytes() == before and (out / "depth_0.npy").exists()
+        assert (out / MANIFEST).read_bytes() == before and (out / "depth_0.npy").exists()
 
 
 def test_command_replaces_an_earlier_run_and_forces_a_foreign_folder(files, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    (out / MARK).write_text("{}")  # an earlier run
+    (out / MANIFEST).write_text('{"kind": "transcalib run", "files": []}')  # an earlier run
     (out / "stray.txt").write_text("x")
     assert main([str(a) for a in _args(files, out, "--no-report", "--quiet", "--depths", "16")]) == 0
-    assert not (out / "stray.txt").exists() and (out / MARK).is_file()
+    assert not (out / "stray.txt").exists() and read_manifest(out)["command"] == "dense"
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")

@@ -2,8 +2,9 @@
 and report out.
 
 Order of work: (1) check every option, input file and the output folder (no
-computation yet); (2) read or track; (3) calibrate; (4) write every output atomically.
-A failure in (1) costs nothing; a failure later never leaves a partial file.
+computation yet); (2) read or track; (3) calibrate; (4) write every output into a
+temporary folder, renamed into place at the end (:mod:`transcalib.io.folders`). A failure
+in (1) costs nothing; a failure or Ctrl-C later leaves ``--out`` as it was.
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ import numpy as np
 
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import MIN_SUBSET_POINTS, SUBSET_POINTS
-from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, existing_file, image_size, import_in_background,
-                     nonnegative_float, positive_float, positive_int, print_json)
+from .common import (EXIT_OK, EXIT_WARNINGS, OptionError, Progress, add_output_options, existing_file, image_size,
+                     import_in_background, positive_float, positive_int, print_json)
 from .extract import add_bag_arguments
 
 NAME = "calibrate"
@@ -35,63 +36,84 @@ def subset_points(text: str) -> int | None:
 
 
 def add_parser(sub) -> None:
-    c = sub.add_parser(NAME, help=HELP, description=HELP)
-    src = c.add_mutually_exclusive_group(required=True)
-    src.add_argument("--tracks", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
-    src.add_argument("--images", nargs="+", metavar="IMAGE", help="images in view order (or named in poses.csv)")
+    c = sub.add_parser(NAME, help=HELP, description=HELP + ". The output folder is written whole or not at all.")
+    g = c.groups()
+    _inputs(g["inputs"])
+    _model(g["model"])
+    _robust(g["robust"])
+    out = g["outputs"]
+    out.add_argument("--out", required=True, metavar="DIR",
+                     help="output folder, written whole or not at all (an earlier transcalib run there is replaced)")
+    out.add_argument("--formats", default="all", metavar="LIST",
+                     help="comma-separated outputs among json,csv,opencv,ros,colmap,ply,report (default all)")
+    out.add_argument("--truth", metavar="FILE", help="truth.json of a simulated scene: print and plot the errors")
+    out.add_argument("--strict", action="store_true", help="exit with status 4 when the calibration has warnings")
+    add_output_options(out)
+    add_bag_arguments(c, with_bag=False)
+    perf = g["performance"]
+    perf.add_argument("--subset-points", type=subset_points, default=SUBSET_POINTS, metavar="N|all",
+                      help=f"with more tracks, fit a random subset of N (default {SUBSET_POINTS}) to convergence, "
+                           "then take Gauss-Newton steps with every track; 'all': every stage uses every track")
+    perf.add_argument("--seed", type=int, default=0, metavar="N",
+                      help="random seed of RANSAC and the subset (default 0: repeatable)")
+    c.set_defaults(func=run)
+
+
+def _inputs(g) -> None:
+    src = g.add_mutually_exclusive_group(required=True)
+    src.add_argument("--tracks", metavar="FILE", help="tracks file: view,point,u,v (.csv), or .npz / .parquet")
+    src.add_argument("--images", nargs="+", metavar="IMAGE",
+                     help="images in view order (or matched to the image column of --poses); tracked first")
     src.add_argument("--bag", metavar="RUN", help="a ROS 2 bag folder, .mcap or .db3 file, or ROS 1 .bag: its still "
                                                   "images and their flange poses from tf (see ROS bag input)")
-    c.add_argument("--poses",
+    g.add_argument("--poses", metavar="FILE",
                    help="poses.csv (or .json): view,x,y,z[,orientation][,session][,image]: the flange pose of "
                         "each view; with orientations, the camera's pose on the flange (hand-eye) too "
                         "(required, except with --bag)")
-    c.add_argument("--rotation-format", default=None,
-                   choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
+    g.add_argument("--unit", default=None,
+                   help="length unit of the poses; every output length is in it (default mm; with --bag m, tf's unit)")
+    g.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses: qx,qy,qz,qw (ROS tf), rx,ry,rz (UR rotation vector) "
                         "or a,b,c (KUKA Z-Y-X Euler, degrees); default: found from the columns")
-    c.add_argument("--session-tolerance-deg", type=positive_float, default=SESSION_TOLERANCE_DEG,
-                   help="views whose orientations differ by less than this form one session "
-                        f"(default {SESSION_TOLERANCE_DEG:g} deg)")
-    c.add_argument("--setup", choices=["eye-in-hand", "eye-to-hand"], default="eye-in-hand",
+    g.add_argument("--image-size", type=image_size, metavar="WxH",
+                   help="image size in pixels, WxH or W,H such as 640x480 (default: from the images or --truth); "
+                        "every tracked point must lie inside it")
+    g.add_argument("--target", choices=["squares"], help="with --images: detect the corners of dark squares")
+
+
+def _model(g) -> None:
+    g.add_argument("--setup", choices=["eye-in-hand", "eye-to-hand"], default="eye-in-hand",
                    help="eye-in-hand: the camera on the flange (default); eye-to-hand: the camera fixed, watching "
                         "an object carried by the flange (the points are then in the flange frame)")
-    c.add_argument("--out", required=True, help="output folder (created if missing)")
-    c.add_argument("--unit", default=None,
-                   help="length unit of the poses; every output length is in it (default mm; with --bag m, tf's unit)")
-    c.add_argument("--image-size", type=image_size, metavar="WxH",
-                   help="image size in pixels, e.g. 640x480 (default: from the images or --truth)")
-    c.add_argument("--target", choices=["squares"], help="with --images: detect the corners of dark squares")
-    c.add_argument("--no-refine", action="store_true", help="stop at the paper's linear estimate")
-    rob = c.add_mutually_exclusive_group()
+    g.add_argument("--session-tolerance-deg", type=positive_float, default=SESSION_TOLERANCE_DEG, metavar="DEG",
+                   help="views whose orientations differ by less than this form one session "
+                        f"(default {SESSION_TOLERANCE_DEG:g} deg)")
+    g.add_argument("--no-refine", action="store_true",
+                   help="stop at the paper's linear estimate (no maximum-likelihood refinement)")
+    g.add_argument("--distortion", choices=["auto", "none", "radial1", "radial2", "opencv5"],
+                   help="lens distortion model (OpenCV convention; default auto: chosen from the data)")
+    g.add_argument("--estimate-skew", action="store_true", help="estimate the skew (default: fixed at 0)")
+    g.add_argument("--fix", metavar="NAME=VALUE,...",
+                   help="known parameters held fixed, e.g. cx=320,cy=240 or principal-point=centre "
+                        "(the image centre; needs the image size); names: fx, fy, cx, cy, skew, k1, k2, p1, p2, k3 "
+                        "(a distortion coefficient needs --distortion with it); each name once")
+    g.add_argument("--square-pixels", action="store_true", help="one focal length: fx = fy")
+    g.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
+                   help="robot translation precision in --unit: treat translations as noisy measurements")
+
+
+def _robust(g) -> None:
+    rob = g.add_mutually_exclusive_group()
     rob.add_argument("--robust", dest="robust", action="store_true", default=None,
                      help="RANSAC against mismatched tracks (default: on from 8 points)")
-    rob.add_argument("--no-robust", dest="robust", action="store_false")
-    c.add_argument("--threshold-px", type=positive_float,
+    rob.add_argument("--no-robust", dest="robust", action="store_false",
+                     help="no RANSAC: every track is used as it comes")
+    g.add_argument("--threshold-px", type=positive_float, metavar="PX",
                    help="RANSAC inlier threshold in pixels (default: from the pixel noise estimated from the data)")
-    c.add_argument("--distortion", choices=["auto", "none", "radial1", "radial2", "opencv5"],
-                   help="lens distortion model (OpenCV convention; default auto: chosen from the data)")
-    c.add_argument("--estimate-skew", action="store_true", help="estimate the skew (default: fixed at 0)")
-    c.add_argument("--fix", metavar="NAME=VALUE,...",
-                   help="known parameters held fixed, e.g. cx=320,cy=240 or principal-point=centre "
-                        "(the image centre; needs the image size); names: fx, fy, cx, cy, skew, k1, k2, p1, p2, k3")
-    c.add_argument("--square-pixels", action="store_true", help="one focal length: fx = fy")
-    c.add_argument("--robot-sigma", type=positive_float, metavar="SIGMA",
-                   help="robot translation precision in --unit: treat translations as noisy measurements")
-    c.add_argument("--loss", choices=["linear", "huber", "cauchy"], help="refinement loss (default linear)")
-    c.add_argument("--loss-scale-px", type=positive_float,
+    g.add_argument("--loss", choices=["linear", "huber", "cauchy"],
+                   help="loss of the refinement's residuals (default linear: least squares)")
+    g.add_argument("--loss-scale-px", type=positive_float, metavar="PX",
                    help="scale of a robust loss in pixels (default: from the estimated pixel noise)")
-    c.add_argument("--truth", help="truth.json of a simulated scene: print and plot the errors")
-    c.add_argument("--formats", default="all",
-                   help="comma-separated outputs among json,csv,opencv,ros,colmap,ply,report (default all)")
-    c.add_argument("--subset-points", type=subset_points, default=SUBSET_POINTS, metavar="N|all",
-                   help=f"with more tracks, fit a random subset of N (default {SUBSET_POINTS}) to convergence, "
-                        "then take Gauss-Newton steps with every track; 'all': every stage uses every track")
-    c.add_argument("--seed", type=int, default=0, help="random seed of RANSAC and the subset (default 0: repeatable)")
-    c.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
-    c.add_argument("--strict", action="store_true", help="exit with status 4 when the calibration has warnings")
-    c.add_argument("--quiet", action="store_true", help="no progress messages")
-    add_bag_arguments(c, with_bag=False)
-    c.set_defaults(func=run)
 
 
 # --------------------------------------------------------------------------------------
@@ -143,6 +165,11 @@ def parse_fix(text: str | None, size) -> dict:
         name, sep, value = (x.strip().lower() for x in item.partition("="))
         if not sep:
             raise OptionError("--fix", f"expected NAME=VALUE, got {item.strip()!r}")
+        given = ("cx", "cy") if name == "principal-point" else (name,)
+        twice = [n for n in given if n in out]
+        if twice:
+            raise OptionError("--fix", f"{twice[0]} is given twice ({twice[0]}={out[twice[0]]:g} and {item.strip()}); "
+                              "give each parameter once")
         if name == "principal-point":
             if value not in ("centre", "center"):
                 raise OptionError("--fix", f"principal-point takes the value centre, got {value!r}")
@@ -157,6 +184,9 @@ def parse_fix(text: str | None, size) -> dict:
             out[name] = float(value)
         except ValueError:
             raise OptionError("--fix", f"{name}={value!r} is not a number") from None
+        if not np.isfinite(out[name]) or (name in ("fx", "fy") and out[name] <= 0):
+            why = "a focal length is a positive number" if name in ("fx", "fy") else "give a finite number"
+            raise OptionError("--fix", f"{name}={value} is not a valid value ({why})")
     return out
 
 
@@ -166,6 +196,7 @@ def build_options(args, size=None):
     from ..types import CalibrateOptions, RansacOptions, RefineOptions
 
     fixed = parse_fix(args.fix, size)
+    _check_refinement_options(args, fixed)
     ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
     given = {"distortion": args.distortion, "sigma_T": args.robot_sigma, "loss": args.loss,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
@@ -176,17 +207,54 @@ def build_options(args, size=None):
                                session_tolerance_deg=args.session_tolerance_deg)
     if args.target and not (args.images or args.bag):
         raise OptionError("--target", "applies to --images or --bag only")
+    _check_fixed_distortion(fixed, args)
     return options
+
+
+def _check_refinement_options(args, fixed: dict) -> None:
+    """Options of the refinement that ``--no-refine`` would ignore, and ``--estimate-skew``
+    against a fixed skew: errors naming the options."""
+    if args.no_refine:
+        given = [opt for opt, value in (("--distortion", args.distortion), ("--robot-sigma", args.robot_sigma),
+                                        ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
+                                        ("--estimate-skew", args.estimate_skew),
+                                        ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]
+        if given:
+            raise OptionError(" and ".join(given), "would do nothing with --no-refine (the linear "
+                              "estimate has no distortion, robot noise, loss or known parameters); drop "
+                              f"{'it' if len(given) == 1 else 'them'} or --no-refine")
+    if args.estimate_skew and "skew" in fixed:
+        raise OptionError("--estimate-skew", f"contradicts --fix skew={fixed['skew']:g}: the skew cannot be both "
+                          "estimated and known; drop one")
+
+
+def _check_fixed_distortion(fixed: dict, args) -> None:
+    """A fixed distortion coefficient needs ``--distortion`` naming a model that has it
+    (the automatic choice starts without distortion)."""
+    from ..geometry.camera import DIST_MODELS
+
+    coeffs = [n for n in fixed if n in DIST_MODELS["opencv5"]]
+    if not coeffs or args.no_refine:
+        return
+    holding = [m for m, names in DIST_MODELS.items() if set(coeffs) <= set(names)]
+    model = args.distortion or "auto"
+    if model == "auto" or not set(coeffs) <= set(DIST_MODELS[model]):
+        now = "the automatic choice starts without distortion" if model == "auto" else \
+            f"--distortion {model} has {', '.join(DIST_MODELS[model]) or 'no coefficient'}"
+        raise OptionError("--fix", f"{', '.join(coeffs)} is a distortion coefficient and {now}; add --distortion "
+                          f"{holding[0]} (or {' or '.join(holding[1:]) or holding[0]})")
 
 
 def check_all(args) -> dict:
     """Every check of step (1); returns what the later steps need."""
-    from ..io import check_writable_dir, read_poses
+    from ..io import read_poses
+    from ..io.folders import check_output_folder
     from .extract import bag_options
 
     args.unit = _input_unit(args)
-    out = check_writable_dir(args.out, "--out")
-    plan = {"out": out, "formats": parse_formats(args.formats)}
+    inputs = [p for p in (args.tracks, args.poses, args.truth, args.bag, *(args.images or ())) if p]
+    out = check_output_folder(args.out, force=args.force, inputs=inputs)
+    plan = {"out": out, "inputs": inputs, "formats": parse_formats(args.formats)}
     build_options(args, args.image_size or (1, 1))  # every option but the image size checked now
     plan["truth"] = read_truth(args.truth) if args.truth else None
     bag = bag_options(args)
@@ -203,12 +271,16 @@ def check_all(args) -> dict:
     plan["sessions"] = _sessions(poses, args.session_tolerance_deg)
     size = args.image_size
     if args.images:
-        images = [existing_file("--images", p) for p in args.images]
+        images = distinct_images([existing_file("--images", p) for p in args.images], "--images")
         plan["images"] = _order_images(images, poses)
         if len(images) != len(poses.views):
             raise OptionError("--images", f"{len(images)} images but {len(poses.views)} poses in {args.poses}; "
                               "give one pose per image")
-        size = size or _image_size_of(plan["images"][0])
+        actual = _image_size_of(plan["images"][0])
+        if size is not None and tuple(size) != actual:
+            raise OptionError("--image-size", f"{size[0]}x{size[1]} but the images are {actual[0]}x{actual[1]} px "
+                              f"({str(plan['images'][0])!r}); drop --image-size or give their size")
+        size = actual
     elif size is None and plan["truth"] is not None and "image_size" in plan["truth"]:
         size = tuple(int(v) for v in plan["truth"]["image_size"])
     plan["image_size"] = size
@@ -241,6 +313,39 @@ def _plan_bag(args, plan: dict, options) -> dict:
     plan["image_size"] = args.image_size or (views.images[0].shape[1], views.images[0].shape[0])
     plan["options"] = build_options(args, plan["image_size"])
     return plan
+
+
+def distinct_images(images: list[Path], option: str) -> list[Path]:
+    """``images``, after checking that no two are the same file or the same bytes: the
+    robot must move between views, and an image given twice is a slip of the shell."""
+    import hashlib
+
+    seen = {}
+    for path in images:
+        key = hashlib.sha256(path.read_bytes()).hexdigest()
+        if key in seen:
+            same = "the same file" if seen[key].resolve() == path.resolve() else "identical images"
+            raise OptionError(option, f"{str(seen[key])!r} and {str(path)!r} are {same}; each view needs its own "
+                              "image, taken after a robot move")
+        seen[key] = path
+    return images
+
+
+def check_points_inside(uv, size, source: str) -> None:
+    """Every observed pixel inside the image of ``size`` (half a pixel beyond the border
+    allowed): a size that contradicts the tracks would silently misplace the principal
+    point's prior and the exports' image size."""
+    if size is None:
+        return
+    w, h = size
+    finite = np.isfinite(uv[..., 0])
+    if not finite.any():
+        return
+    u, v = uv[..., 0][finite], uv[..., 1][finite]
+    lo, hi = (float(u.min()), float(v.min())), (float(u.max()), float(v.max()))
+    if lo[0] < -1.0 or lo[1] < -1.0 or hi[0] > w or hi[1] > h:
+        raise OptionError(source, f"the image is {w}x{h} px but the tracks reach u {lo[0]:.1f}..{hi[0]:.1f}, "
+                          f"v {lo[1]:.1f}..{hi[1]:.1f} px; give the size of the images the tracks come from")
 
 
 def _check_truth(truth: dict, poses, args) -> None:
@@ -313,8 +418,9 @@ def track_images(images, target, progress: Progress, T=None, sessions=None):
     return track(images, progress=progress, T=T)
 
 
-def _observations(args, plan, progress: Progress):
-    """``(uv, point_ids, colors, view_names)`` from the images or the tracks file."""
+def _observations(args, plan, folder, progress: Progress):
+    """``(uv, point_ids, colors, view_names)`` from the images (their tracks written to
+    ``folder``) or the tracks file; the tracks checked against ``--image-size``."""
     from .. import io as tio
     from ..io.ids import point_id_array
 
@@ -323,25 +429,36 @@ def _observations(args, plan, progress: Progress):
         progress.log(f"tracking {len(plan['images'])} images ...")
         tracks = track_images(plan["images"], args.target, progress, T=poses.T, sessions=plan["sessions"])
         ids = point_id_array(tracks.ids)
-        tio.write_tracks_csv(plan["out"] / "tracks.csv", tracks.uv, ids, poses.views)
+        tio.write_tracks_csv(folder.file("tracks.csv"), tracks.uv, ids, poses.views)
         names = plan["bag"].names if args.bag else [p.name for p in plan["images"]]
         return tracks.uv, ids, tracks.colors, names
     uv, ids = tio.tracks_to_uv(plan["tracks"], poses)
+    check_points_inside(uv, plan["image_size"], "--image-size" if args.image_size else "--truth")
     names = poses.images or [f"view{v}.png" for v in poses.views]
     return uv, ids, None, names
 
 
 def run(args) -> int:
+    """Check, then read / track, calibrate and write the output folder (complete or
+    absent: :mod:`transcalib.io.folders`), then print the summary."""
+    from ..io.folders import output_folder, replacing, uninterrupted
+
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)  # (1): before importing the numerics
     import_in_background("scipy.special")  # the numerics' heavy imports, while we read
-    worker = _start_report_worker(plan["formats"])
-    try:
-        return _work(args, plan, progress, t_start, worker)
-    finally:
-        if worker is not None:
-            worker.close()
+    note = replacing(plan["out"])
+    if note:
+        progress.log(note)
+    with output_folder(plan["out"], command=NAME, force=args.force, inputs=plan["inputs"]) as folder:
+        worker = _start_report_worker(plan["formats"])
+        try:  # the worker writes into the folder: stopped before the folder is kept or removed
+            result = _work(args, plan, folder, progress, t_start, worker)
+        finally:
+            if worker is not None:
+                uninterrupted(worker.close)  # a second Ctrl-C must not leave it writing
+    result["timings"]["total_s"] = time.perf_counter() - t_start
+    return _print_result(args, plan, result)
 
 
 def _start_report_worker(formats):
@@ -354,16 +471,16 @@ def _start_report_worker(formats):
     return ReportWorker()
 
 
-def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
-    """Steps (2)-(4) of :func:`run`; the report is drawn by ``worker`` when given."""
+def _work(args, plan, folder, progress: Progress, t_start: float, worker) -> dict:
+    """Steps (2)-(4) of :func:`run` into ``folder`` (an :class:`~transcalib.io.folders.OutputFolder`);
+    the report is drawn by ``worker`` when given. Returns what the summary needs."""
     t_read = time.perf_counter()
-    uv, point_ids, colors, view_names = _observations(args, plan, progress)
+    uv, point_ids, colors, view_names = _observations(args, plan, folder, progress)
     t_imports = time.perf_counter()
     progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({t_imports - t_read:.2f} s)")
     from ..io.export import ExportContext, export_calibration  # after the reading: see import_in_background
     from ..pipeline import calibrate
-    from .handeye import hand_eye_text, write_hand_eye
-    from .summary import summary_json, summary_text
+    from .handeye import write_hand_eye
     opts = plan["options"]
     memory = {"after_read": _peak_rss_gib()}
     t_cal = time.perf_counter()
@@ -373,46 +490,55 @@ def _work(args, plan, progress: Progress, t_start: float, worker) -> int:
                     refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
                     refinement=opts.refinement if opts.refine else None, image_size=plan["image_size"],
                     unit=args.unit, subset_points=opts.subset_points, rng=args.seed, progress=progress)
-    hand_eye = cal.hand_eye
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks),
               "poses": None if args.poses is None else str(args.poses),
-              "images": None if not args.images else [str(p) for p in plan["images"]],
               **({} if not args.bag else {"bag": str(args.bag), "bag_images": plan["bag"].counts()}),
+              "images": None if not args.images else [str(p) for p in plan["images"]],
               "view_ids": list(plan["poses"].views), "n_observations": int(np.isfinite(uv[..., 0]).sum()),
               "image_size_from": _size_source(args, plan)}
     ctx = ExportContext(point_ids=point_ids, view_names=view_names, colors=colors, uv=uv, inputs=inputs,
                         truth=plan["truth"])
     write_timings = {}
-    written = export_calibration(cal, plan["out"], plan["formats"], ctx, timings=write_timings, report_worker=worker)
-    if hand_eye is not None:
-        written += write_hand_eye(hand_eye, plan["out"], args.unit)
+    written = export_calibration(cal, folder.path, plan["formats"], ctx, timings=write_timings, report_worker=worker)
+    if cal.hand_eye is not None:
+        written += write_hand_eye(cal.hand_eye, folder.path, args.unit)
+    if args.images or args.bag:
+        written.insert(0, folder.path / "tracks.csv")
     notes = _size_notes(cal, uv, plan)
     for note in notes:
         progress.log(f"note: {note}")
-    if args.images or args.bag:
-        written.insert(0, plan["out"] / "tracks.csv")
-    t_end = time.perf_counter()
     memory["after_write"] = _peak_rss_gib()
     timings = {"start_s": t_read - t_start, "read_s": t_imports - t_read, "imports_s": t_cal - t_imports,
-               "calibrate_s": t_write - t_cal, "write_s": t_end - t_write, "total_s": t_end - t_start}
-    simulated_ids = point_ids if args.tracks else None
+               "calibrate_s": t_write - t_cal, "write_s": time.perf_counter() - t_write}
+    return {"cal": cal, "uv": uv, "point_ids": point_ids, "written": folder.final_paths(written), "notes": notes,
+            "timings": timings, "write_timings": write_timings, "memory": memory}
+
+
+def _print_result(args, plan, r: dict) -> int:
+    """The summary (text or ``--json``) of a written run; returns the exit status."""
+    from ..io.folders import MANIFEST
+    from .handeye import hand_eye_text
+    from .summary import summary_json, summary_text
+
+    cal, timings = r["cal"], r["timings"]
+    simulated_ids = r["point_ids"] if args.tracks else None
     status = EXIT_WARNINGS if args.strict and cal.diagnostics else EXIT_OK
     if args.json:
-        summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, uv)
+        summary = summary_json(cal, args.unit, plan["truth"], simulated_ids, r["uv"])
         summary.update(status="warnings" if cal.diagnostics else "ok", exit_code=status,
-                       outputs=[str(p) for p in written], run_timings_s=timings, write_timings_s=write_timings,
-                       memory_peak_gib=memory, notes=notes)
+                       outputs=[str(p) for p in r["written"]], run_timings_s=timings,
+                       write_timings_s=r["write_timings"], memory_peak_gib=r["memory"], notes=r["notes"])
         print_json(summary)
-    else:
-        print(summary_text(cal, args.unit, plan["truth"], simulated_ids, uv))
-        if hand_eye is not None:
-            print(hand_eye_text(hand_eye, args.unit, plan["truth"]))
-        print(f"\nWrote {len(written)} files to {plan['out']} in {timings['total_s']:.2f} s "
-              f"(checks {timings['start_s']:.2f} s, read {timings['read_s']:.2f} s, "
-              f"imports {timings['imports_s']:.2f} s, calibrate {timings['calibrate_s']:.2f} s, "
-              f"write {timings['write_s']:.2f} s)")
+        return status
+    print(summary_text(cal, args.unit, plan["truth"], simulated_ids, r["uv"]))
+    if cal.hand_eye is not None:
+        print(hand_eye_text(cal.hand_eye, args.unit, plan["truth"]))
+    print(f"\nWrote {len(r['written'])} files and {MANIFEST} to {plan['out']} in {timings['total_s']:.2f} s "
+          f"(checks {timings['start_s']:.2f} s, read {timings['read_s']:.2f} s, "
+          f"imports {timings['imports_s']:.2f} s, calibrate {timings['calibrate_s']:.2f} s, "
+          f"write {timings['write_s']:.2f} s)")
     return status
 
 

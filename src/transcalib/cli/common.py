@@ -20,11 +20,13 @@ from pathlib import Path
 
 from ..errors import DegenerateError, InputError, TranscalibError
 
-__all__ = ["EXIT_OK", "EXIT_INPUT", "EXIT_DEGENERATE", "EXIT_WARNINGS", "EXIT_INTERRUPTED", "OptionError",
+__all__ = ["EXIT_OK", "EXIT_FAILURE", "EXIT_INPUT", "EXIT_DEGENERATE", "EXIT_WARNINGS", "EXIT_INTERRUPTED", "OptionError",
            "positive_int", "positive_float", "nonnegative_float", "fraction", "image_size", "existing_file",
-           "cli_message", "exit_code", "Progress", "print_json", "Parser", "import_in_background"]
+           "cli_message", "exit_code", "Progress", "print_json", "Parser", "UsageError", "GROUPS", "add_output_options",
+           "fail", "interrupted", "wants_json", "run_guarded", "import_in_background", "range_pair"]
 
 EXIT_OK = 0
+EXIT_FAILURE = 1
 EXIT_INPUT = 2
 EXIT_DEGENERATE = 3
 EXIT_WARNINGS = 4
@@ -115,10 +117,39 @@ def fraction(text: str) -> float:
 
 
 def image_size(text: str) -> tuple[int, int]:
+    """``WxH`` or ``W,H`` (the one spelling of an image size in every subcommand), pixels."""
     m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", text)
     if not m or min(int(m.group(1)), int(m.group(2))) <= 0:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels such as 640x480, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT or WIDTH,HEIGHT in pixels such as 640x480, got {text!r}")
     return int(m.group(1)), int(m.group(2))
+
+
+def numbers(text: str, count: int | None = None) -> list[float]:
+    """Comma-separated finite numbers (``count`` of them when given)."""
+    parts = [t for t in text.replace(" ", "").split(",")]
+    values = [_number(t) for t in parts]
+    if count is not None and len(values) != count:
+        raise argparse.ArgumentTypeError(f"expected {count} numbers separated by commas, got {len(values)} in {text!r}")
+    return values
+
+
+def range_pair(text: str) -> tuple[float, float]:
+    """``MIN,MAX`` with ``MIN < MAX``: the one spelling of a range in every subcommand."""
+    lo, hi = numbers(text, 2)
+    if not lo < hi:
+        raise argparse.ArgumentTypeError(f"expected MIN,MAX with MIN < MAX, got {text!r}")
+    return lo, hi
+
+
+def box(text: str) -> tuple[float, ...]:
+    """``xmin,xmax,ymin,ymax,zmin,zmax``: three ranges (:func:`range_pair`), each of
+    positive length."""
+    v = numbers(text, 6)
+    for axis, (lo, hi) in zip("xyz", (v[0:2], v[2:4], v[4:6])):
+        if not lo < hi:
+            raise argparse.ArgumentTypeError(f"{axis}min must be below {axis}max, got {lo:g} and {hi:g} in {text!r} "
+                                              "(a box of positive size along x, y and z)")
+    return tuple(v)
 
 
 def existing_file(option: str, path) -> Path:
@@ -136,12 +167,47 @@ def existing_file(option: str, path) -> Path:
     return p
 
 
+class UsageError(Exception):
+    """A command line argparse could not parse (raised by :meth:`Parser.error`)."""
+
+
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose usage errors are one line (``transcalib: error: ...``),
-    exit 2."""
+    exit 2: :meth:`error` raises :class:`UsageError`, which :func:`run_guarded` reports
+    (with ``--json``, as a JSON document too). Option groups are titled as in
+    :data:`GROUPS`."""
 
     def error(self, message: str):
-        self.exit(EXIT_INPUT, f"transcalib: error: {message} (see {self.prog} --help)\n")
+        if message.startswith("argument "):  # "argument --box: ..." -> "--box: ...", as the checks say it
+            message = message[len("argument "):]
+        raise UsageError(f"{message} (see {self.prog} --help)")
+
+    def groups(self) -> dict:
+        """The titled option groups of :data:`GROUPS`, by key (``"inputs"``, ...)."""
+        return {key: self.add_argument_group(title, text) for key, (title, text) in GROUPS.items()}
+
+
+#: The option groups of every subcommand's ``--help``, in this order.
+GROUPS = {
+    "inputs": ("inputs", "what the command reads"),
+    "model": ("model", "what is estimated and what is known"),
+    "robust": ("robust", "outliers and noise"),
+    "outputs": ("outputs", "what is written where; --json, --quiet"),
+    "performance": ("performance", "speed and repeatability"),
+}
+
+
+def add_output_options(group, *, folder: bool = True, quiet: bool = True) -> None:
+    """``--force`` (commands that write a folder), ``--json`` and ``--quiet``: the same
+    words in every subcommand."""
+    if folder:
+        group.add_argument("--force", action="store_true",
+                           help="replace an --out folder that holds files other than an earlier transcalib run "
+                                "(one that holds a run is replaced without it)")
+    group.add_argument("--json", action="store_true",
+                       help="print one JSON document on stdout (also on failure: status, exit_code, error)")
+    if quiet:
+        group.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
 # --------------------------------------------------------------------------------------
@@ -164,6 +230,7 @@ class Progress:
 
     def log(self, message: str) -> None:
         if not self.quiet:
+            self.close()  # a bar left open (a loop that ended early) ends its line first
             print(message, file=self.stream, flush=True)
 
     def __call__(self, event) -> None:
@@ -184,6 +251,7 @@ class Progress:
 
             bar = self._bars.get(name)
             if bar is None:
+                self.close()  # one bar at a time: another stage's bar ends its line
                 bar = self._bars[name] = tqdm(total=total, desc=f"  {name}", file=self.stream, leave=True)
             bar.update(done - bar.n)
             if done >= total:
@@ -222,27 +290,74 @@ def print_json(data: dict) -> None:
     print(json.dumps(jsonable(data), indent=2, allow_nan=False), flush=True)
 
 
+def fail(code: int, message: str, json_mode: bool, progress=None) -> int:
+    """Report a failure: one line on stderr, and with ``--json`` one JSON document on
+    stdout; returns ``code``."""
+    if progress is not None:
+        progress.close()
+    print(f"transcalib: error: {message}", file=sys.stderr, flush=True)
+    if json_mode:
+        print_json({"status": "error", "exit_code": code, "error": message})
+    return code
+
+
+#: Whether this run has reported an interrupt already (a second Ctrl-C while the first
+#: is being reported must not print a second JSON document); reset by ``main``.
+INTERRUPT_REPORTED = threading.Event()
+
+
+def interrupted(json_mode: bool, progress=None) -> int:
+    """Report Ctrl-C (or SIGTERM), once per run: one line on stderr, with ``--json`` one
+    JSON document; returns 130."""
+    if INTERRUPT_REPORTED.is_set():
+        return EXIT_INTERRUPTED
+    INTERRUPT_REPORTED.set()
+    if progress is not None:
+        progress.close()
+    print("transcalib: interrupted; no output folder was left half-written", file=sys.stderr, flush=True)
+    if json_mode:
+        print_json({"status": "interrupted", "exit_code": EXIT_INTERRUPTED, "error": "interrupted"})
+    return EXIT_INTERRUPTED
+
+
+def wants_json(argv: list[str]) -> bool:
+    """Whether ``--json`` is among the options of ``argv`` (before a ``--``): known before
+    argparse has run, for its own errors."""
+    return "--json" in (argv[:argv.index("--")] if "--" in argv else argv)
+
+
 def run_guarded(func, args) -> int:
-    """Run a subcommand: library errors become one line and an exit code."""
+    """Run a subcommand: every failure becomes one line (and a JSON document with
+    ``--json``) and an exit code, never a traceback. SIGTERM is handled as Ctrl-C, so an
+    output folder being written is removed (:mod:`transcalib.io.folders`).
+
+    A failure that is not the user's (an exception no check foresaw) exits 1 and says
+    so; ``TRANSCALIB_TRACEBACK=1`` prints its traceback too.
+    """
     import os
 
-    progress = getattr(args, "_progress", None)
+    from ..io.folders import terminate_as_interrupt
+
+    json_mode = bool(getattr(args, "json", False))
     try:
-        return func(args)
+        with terminate_as_interrupt():
+            return func(args)
     except TranscalibError as exc:
-        if progress:
-            progress.close()
-        message = cli_message(exc)
-        print(f"transcalib: error: {message}", file=sys.stderr)
-        if getattr(args, "json", False):
-            print_json({"status": "error", "exit_code": exit_code(exc), "error": message})
-        return exit_code(exc)
+        return fail(exit_code(exc), cli_message(exc), json_mode, getattr(args, "_progress", None))
     except BrokenPipeError:  # output piped into a command that stopped reading (head)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except OSError as exc:  # a write that failed despite the checks (disk full, vanished folder)
-        print(f"transcalib: error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}", file=sys.stderr)
-        return EXIT_INPUT
+        message = f"cannot write {exc.filename or 'a file'}: {exc.strerror or exc}; nothing was written"
+        return fail(EXIT_INPUT, message, json_mode, getattr(args, "_progress", None))
     except KeyboardInterrupt:
-        print("transcalib: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return interrupted(json_mode, getattr(args, "_progress", None))
+    except Exception as exc:  # noqa: BLE001 - a bug or a failure of a helper process: exit 1, no traceback
+        if os.environ.get("TRANSCALIB_TRACEBACK"):
+            import traceback
+
+            traceback.print_exc()
+        first = (str(exc).strip().splitlines() or [""])[0]
+        message = (f"{type(exc).__name__}: {first} (an internal error, not your input; nothing was written; set "
+                   "TRANSCALIB_TRACEBACK=1 for the traceback and please report it)")
+        return fail(EXIT_FAILURE, message, json_mode, getattr(args, "_progress", None))

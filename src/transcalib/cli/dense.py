@@ -1,23 +1,17 @@
 """``transcalib dense``: depth maps and a metric point cloud from calibrated views.
 
-Order of work: (1) check every option, input and the output folder - no computation
-yet; (2) read the images; (3) :func:`transcalib.dense`; (4) write every output into a
-temporary folder beside ``--out``, renamed into place at the end. A failure or an
-interrupt (Ctrl-C, ``kill``) at any point leaves ``--out`` as it was: complete or absent.
-The folder rule is a minimal local version (the last section of this module), to be
-replaced by the project's shared one.
+Order of work: (1) check every option, input and the output folder
+(:mod:`transcalib.io.folders`) - no computation yet; (2) read the images; (3)
+:func:`transcalib.dense`; (4) write every output into a temporary folder beside
+``--out``, renamed into place at the end. A failure or an interrupt (Ctrl-C, ``kill``)
+at any point leaves ``--out`` as it was: complete or absent.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import os
-import shutil
-import signal
-import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -100,12 +94,13 @@ def check_all(args) -> dict:
     from ..errors import InputError
     from ..io import read_poses
     from ..io.calibration_file import load_saved
+    from ..io.folders import check_output_folder
     from ..io.ids import canonical_id
     from .calibrate import _order_images
 
     images = [existing_file("--images", p) for p in args.images]
     poses_path = existing_file("--poses", args.poses)
-    check_out(args.out, force=args.force, inputs=[args.calibration, poses_path, *images])
+    check_output_folder(args.out, force=args.force, inputs=[args.calibration, poses_path, *images])
     plan = {"options": _options(args)}
     try:
         plan["saved"] = load_saved(args.calibration)
@@ -150,13 +145,13 @@ def run(args) -> int:
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)
     plan["t_checks"] = time.perf_counter() - t0
-    with terminate_as_interrupt():
-        return _work(args, plan, progress, t0)
+    return _work(args, plan, progress, t0)
 
 
 def _work(args, plan, progress: Progress, t0: float) -> int:
     from ..dense import dense
     from ..io.dense_files import write_dense
+    from ..io.folders import MANIFEST, output_folder
 
     cal = plan["saved"].calibration
     imgs = _read_images(plan["images"], cal.camera)
@@ -166,9 +161,10 @@ def _work(args, plan, progress: Progress, t0: float) -> int:
     t_dense = time.perf_counter()
     inputs = {"calibration": str(args.calibration), "poses": str(args.poses),
               "images": [str(p) for p in plan["images"]], "view_ids": list(plan["poses"].views)}
-    with written_whole(args.out) as folder:
-        written = [Path(args.out) / name for name in
-                   write_dense(result, folder, inputs=inputs, report=not args.no_report)]
+    with output_folder(args.out, command=NAME, force=args.force,
+                       inputs=[args.calibration, args.poses, *plan["images"]]) as folder:
+        names = write_dense(result, folder.path, inputs=inputs, report=not args.no_report)
+    written = [Path(args.out) / name for name in names + [MANIFEST]]
     t_end = time.perf_counter()
     timings = {"checks_s": plan["t_checks"], "read_s": t_read - t0 - plan["t_checks"], "dense_s": t_dense - t_read,
                "write_s": t_end - t_dense, "total_s": t_end - t0}
@@ -193,79 +189,3 @@ def _work(args, plan, progress: Progress, t0: float) -> int:
 
 
 
-
-# --------------------------------------------------------------------------------------
-# the output folder, complete or absent: a minimal local version (check_out,
-# written_whole, terminate_as_interrupt), to be swapped for the project's shared one
-# --------------------------------------------------------------------------------------
-
-#: The file that marks a folder as an earlier ``transcalib dense`` run (replaced whole).
-MARK = "dense.json"
-
-
-def check_out(out, *, force: bool, inputs=()) -> Path:
-    """``--out`` before any work: absent, empty or an earlier dense run (it holds
-    :data:`MARK`) is fine; a file, a folder that is or holds an input, or (without
-    ``--force``) a folder of other files is refused; its parent must be writable."""
-    from ..io.files import check_writable_dir
-
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OptionError("--out", f"{str(out)!r} is an existing file, not a folder; give a folder name")
-    target = out.resolve()
-    for item in inputs:
-        p = Path(item).resolve()
-        if p == target or target in p.parents:
-            raise OptionError("--out", f"{str(out)!r} holds the input {str(item)!r}; replacing it would delete it: "
-                              "give another folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / MARK).is_file() and not force:
-        raise OptionError("--out", f"{str(out)!r} holds files that are not a transcalib dense run (no {MARK}); "
-                          "give a new or empty folder, or add --force to replace it whole")
-    check_writable_dir(out.parent, option="--out")
-    return out
-
-
-@contextmanager
-def written_whole(out):
-    """Yield a temporary folder beside ``out`` to write into; at the end it becomes
-    ``out`` (an earlier ``out`` renamed aside, then deleted); on any exception it is
-    removed and ``out`` stays as it was."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
-    try:
-        yield tmp
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o777 & ~mask)  # mkdtemp makes 0700
-        old = out.parent / f".{tmp.name}.old"
-        if out.exists():
-            os.replace(out, old)
-        try:
-            os.replace(tmp, out)
-        except BaseException:
-            if old.exists():
-                os.replace(old, out)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-
-
-@contextmanager
-def terminate_as_interrupt():
-    """Within the block SIGTERM (``kill``) raises ``KeyboardInterrupt`` like Ctrl-C, so
-    that :func:`written_whole` removes its temporary folder (main thread only)."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 
-from .common import OptionError, Progress, positive_float, print_json
+from .common import OptionError, Progress, add_output_options, positive_float, print_json
 
 NAME = "extract"
 HELP = "write the still images of a ROS bag (one per stop) as PNG and their flange poses as poses.csv"
@@ -89,38 +89,24 @@ def read_bag_views(args, options, progress: Progress):
 
 
 def add_parser(sub) -> None:
-    e = sub.add_parser(NAME, help=HELP, description=HELP)
-    e.add_argument("--out", required=True, help="output folder (created if missing): view000.png, ..., poses.csv")
-    e.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
-    e.add_argument("--quiet", action="store_true", help="no progress messages")
+    e = sub.add_parser(NAME, help=HELP, description=HELP + ". The output folder is written whole or not at all.")
+    g = e.groups()
+    g["outputs"].add_argument("--out", required=True, metavar="DIR",
+                              help="output folder: view000.png, ..., poses.csv, manifest.json (written whole or not "
+                                   "at all; an earlier transcalib run there is replaced)")
+    add_output_options(g["outputs"])
     add_bag_arguments(e, with_bag=True)
     e.set_defaults(func=run)
 
 
-def write_views(views, out) -> list:
+def write_views(views, out, force: bool = False, inputs=()) -> list:
     """The images as PNG (grey or colour, 8 or 16 bit as decoded) and ``poses.csv``
-    (``view,x,y,z,qx,qy,qz,qw,image``, metres), written into a temporary folder beside
-    ``out`` first: a new ``out`` appears complete (one rename), an existing one receives
-    the files one rename each, ``poses.csv`` last; a failure leaves nothing."""
-    import os
-    import shutil
-    import tempfile
-    from pathlib import Path
+    (``view,x,y,z,qx,qy,qz,qw,image``, metres) in ``out``, complete or absent
+    (:func:`transcalib.io.folders.output_folder`)."""
+    from ..io.folders import output_folder
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(stage, 0o777 & ~mask)  # mkdtemp makes 0700
-    try:
-        names = _write_files(views, stage)
-        if not out.exists():
-            stage.rename(out)
-        else:
-            for name in names:
-                (stage / name).replace(out / name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+    with output_folder(out, command=NAME, force=force, inputs=inputs) as folder:
+        names = _write_files(views, folder.path)
     return [out / name for name in names]
 
 
@@ -139,15 +125,15 @@ def _write_files(views, folder) -> list[str]:
 
 
 def run(args) -> int:
-    from ..io import check_writable_dir
+    from ..io.folders import check_output_folder
 
     t0 = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
-    out = check_writable_dir(args.out, "--out")
+    out = check_output_folder(args.out, force=args.force, inputs=[args.bag])
     options = bag_options(args)
     check_bag_path(args)
     views = read_bag_views(args, options, progress)
-    written = write_views(views, out)
+    written = write_views(views, out, force=args.force, inputs=[args.bag])
     if args.json:
         print_json({"status": "ok", "exit_code": 0, "n_views": views.n_views, "counts": views.counts(),
                     "unit": "m", "outputs": [str(p) for p in written], "time_s": time.perf_counter() - t0})

@@ -1,7 +1,10 @@
 """The ``transcalib`` command: one module per subcommand, registered from :data:`COMMANDS`.
 
-Exit status: 0 success, 2 bad input (one line naming the option, no traceback),
-3 degenerate data, 4 warnings with ``--strict``, 130 interrupted. Adding a subcommand is
+Exit status: 0 success, 1 an internal failure (a bug, or the report's worker process
+failed: one line, no traceback), 2 bad input (one line naming the option, no traceback),
+3 degenerate data, 4 warnings with ``--strict``, 130 interrupted (Ctrl-C or SIGTERM; no
+output folder is left half-written). With ``--json`` every outcome, argparse's usage
+errors included, is one JSON document on stdout. Adding a subcommand is
 one line: a module with ``add_parser(sub)`` and ``run(args)`` named in ``COMMANDS``.
 """
 
@@ -13,7 +16,7 @@ import os
 import sys
 
 from .. import __version__
-from .common import Parser, run_guarded
+from .common import EXIT_INPUT, INTERRUPT_REPORTED, Parser, UsageError, fail, interrupted, run_guarded, wants_json
 
 #: Subcommand modules of this package, in ``--help`` order.
 COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate", "dense")
@@ -22,7 +25,8 @@ COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "p
 def build_parser() -> Parser:
     p = Parser(prog="transcalib",
                description="Camera calibration and metric reconstruction from known robot translations.",
-               epilog="Exit status: 0 success, 2 bad input, 3 degenerate data, 4 warnings with --strict.")
+               epilog="Exit status: 0 success, 1 internal failure, 2 bad input, 3 degenerate data, 4 warnings with "
+                      "--strict, 130 interrupted. 'transcalib COMMAND -h' explains every option of a command.")
     p.add_argument("--version", action="version", version=f"transcalib {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=Parser)
     for name in COMMANDS:
@@ -82,10 +86,25 @@ def tune_process() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    INTERRUPT_REPORTED.clear()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # before the command ran, or a second Ctrl-C while the first was reported
+        return interrupted(wants_json(argv))
+
+
+def _main(argv: list[str]) -> int:
     for stream in (sys.stdout, sys.stderr):  # "±" and "→" on a terminal that is not UTF-8
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except UsageError as exc:  # before any option is known: --json looked up by hand
+        return fail(EXIT_INPUT, str(exc), wants_json(argv))
+    except SystemExit as exc:  # --help, --version
+        return exc.code if isinstance(exc.code, int) else EXIT_INPUT
     return run_guarded(args.func, args)
 
 

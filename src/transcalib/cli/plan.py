@@ -1,136 +1,105 @@
 """``transcalib plan``: where to move the robot, with the accuracy predicted (issue 12).
 
-``transcalib plan --image-size W,H --focal-px F --distance D --box ... --views M --out DIR``
-writes ``DIR/poses.csv`` (``view,x,y,z``) and ``DIR/plan.json``; ``--evaluate poses.csv``
-predicts what given moves achieve and warns about weak designs. Parsing and printing
-only: the numerics are :func:`transcalib.plan` and :func:`transcalib.evaluate_plan`.
-Registered in the main parser by ``add_parser(subparsers)``; bad options give one line
-naming the option and exit status 2.
+``transcalib plan --image-size WxH --focal-px F --distance D --box ... --views M --out DIR``
+writes ``DIR/poses.csv`` (``view,x,y,z``), ``DIR/plan.json`` and ``DIR/manifest.json``
+(the folder complete or absent); ``--evaluate poses.csv`` predicts what given moves
+achieve and warns about weak designs (``DIR/evaluation.json`` with ``--out``). Parsing
+and printing only: the numerics are :func:`transcalib.plan` and
+:func:`transcalib.evaluate_plan`. Every value is checked by argparse or
+:class:`~transcalib.planning.PlanOptions` before the search starts; a bad one is one line
+naming the option, exit status 2.
 """
 
 from __future__ import annotations
 
-import argparse
 import re
-import sys
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from .common import (OptionError, add_output_options, box, existing_file, fraction, image_size, nonnegative_float,
+                     numbers, positive_float, positive_int, print_json)
 
 __all__ = ["add_parser", "run"]
 
-EXIT_INPUT = 2
+NAME = "plan"
+HELP = "plan robot translations with the accuracy predicted, or --evaluate given ones"
 #: PlanOptions field -> command-line option, to name the option in error messages.
 _OPTION_OF = {"image_size": "--image-size", "focal_px": "--focal-px", "distance": "--distance",
               "depth_range": "--depth-range", "n_points": "--points", "noise_px": "--noise-px",
               "view_direction": "--view-direction", "robot_noise": "--robot-noise",
-              "distortion": "--distortion", "dist": "--dist-coeffs", "criterion": "--criterion", "min_visible": "--min-visible",
-              "margin_px": "--margin-px", "n_views": "--views", "box": "--box", "min_separation": "--min-separation"}
+              "distortion": "--distortion", "dist": "--dist-coeffs", "criterion": "--criterion",
+              "min_visible": "--min-visible", "margin_px": "--margin-px", "n_views": "--views", "box": "--box",
+              "min_separation": "--min-separation"}
 _KEYS = ("fx", "fy", "cx", "cy", "rx", "ry", "rz")
 
 
-def _one_line_error(message: str):
-    """argparse errors as a single line naming the option (no usage dump), status 2."""
-    print(f"transcalib plan: error: {message}", file=sys.stderr)
-    raise SystemExit(EXIT_INPUT)
-
-
-def add_parser(subparsers) -> argparse.ArgumentParser:
+def add_parser(subparsers) -> None:
     """Add the ``plan`` sub-command to the main parser's ``subparsers``."""
-    p = subparsers.add_parser("plan",
-                              help="plan robot translations with the accuracy predicted, or --evaluate given ones",
+    p = subparsers.add_parser(NAME, help=HELP,
                               description="Plan where to move the robot (or --evaluate a poses.csv) and predict "
                                           "the calibration's accuracy before taking any image.")
-    p.error = _one_line_error
-    known = p.parse_known_args
-
-    def parse_known_args(args=None, namespace=None):  # unknown options: one line here, not the main usage
-        ns, extra = known(args, namespace)
-        if extra:
-            _one_line_error(f"unrecognized arguments: {' '.join(extra)}")
-        return ns, extra
-
-    p.parse_known_args = parse_known_args
-    # "--box -200,200,..." : let values that start with a minus sign and hold only numbers
-    # and commas be values, not options (argparse only accepts "-200" alone by default)
-    p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eE+-]*$")
-    a = p.add_argument
-    a("--image-size", required=True, metavar="W,H", help="image width,height in pixels")
-    a("--focal-px", required=True, metavar="F", help="approximate focal length in pixels")
-    a("--distance", required=True, metavar="D", help="working distance to the middle of the scene (robot units)")
-    a("--depth-range", default="0", metavar="R", help="depth extent of the scene (robot units; default 0: flat)")
-    a("--points", default="100", metavar="N", help="number of tracked points expected (default 100)")
-    a("--noise-px", default="0.5", metavar="S", help="pixel noise std per coordinate (default 0.5)")
-    a("--box", metavar="xmin,xmax,ymin,ymax,zmin,zmax", help="reachable box of the camera (robot units)")
-    a("--views", metavar="M", help="number of views to plan (4..50)")
-    a("--view-direction", default="-z", help="optical axis in the robot frame: -z, +x, ... or a,b,c (default -z)")
-    a("--robot-noise", default="0", metavar="SIGMA", help="robot precision: std per translation coordinate")
-    a("--distortion", default="none", help="distortion model to be estimated: none, radial1, radial2, opencv5")
-    a("--dist-coeffs", default="", metavar="K1,K2,...",
-      help="assumed true distortion coefficients, OpenCV order (default none: 0)")
-    a("--criterion", default="focal", help="focal (default: std of fx, fy) or intrinsics (fx, fy, cx, cy)")
-    a("--min-visible", default="0.5", metavar="FRACTION", help="each view sees at least this fraction of points")
-    a("--margin-px", default="0", help="points nearer the image border than this count as unseen")
-    a("--min-separation", default=None, help="smallest distance between planned views (default 5%% of the box)")
-    a("--positions", metavar="CSV", help="allowed positions (view,x,y,z): choose among them instead of the box")
-    a("--evaluate", metavar="POSES_CSV", help="predict what the translations of this poses.csv achieve")
-    a("--seed", default="0", help="seed of the model's random points (default 0)")
-    a("--out", metavar="DIR", help="output folder: poses.csv and plan.json (evaluation.json with --evaluate)")
+    # "--box -200,200,..." : let every word that starts with a minus sign and a digit be a
+    # value, not an option (argparse only takes a lone number such as "-200" by default),
+    # so that a typo in such a value is reported as the value's error
+    p._negative_number_matcher = re.compile(r"^-\.?\d")
+    g = p.groups()
+    _camera(g["model"])
+    i = g["inputs"]
+    i.add_argument("--box", type=box, metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
+                   help="reachable box of the camera (robot units): three MIN,MAX ranges, each of positive length")
+    i.add_argument("--positions", metavar="CSV", help="allowed positions (view,x,y,z): choose among them instead of "
+                                                     "the box")
+    i.add_argument("--evaluate", metavar="POSES_CSV", help="predict what the translations of this poses.csv achieve")
+    i.add_argument("--views", type=positive_int, metavar="M", help="number of views to plan (4..50)")
+    i.add_argument("--min-separation", type=nonnegative_float, metavar="D",
+                   help="smallest distance between planned views, robot units (default 5%% of the box)")
+    o = g["outputs"]
+    o.add_argument("--out", metavar="DIR", help="output folder: poses.csv and plan.json (evaluation.json with "
+                                                "--evaluate), written whole or not at all")
+    add_output_options(o, quiet=False)
+    g["performance"].add_argument("--seed", type=int, default=0, metavar="N",
+                                  help="seed of the model's random points (default 0: repeatable)")
     p.set_defaults(func=run)
-    return p
 
 
-def _numbers(args, name: str, count: int | None = None, integer: bool = False) -> list:
-    text = getattr(args, name)
-    opt = "--" + name.replace("_", "-")
-    try:
-        vals = [int(v) if integer else float(v) for v in str(text).split(",")]
-    except ValueError:
-        raise InputError(f"{opt} expects {'integers' if integer else 'numbers'}"
-                         f"{f' ({count} separated by commas)' if count and count > 1 else ''}, got {text!r}") from None
-    if count is not None and len(vals) != count:
-        raise InputError(f"{opt} expects {count} numbers separated by commas, got {text!r}")
-    if not all(np.isfinite(vals)):
-        raise InputError(f"{opt} must be finite, got {text!r}")
-    return vals
+def _camera(m) -> None:
+    """The assumed camera and scene (:class:`~transcalib.planning.PlanOptions`)."""
+    m.add_argument("--image-size", required=True, type=image_size, metavar="WxH",
+                   help="image size in pixels, WxH or W,H such as 1280x1024")
+    m.add_argument("--focal-px", required=True, type=positive_float, metavar="F",
+                   help="approximate focal length in pixels")
+    m.add_argument("--distance", required=True, type=positive_float, metavar="D",
+                   help="working distance to the middle of the scene (robot units)")
+    m.add_argument("--depth-range", type=nonnegative_float, default=0.0, metavar="R",
+                   help="depth extent of the scene, below 2 x --distance (robot units; default 0: flat)")
+    m.add_argument("--points", type=positive_int, default=100, metavar="N",
+                   help="number of tracked points expected, at least 2 (default 100)")
+    m.add_argument("--noise-px", type=positive_float, default=0.5, metavar="S",
+                   help="pixel noise std per coordinate (default 0.5)")
+    m.add_argument("--view-direction", default="-z",
+                   help="optical axis in the robot frame: -z, +x, ... or a,b,c (default -z)")
+    m.add_argument("--robot-noise", type=nonnegative_float, default=0.0, metavar="SIGMA",
+                   help="robot precision: std per translation coordinate, robot units (default 0)")
+    m.add_argument("--distortion", default="none", choices=["none", "radial1", "radial2", "opencv5"],
+                   help="distortion model to be estimated (default none)")
+    m.add_argument("--dist-coeffs", type=numbers, default=(), metavar="K1,K2,...",
+                   help="assumed true distortion coefficients, OpenCV order, 1, 2, 4 or 5 of them (default: none)")
+    m.add_argument("--criterion", default="focal", choices=["focal", "intrinsics"],
+                   help="what the plan minimises: focal (the std of fx, fy; default) or intrinsics (fx, fy, cx, cy)")
+    m.add_argument("--min-visible", type=fraction, default=0.5, metavar="FRACTION",
+                   help="each view sees at least this fraction of the points, in [0, 1) (default 0.5)")
+    m.add_argument("--margin-px", type=nonnegative_float, default=0.0, metavar="PX",
+                   help="points nearer the image border than this count as unseen (default 0)")
 
 
 def _options(args):
     from ..planning import PlanOptions
 
-    kw = dict(image_size=tuple(_numbers(args, "image_size", 2, integer=True)),
-              focal_px=_numbers(args, "focal_px", 1)[0], distance=_numbers(args, "distance", 1)[0],
-              depth_range=_numbers(args, "depth_range", 1)[0], n_points=_numbers(args, "points", 1, True)[0],
-              noise_px=_numbers(args, "noise_px", 1)[0], view_direction=args.view_direction,
-              robot_noise=_numbers(args, "robot_noise", 1)[0], distortion=args.distortion,
-              dist=tuple(_numbers(args, "dist_coeffs")) if args.dist_coeffs.strip() else (),
-              criterion=args.criterion, min_visible=_numbers(args, "min_visible", 1)[0],
-              margin_px=_numbers(args, "margin_px", 1)[0],
-              min_separation=None if args.min_separation is None else _numbers(args, "min_separation", 1)[0])
-    return PlanOptions(**kw)
-
-
-def _writable(out: str) -> Path:
-    path = Path(out)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as exc:
-        raise InputError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
-    return path
-
-
-def _write_poses(path: Path, T: np.ndarray) -> None:
-    from ..io import atomic_write
-
-    with atomic_write(path, encoding="utf-8", newline="\n") as fh:
-        fh.write("view,x,y,z\n")
-        for i, t in enumerate(T):
-            fh.write(f"{i},{float(t[0])!r},{float(t[1])!r},{float(t[2])!r}\n")
+    return PlanOptions(image_size=args.image_size, focal_px=args.focal_px, distance=args.distance,
+                       depth_range=args.depth_range, n_points=args.points, noise_px=args.noise_px,
+                       view_direction=args.view_direction, robot_noise=args.robot_noise, distortion=args.distortion,
+                       dist=tuple(args.dist_coeffs), criterion=args.criterion, min_visible=args.min_visible,
+                       margin_px=args.margin_px, min_separation=args.min_separation)
 
 
 def _table(rows: dict) -> str:
@@ -144,52 +113,80 @@ def _table(rows: dict) -> str:
     return "\n".join(lines)
 
 
+def _checked(args):
+    """Every option and path before the search: ``(options, inputs)``."""
+    from ..errors import InputError
+    from ..io.folders import check_output_folder
+
+    try:
+        options = _options(args)
+    except InputError as exc:  # PlanOptions names its fields: name the options instead
+        msg = str(exc)
+        field = next((f for f in _OPTION_OF if msg.startswith(f + " ") or msg.startswith(f + "=")), None)
+        raise OptionError(_OPTION_OF[field], msg[len(field):].lstrip(" ")) if field else exc from None
+    if args.evaluate:
+        for name in ("views", "positions", "min_separation"):
+            if getattr(args, name) is not None:
+                raise OptionError("--" + name.replace("_", "-"), "applies to planning, not to --evaluate")
+    else:
+        missing = [o for o, v in (("--box", args.box), ("--views", args.views), ("--out", args.out)) if v is None]
+        if missing:
+            raise OptionError(missing[0], f"planning needs {', '.join(missing)} (or use --evaluate POSES_CSV)")
+        if not 4 <= args.views <= 50:
+            raise OptionError("--views", f"must be in 4..50, got {args.views}")
+    inputs = [existing_file(opt, p) for opt, p in (("--evaluate", args.evaluate), ("--positions", args.positions)) if p]
+    if args.out is not None:
+        check_output_folder(args.out, force=args.force, inputs=inputs)
+    return options, inputs
+
+
 def run(args) -> int:
     """Run ``transcalib plan``; returns the exit status."""
-    try:
-        return _run(args)
-    except InputError as exc:
-        msg = str(exc)
-        for field, opt in _OPTION_OF.items():
-            if msg.startswith(field + " ") or msg.startswith(field + "="):
-                msg = opt + msg[len(field):]
-                break
-        print(f"transcalib plan: error: {msg}", file=sys.stderr)
-        return EXIT_INPUT
-
-
-def _run(args) -> int:
     from .. import io as tio
+    from ..io.folders import output_folder
     from ..planning import evaluate_plan, plan
 
-    options = _options(args)
-    seed = _numbers(args, "seed", 1, integer=True)[0]
-    box = None if args.box is None else _numbers(args, "box", 6)
-    out = None if args.out is None else _writable(args.out)
+    options, inputs = _checked(args)
     if args.evaluate:
         T = tio.read_poses(args.evaluate).T
-        ev = evaluate_plan(T, options, box=box, rng=seed)
+        ev = evaluate_plan(T, options, box=args.box, rng=args.seed)
+        files = []
+        if args.out is not None:
+            with output_folder(args.out, command=NAME, force=args.force, inputs=inputs) as folder:
+                tio.write_json(folder.file("evaluation.json"), ev.to_dict())
+                files = folder.final_paths([folder.path / "evaluation.json"])
+        if args.json:
+            print_json({"status": "warnings" if ev.warnings else "ok", "exit_code": 0, "evaluation": ev.to_dict(),
+                        "outputs": [str(f) for f in files]})
+            return 0
         print(f"Predicted accuracy of {args.evaluate} ({len(T)} views; std in px, rotation in degrees):")
         print(_table({"given": ev}))
         print(f"  median predicted std of a reconstructed point: {ev.point_std:.3g} (robot units)")
         for w in ev.warnings:
             print(f"warning: {w}")
-        if out is not None:
-            tio.write_json(out / "evaluation.json", ev.to_dict())
-            print(f"Wrote {out / 'evaluation.json'}")
+        if files:
+            print(f"Wrote {files[0]} and manifest.json")
         return 0
-    if box is None or args.views is None or out is None:
-        missing = [o for o, v in (("--box", box), ("--views", args.views), ("--out", out)) if v is None]
-        raise InputError(f"planning needs {', '.join(missing)} (or use --evaluate POSES_CSV)")
-    n_views = _numbers(args, "views", 1, integer=True)[0]
     positions = None if args.positions is None else tio.read_poses(args.positions).T
-    result = plan(box, n_views, options, positions=positions, rng=seed)
-    _write_poses(out / "poses.csv", result.T)
-    tio.write_json(out / "plan.json", result.to_dict())
-    print(f"Plan: {n_views} views in the box {box} ({result.criterion}), {result.time_s:.2f} s")
+    result = plan(args.box, args.views, options, positions=positions, rng=args.seed)
+    with output_folder(args.out, command=NAME, force=args.force, inputs=inputs) as folder:
+        _write_poses(folder.file("poses.csv"), result.T)
+        tio.write_json(folder.file("plan.json"), result.to_dict())
+        files = folder.final_paths([folder.path / "poses.csv", folder.path / "plan.json"])
+    if args.json:
+        print_json({"status": "warnings" if result.evaluation.warnings else "ok", "exit_code": 0,
+                    "plan": result.to_dict(), "outputs": [str(f) for f in files]})
+        return 0
+    print(f"Plan: {args.views} views in the box {list(args.box)} ({result.criterion}), {result.time_s:.2f} s")
     print(_table({"plan": result.evaluation, **result.patterns}))
     for w in result.evaluation.warnings:
         print(f"warning: {w}")
-    print(f"Wrote {out / 'poses.csv'} and {out / 'plan.json'}")
+    print(f"Wrote {files[0]}, {files[1]} and manifest.json")
     return 0
 
+
+def _write_poses(path, T: np.ndarray) -> None:
+    with open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write("view,x,y,z\n")
+        for i, t in enumerate(T):
+            fh.write(f"{i},{float(t[0])!r},{float(t[1])!r},{float(t[2])!r}\n")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import print_json
+from .common import add_output_options, print_json
 
 NAME = "show"
 HELP = "print a saved calibration (the --out folder of calibrate)"
@@ -10,8 +10,9 @@ HELP = "print a saved calibration (the --out folder of calibrate)"
 
 def add_parser(sub) -> None:
     s = sub.add_parser(NAME, help=HELP, description=HELP)
-    s.add_argument("folder", metavar="DIR", help="folder with calibration.json, or the .json file")
-    s.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
+    g = s.groups()
+    g["inputs"].add_argument("folder", metavar="DIR", help="folder with calibration.json, or the .json file")
+    add_output_options(g["outputs"], folder=False, quiet=False)
     s.set_defaults(func=run)
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..types.options import SETUPS
-from .common import OptionError, fraction, nonnegative_float, positive_int, print_json
+from .common import OptionError, add_output_options, fraction, nonnegative_float, positive_int, print_json
 
 NAME = "simulate"
 HELP = "write a synthetic scene: tracks.csv, poses.csv, truth.json"
@@ -27,27 +27,39 @@ PRESET_OPTIONS = {
 
 
 def add_parser(sub) -> None:
-    s = sub.add_parser(NAME, help=HELP, description=HELP)
-    s.add_argument("--preset", choices=list(PRESET_OPTIONS), default="paper")
-    s.add_argument("--out", required=True, help="output folder")
-    s.add_argument("--points", type=positive_int, help="random/robot preset: number of points (default 100/60)")
-    s.add_argument("--views", type=positive_int,
+    s = sub.add_parser(NAME, help=HELP, description=HELP + ". The output folder is written whole or not at all.")
+    g = s.groups()
+    m = g["model"]
+    m.add_argument("--preset", choices=list(PRESET_OPTIONS), default="paper",
+                   help="paper: the paper's 24 points in 4 views (default); random: a random scene; robot: a camera "
+                        "on a flange with several wrist orientations (hand-eye)")
+    m.add_argument("--points", type=positive_int, metavar="N",
+                   help="random/robot preset: number of points, at least 2 (default 100/60)")
+    m.add_argument("--views", type=positive_int, metavar="M",
                    help="random preset: number of views, at least 4 (default 4); robot preset: views per session "
                         "(default 6)")
-    s.add_argument("--planar", action="store_true", default=None, help="random preset: points on a plane")
-    s.add_argument("--missing", type=fraction, help="random preset: fraction of dropped observations (default 0)")
-    s.add_argument("--sessions", type=int, help="robot preset: wrist orientations with translations (default 3)")
-    s.add_argument("--single-views", type=int,
+    m.add_argument("--planar", action="store_true", default=None, help="random preset: points on a plane")
+    m.add_argument("--missing", type=fraction, metavar="FRACTION",
+                   help="random preset: fraction of dropped observations, in [0, 1) (default 0)")
+    m.add_argument("--sessions", type=int, metavar="N",
+                   help="robot preset: wrist orientations with translations (default 3)")
+    m.add_argument("--single-views", type=int, metavar="N",
                    help="robot preset: views each at its own orientation, tilted 15-40 deg (default 0)")
-    s.add_argument("--moves", choices=["3d", "xy", "line"], help="robot preset: translations in a session (default 3d)")
-    s.add_argument("--setup", choices=SETUPS, help="robot preset: where the camera is (default eye-in-hand)")
-    s.add_argument("--noise-px", type=nonnegative_float, default=0.0, help="pixel noise std (default 0)")
-    s.add_argument("--robot-noise", type=nonnegative_float, default=0.0,
-                   help="paper/random preset: robot translation noise std (default 0)")
-    s.add_argument("--tracks-format", choices=["csv", "npz", "parquet"], default="csv",
+    m.add_argument("--moves", choices=["3d", "xy", "line"], help="robot preset: translations in a session (default 3d)")
+    m.add_argument("--setup", choices=SETUPS, help="robot preset: where the camera is (default eye-in-hand)")
+    r = g["robust"]
+    r.add_argument("--noise-px", type=nonnegative_float, default=0.0, metavar="PX",
+                   help="pixel noise std per coordinate (default 0)")
+    r.add_argument("--robot-noise", type=nonnegative_float, default=0.0, metavar="SIGMA",
+                   help="paper/random preset: robot translation noise std, in mm (default 0)")
+    o = g["outputs"]
+    o.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: tracks, poses.csv, truth.json, manifest.json (written whole or not at all)")
+    o.add_argument("--tracks-format", choices=["csv", "npz", "parquet"], default="csv",
                    help="format of the tracks file (default csv)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
+    add_output_options(o, quiet=False)
+    g["performance"].add_argument("--seed", type=int, default=0, metavar="N",
+                                  help="random seed of the scene and the noise (default 0: repeatable)")
     s.set_defaults(func=run)
 
 
@@ -87,10 +99,11 @@ def _robot_scene(opts: dict, noise_px: float, seed: int):
 
 def run(args) -> int:
     from .. import io as tio
+    from ..io.folders import check_output_folder, output_folder
     from ..synth import simulate
 
     opts = _preset_options(args)
-    out = tio.check_writable_dir(args.out, "--out")
+    check_output_folder(args.out, force=args.force)
     if args.preset == "robot":
         uv, poses, truth = _robot_scene(opts, args.noise_px, args.seed)
     else:
@@ -100,11 +113,12 @@ def run(args) -> int:
             scene = simulate.random_scene(opts["points"], opts["views"], planar=opts["planar"], noise_px=args.noise_px,
                                           robot_noise=args.robot_noise, missing=opts["missing"], rng=args.seed)
         uv, poses, truth = scene.uv, dict(T=scene.T), scene.truth_dict()
-    tracks = out / f"tracks.{args.tracks_format}"
-    tio.write_tracks(tracks, uv)
-    tio.write_poses_csv(out / "poses.csv", **poses)
-    tio.write_json(out / "truth.json", truth)
-    files = [tracks, out / "poses.csv", out / "truth.json"]
+    with output_folder(args.out, command=NAME, force=args.force) as folder:
+        tracks = folder.file(f"tracks.{args.tracks_format}")
+        tio.write_tracks(tracks, uv)
+        tio.write_poses_csv(folder.file("poses.csv"), **poses)
+        tio.write_json(folder.file("truth.json"), truth)
+        files = folder.final_paths([tracks, folder.path / "poses.csv", folder.path / "truth.json"])
     n_points, n_views, unit = uv.shape[1], uv.shape[0], truth["units"]
     if args.json:
         print_json({"status": "ok", "exit_code": 0, "preset": args.preset, "n_points": n_points,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .common import EXIT_OK, EXIT_WARNINGS, OptionError, existing_file, print_json
+from .common import EXIT_OK, EXIT_WARNINGS, OptionError, add_output_options, existing_file, print_json
 
 NAME = "validate"
 HELP = "predict new views (tracks and poses) with a saved calibration and compare with what they show"
@@ -18,16 +18,19 @@ HELP = "predict new views (tracks and poses) with a saved calibration and compar
 
 def add_parser(sub) -> None:
     v = sub.add_parser(NAME, help=HELP, description=HELP)
-    v.add_argument("--calibration", required=True, metavar="DIR", help="the --out folder of calibrate")
-    v.add_argument("--tracks", required=True,
+    g = v.groups()
+    i = g["inputs"]
+    i.add_argument("--calibration", required=True, metavar="DIR", help="the --out folder of calibrate")
+    i.add_argument("--tracks", required=True, metavar="FILE",
                    help="tracks of the new views: view,point,u,v (.csv, .npz, .parquet), point ids those of the "
                         "calibration's tracks")
-    v.add_argument("--poses", required=True, help="poses of the new views (as for calibrate; the calibration's "
-                                                  "unit and setup)")
-    v.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
+    i.add_argument("--poses", required=True, metavar="FILE",
+                   help="poses of the new views (as for calibrate; the calibration's unit and setup)")
+    i.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
                    help="orientation columns of --poses (default: found from the columns)")
-    v.add_argument("--json", action="store_true", help="print a machine-readable result on stdout")
-    v.add_argument("--strict", action="store_true",
+    o = g["outputs"]
+    add_output_options(o, folder=False, quiet=False)
+    o.add_argument("--strict", action="store_true",
                    help="exit with status 4 when the new views are predicted significantly worse than the "
                         "calibration's covariance says")
     v.set_defaults(func=run)

@@ -23,6 +23,7 @@ from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pa
 from ..geometry.rotation import matrix_to_rotvec
 from ..types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, HandEye, LinearEstimate,
                      RefineOptions, RefineStats, ViewRotations)
+from ..types.options import check_fixed_distortion
 from ..validate import as_uv_T
 from .bundle import BundleProblem, all_residuals, cost, sum_sq
 from .covariance import covariance, linearise, profile_step
@@ -100,6 +101,7 @@ def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, optio
     if distortion is not None or sigma_T is not None:
         opts = replace(opts, distortion=opts.distortion if distortion is None else distortion,
                        sigma_T=opts.sigma_T if sigma_T is None else sigma_T)
+    check_fixed_distortion(opts)
     uv, T = as_uv_T(uv, T, min_views=2)
     return fit_refine(uv, T, initial, opts, progress)
 

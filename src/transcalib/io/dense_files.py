@@ -93,9 +93,9 @@ def dense_document(result, files: dict, inputs: dict | None = None) -> dict:
 def write_dense(result, folder, *, inputs: dict | None = None, report: bool = True) -> list[str]:
     """Write ``result`` (a :class:`~transcalib.dense.DenseResult`) into ``folder``.
 
-    The command writes into a temporary folder renamed into place (``--out`` complete
-    or absent); called directly, ``folder`` is made when missing and files of the same
-    names are replaced.
+    The command writes into the temporary folder of :func:`transcalib.io.folders.output_folder`
+    (``--out`` complete or absent); called directly, ``folder`` is made when missing and
+    files of the same names are replaced.
 
     Parameters
     ----------

@@ -99,8 +99,9 @@ def check_writable_dir(path, option: str = "--out") -> Path:
 
     Creates nothing. Raises :class:`InputError` naming ``option`` when ``path`` is an
     existing file, lies under a file, or is not writable (read-only folder, immutable
-    attribute, read-only file system): tested by creating and removing a temporary file
-    in the nearest existing folder.
+    attribute, read-only file system): tested by creating a temporary file in the nearest
+    existing folder (unnamed where the system allows, so nothing is left there even if
+    the check is interrupted).
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
@@ -112,10 +113,9 @@ def check_writable_dir(path, option: str = "--out") -> Path:
         probe = probe.parent
     if not probe.is_dir():
         raise InputError(f"{option} {str(path)!r}: {str(probe)!r} is a file, so the folder cannot be created")
-    try:
-        fd, tmp = tempfile.mkstemp(dir=probe, prefix=".transcalib-probe.")
-        os.close(fd)
-        os.unlink(tmp)
+    try:  # an unnamed file on Linux (O_TMPFILE): an interrupt cannot leave a probe behind
+        with tempfile.TemporaryFile(dir=probe, prefix=".transcalib-probe."):
+            pass
     except OSError as exc:
         raise InputError(f"{option} {str(path)!r} is not writable ({exc.strerror or exc}); "
                          "give a folder you can write to") from None

@@ -24,6 +24,7 @@ from ..check.prediction import LOO_MIN_VIEWS, leave_one_view_out
 from ..errors import DegenerateError, InputError
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions, report
+from ..types.options import check_fixed_distortion
 from ..validate import as_uv_T
 from .motion import Motion, motion_of
 from .result import with_motion
@@ -235,6 +236,8 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
         r = replace(r, **overrides)
     if not refine and r.distortion not in ("none", "auto"):
         raise InputError(f"distortion={r.distortion!r} needs refine=True: the linear estimate has no distortion")
+    if refine:
+        check_fixed_distortion(r)
     return CalibrateOptions(refine=bool(refine), robust=robust, ransac=ransac or RansacOptions(), refinement=r,
                             check_rotation=bool(check_rotation), unit=str(unit), subset_points=subset_points,
                             setup=setup, session_tolerance_deg=float(session_tolerance_deg))

@@ -268,6 +268,10 @@ def plan(box, n_views: int, options: PlanOptions | None = None, *, positions=Non
         if len(cand) < 1:
             raise InputError("positions must hold at least one allowed position")
         b = np.column_stack([np.minimum(b[:, 0], cand.min(0)), np.maximum(b[:, 1], cand.max(0))])
+    flat = [axis for axis, (lo, hi) in zip("xyz", b) if not hi > lo]
+    if flat:
+        raise DegenerateError(f"no design in this box determines the calibration: the box has no extent along "
+                              f"{', '.join(flat)}, and the moves must span all three axes")
     X = scene_points(options, b.mean(axis=1), rng)
     patterns = {name: _best_variant(options, X, pattern_variants(name, b, n_views), b) for name in PATTERNS}
     if positions is None:

@@ -154,6 +154,31 @@ class RefineOptions:
         return hash((self.distortion, tuple(self.fix.items()), self.sigma_T, self.loss))
 
 
+def check_fixed_distortion(opts: "RefineOptions") -> None:
+    """A distortion coefficient in ``opts.fix`` needs a model that holds it: ``"auto"``
+    starts without distortion, ``"radial1"`` has no ``k2``. Checked at the public
+    boundary (``calibrate``, ``refine``), not in ``__post_init__``: the stages build
+    distortion-free options with the same ``fix`` for their own ends.
+
+    Raises
+    ------
+    InputError
+        Naming the coefficients and the models that hold them.
+    """
+    fixed = [name for name in opts.fix if name in DIST_MODELS["opencv5"]]
+    if not fixed:
+        return
+    holding = [m for m, names in DIST_MODELS.items() if set(fixed) <= set(names)]
+    if opts.distortion == "auto":
+        raise InputError(f"fix: {', '.join(fixed)} is a distortion coefficient, but distortion='auto' starts without "
+                         f"distortion; give the model as well: distortion={holding[0]!r} (or one of "
+                         f"{', '.join(map(repr, holding))})")
+    missing = [name for name in fixed if name not in DIST_MODELS[opts.distortion]]
+    if missing:
+        raise InputError(f"fix: {', '.join(missing)} is not a coefficient of distortion={opts.distortion!r}; "
+                         f"choose a model that has it: {', '.join(map(repr, holding))}")
+
+
 def _check_fix(fix) -> dict:
     try:
         items = dict(fix).items()
