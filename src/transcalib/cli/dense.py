@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import OptionError, Progress, existing_file, positive_float, positive_int, print_json
+from .common import OptionError, Progress, add_output_options, existing_file, positive_float, positive_int, print_json
 
 NAME = "dense"
 HELP = "dense depth maps and a metric point cloud of calibrated views (multi-baseline stereo)"
@@ -46,32 +46,35 @@ def _fraction(text: str) -> float:
 
 def add_parser(sub) -> None:
     d = sub.add_parser(NAME, help=HELP, description=HELP)
-    d.add_argument("--calibration", required=True, metavar="DIR", help="the --out folder of calibrate")
-    d.add_argument("--images", required=True, nargs="+", metavar="IMAGE",
+    g = d.groups()
+    i = g["inputs"]
+    i.add_argument("--calibration", required=True, metavar="DIR", help="the --out folder of calibrate")
+    i.add_argument("--images", required=True, nargs="+", metavar="IMAGE",
                    help="images in view order (or named in the image column of --poses)")
-    d.add_argument("--poses", required=True, help="poses.csv (or .json) of the images, in the calibration's unit")
-    d.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: written whole or not at all; an earlier transcalib run there is replaced")
-    d.add_argument("--reference-view", action="append", metavar="ID", dest="reference_views",
+    i.add_argument("--poses", required=True, help="poses.csv (or .json) of the images, in the calibration's unit")
+    i.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
+                   help="orientation columns of --poses (default: found from the columns)")
+    m = g["model"]
+    m.add_argument("--reference-view", action="append", metavar="ID", dest="reference_views",
                    help="view id of a reference view (repeat for several, fused with a consistency check; "
                         "default: the most central view)")
-    d.add_argument("--depth-limits", type=depth_limits, metavar="NEAR,FAR",
+    m.add_argument("--depth-limits", type=depth_limits, metavar="NEAR,FAR",
                    help="depth range along the optical axis, robot units (default: found by a coarse sweep)")
-    d.add_argument("--depths", type=positive_int, default=256, metavar="N", help="depth hypotheses (default 256)")
-    d.add_argument("--window", type=positive_int, default=7, metavar="PX", help="matching window side (odd, default 7)")
-    d.add_argument("--best-k", type=positive_int, metavar="K",
-                   help="views summed at each pixel (default: half of the other views, at least 1)")
-    d.add_argument("--max-turn-deg", type=positive_float, metavar="DEG",
+    m.add_argument("--depths", type=positive_int, default=256, metavar="N", help="depth hypotheses (default 256)")
+    m.add_argument("--window", type=positive_int, default=7, metavar="PX", help="matching window side (odd, default 7)")
+    m.add_argument("--max-turn-deg", type=positive_float, metavar="DEG",
                    help="also match views turned by up to DEG degrees against the reference (default: only the "
                         "views of its session, its flange orientation); for calibrations from general motion")
-    d.add_argument("--min-confidence", type=_fraction, default=0.5, metavar="C",
+    r = g["robust"]
+    r.add_argument("--best-k", type=positive_int, metavar="K",
+                   help="views summed at each pixel (default: half of the other views, at least 1)")
+    r.add_argument("--min-confidence", type=_fraction, default=0.5, metavar="C",
                    help="pixels of lower confidence are left unknown (default 0.5)")
-    d.add_argument("--rotation-format", default=None, choices=["quaternion", "rotvec", "ur", "euler_zyx", "kuka"],
-                   help="orientation columns of --poses (default: found from the columns)")
-    d.add_argument("--force", action="store_true", help="replace an --out folder that is not a transcalib run")
-    d.add_argument("--no-report", action="store_true", help="do not write report.html")
-    d.add_argument("--json", action="store_true", help="print a machine-readable summary on stdout")
-    d.add_argument("--quiet", action="store_true")
+    o = g["outputs"]
+    o.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: written whole or not at all; an earlier transcalib run there is replaced")
+    o.add_argument("--no-report", action="store_true", help="do not write report.html")
+    add_output_options(o)
     d.set_defaults(func=run)
 
 
