@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import OptionError, Progress, add_output_options, existing_file, positive_float, positive_int, print_json
+from .common import (OptionError, Progress, add_output_options, existing_file, positive_float, positive_int,
+                     print_json)
 
 NAME = "dense"
 HELP = "dense depth maps and a metric point cloud of calibrated views (multi-baseline stereo)"
