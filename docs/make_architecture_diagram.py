@@ -21,7 +21,7 @@ BOXES = {  # name: (x, y, label, colour)
     "cal": (3.1, 2.3, "Calibration\nCamera (K, dist, R),\nX, std, diagnostics", "#f2f2f2"),
     "io": (0.6, 2.3, "io/, report/\nfiles, exports", "#ece2f4"),
     "geometry": (3.1, 0.5, "geometry/  (used by every stage)\nthe camera model: projection + distortion, written once;\nrotations, triangulation", "#fff5cc"),
-    "synth": (8.1, 0.5, "synth/ scenes, renderer\nplanning/, handeye/", "#f2f2f2"),
+    "synth": (8.1, 0.5, "synth/ scenes, renderer\nplanning/, handeye/, dense/", "#f2f2f2"),
 }
 ARROWS = [("images", "tracks"), ("tracks", "robust"), ("robust", "linear"), ("linear", "refine"),
           ("refine", "check"), ("check", "cal"), ("cal", "io")]
@@ -43,7 +43,7 @@ def main() -> None:
     ax.text(5.6, 5.25, "calibrate()  (pipeline.py):  images / tracks  ->  robust  ->  linear  ->  refine  ->  "
             "diagnose  ->  Calibration", ha="center", fontsize=10, weight="bold")
     ax.text(5.6, -0.35, "layers: errors < geometry < types, validate < estimate < check < synth, images, handeye "
-            "< planning, pipeline < io, report < cli; no import cycles   (tests/test_architecture.py)", ha="center", fontsize=8.5)
+            "< planning, pipeline, dense < io, report < cli; no import cycles   (tests/test_architecture.py)", ha="center", fontsize=8.5)
     ax.set_xlim(-0.7, 9.6)
     ax.set_ylim(-0.6, 5.5)
     ax.axis("off")

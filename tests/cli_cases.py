@@ -149,6 +149,12 @@ CASES = [
       ("does not exist",)),
     C("validate --calibration {cal} --tracks {missing}.csv --poses {scene}/poses.csv", 2, ("does not exist",)),
     C("validate --calibration {cal} --tracks {scene}/tracks.csv --poses {poses_text}.csv", 2, ("line 3",)),
+    C("dense --calibration {cal} --images {board}/v0.png --poses {board}/poses.csv --out {o}", 2,
+      ("--images", "1 images but 5 poses")),
+    C("dense --calibration {missing} " + B + " --out {o}", 2, ("--calibration",)),
+    C("dense --calibration {cal} " + B + " --out {o} --depth-limits 900,100", 2, ("--depth-limits", "NEAR < FAR")),
+    C("dense --calibration {cal} " + B + " --out {o} --reference-view 9", 2, ("--reference-view", "9 not in")),
+    C("dense --calibration {cal} " + B + " --out {o}", 2, ("--images", "calibrated at 800x600")),
     # --- plan
     C(f"{P} --box 0,0,0,0,0,0 --views 6 --out {{o}}", 2, ("--box", "xmin must be below xmax")),
     C(f"{P} --box 1,2,3 --views 6 --out {{o}}", 2, ("--box", "6 numbers")),

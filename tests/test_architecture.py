@@ -24,7 +24,7 @@ LAYERS = {
     "estimate": 3,
     "check": 4,
     "synth": 5, "images": 5, "handeye": 5, "planning": 6,
-    "pipeline": 6,
+    "pipeline": 6, "dense": 6,
     "io": 7, "report": 7,
     "cli": 8, "__main__": 8, "__init__": 8,
 }

@@ -464,7 +464,8 @@ def test_subcommands_registered_from_one_list():
     import importlib
 
     cli_main = importlib.import_module("transcalib.cli.main")
-    assert cli_main.COMMANDS == ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate")
+    assert cli_main.COMMANDS == ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate",
+                                 "dense")
     r = run("--help")
     assert all(c in r.stdout for c in cli_main.COMMANDS)
 

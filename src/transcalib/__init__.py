@@ -50,6 +50,7 @@ _LAZY = {
     "simulate": (".synth.simulate", None),
     "plan": (".planning", "plan"), "evaluate_plan": (".planning", "evaluate_plan"),
     "render": (".synth.render", None),
+    "dense": (".dense", None), "DenseOptions": (".dense", "DenseOptions"),
 }
 
 __all__ = [

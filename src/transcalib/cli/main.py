@@ -19,7 +19,7 @@ from .. import __version__
 from .common import EXIT_INPUT, INTERRUPT_REPORTED, Parser, UsageError, fail, interrupted, run_guarded, wants_json
 
 #: Subcommand modules of this package, in ``--help`` order.
-COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate")
+COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate", "dense")
 
 
 def build_parser() -> Parser:

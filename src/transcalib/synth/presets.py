@@ -15,9 +15,9 @@ from ..geometry.camera import K_from_params
 from .surfaces import Surface, box, checker_board, paper_board, plane, sphere
 from .textures import Checker, Constant, Noise, Tiled
 
-__all__ = ["SCENE_KINDS", "robot_translations", "default_camera", "preset_scene"]
+__all__ = ["SCENE_KINDS", "robot_translations", "ring_translations", "default_camera", "preset_scene"]
 
-SCENE_KINDS = ("checker", "natural", "board", "mixed", "repetitive", "floor")
+SCENE_KINDS = ("checker", "natural", "board", "mixed", "repetitive", "floor", "workspace")
 
 
 def robot_translations(n_views: int, length: float, rng) -> np.ndarray:
@@ -31,6 +31,19 @@ def robot_translations(n_views: int, length: float, rng) -> np.ndarray:
         dirs.append(v / np.linalg.norm(v) * rng.uniform(0.6, 1.0))
     T = np.vstack([np.zeros(3)] + [length * d for d in dirs])
     return T[:n_views]
+
+
+def ring_translations(n_views: int, length: float, R: np.ndarray, rng=None, forward: float = 0.1) -> np.ndarray:
+    """``(n_views, 3)`` world translations of a stereo rig around a reference: view 0 at
+    the origin, the others on a ring of radius ``length`` in the image plane of the
+    camera ``R`` (world -> camera), at evenly spread angles (a random start), each with a
+    random camera-z component of up to ``forward * length`` - the layout of dense
+    reconstruction, where view 0 is the most central view."""
+    rng = np.random.default_rng(rng)
+    m = max(n_views - 1, 1)
+    ang = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(m) / m
+    t_cam = np.column_stack([np.cos(ang), np.sin(ang), rng.uniform(-forward, forward, m)]) * length
+    return np.vstack([np.zeros(3), t_cam @ np.asarray(R, float)])[:n_views]
 
 
 def default_camera(K, R, T, image_size, n_views, length, rng):
@@ -164,5 +177,31 @@ def _scene_floor(D, K, image_size, seed):
     return surfaces, [], []
 
 
+def _scene_workspace(D, K, image_size, seed):
+    """Depths from 0.5 D to 1.5 D (0.4-1.2 m at D = 800 mm): a textured wall, a steeply
+    slanted textured plane (a table top), three textured boxes at 0.5-1.1 D and one
+    untextured panel (the dense-stereo benchmark's scene: every surface but the panel
+    has texture)."""
+    fov_w, fov_h, _, _ = _frame(D, K, image_size)
+    texel = D / K[0, 0] * 1.4
+    wall_z = 1.38 * D
+    wall_size = (3.0 * fov_w * 1.38, 3.0 * fov_h * 1.38)
+    surfaces = [plane([0, 0, wall_z], _tilt(6, -8), wall_size, Noise(texel * 1.35, wall_size, seed), "wall")]
+    table_size = (1.1 * fov_w, 0.9 * D)
+    surfaces.append(plane([0.05 * fov_w, 0.32 * fov_h, 0.95 * D], _tilt(-62, 4), table_size,
+                          Noise(texel, table_size, seed + 1), "table"))
+    for b, (c, dims, rot) in enumerate([
+        ([-0.2 * fov_w, -0.02 * fov_h, 0.72 * D], [0.15 * fov_w, 0.18 * fov_w, 0.15 * fov_w], _tilt(20, 35)),
+        ([0.24 * fov_w, -0.1 * fov_h, 0.95 * D], [0.22 * fov_w, 0.2 * fov_w, 0.2 * fov_w], _tilt(-15, -25)),
+        ([0.02 * fov_w, 0.12 * fov_h, 0.6 * D], [0.08 * fov_w] * 3, _tilt(30, -20)),
+    ]):
+        ext = (max(dims) * 1.1, max(dims) * 1.1)
+        surfaces += box(c, rot, dims, [Noise(texel * 0.8, ext, seed + 10 * b + f + 2) for f in range(6)], f"box{b}")
+    surfaces.append(plane([-0.3 * fov_w, -0.3 * fov_h, 0.78 * D], _tilt(10, 15), (0.2 * fov_w, 0.14 * fov_h),
+                          Constant(0.62), "panel"))
+    return surfaces, [], []
+
+
 _SCENE_BUILDERS = {"checker": _scene_checker, "natural": _scene_natural, "board": _scene_board,
-                   "mixed": _scene_mixed, "repetitive": _scene_repetitive, "floor": _scene_floor}
+                   "mixed": _scene_mixed, "repetitive": _scene_repetitive, "floor": _scene_floor,
+                   "workspace": _scene_workspace}

@@ -152,10 +152,15 @@ def nearest_hits(surfaces, d, C) -> tuple[np.ndarray, np.ndarray]:
         ``z`` of the nearest hit, ``inf`` where no surface is hit.
     which : (n,) int
         Index into ``surfaces`` of the surface hit, -1 where none.
+
+    Back faces are skipped as in the render (``cull_back``). Any shape of ``d[0]`` works
+    (a whole image of rays: the exact depth of every pixel, ``Rendered.depth_map``).
     """
     best = np.full(np.shape(d[0]), np.inf)
     which = np.full(np.shape(d[0]), -1)
     for k, sf in enumerate(surfaces):  # a loop over surfaces, vectorised over rays
+        if sf.cull_back and np.dot(sf.normal, C - sf.origin) <= 0:
+            continue
         z, s, t = surface_hits(sf, d, C)
         hit = on_surface(sf, z, s, t) & (z < best)
         best[hit] = z[hit]

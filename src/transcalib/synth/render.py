@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..geometry.camera import pixels_to_rays, project
 from .degrade import Degradations, degrade_view, draw_view_effects, overlay_box
 from .raycast import nearest_hits, render_view, sample_rays
-from .presets import SCENE_KINDS, default_camera, preset_scene, robot_translations
+from .presets import SCENE_KINDS, default_camera, preset_scene, ring_translations, robot_translations
 from .simulate import Scene
 from .surfaces import Sphere, Surface, box, checker_board, paper_board, plane, sphere
 from .textures import Checker, Constant, Noise, Squares, Tiled
@@ -55,6 +55,7 @@ __all__ = [
     "Rendered",
     "render_scene",
     "robot_translations",
+    "ring_translations",
     "SCENE_KINDS",
 ]
 
@@ -243,6 +244,25 @@ class Rendered(PixelTruth):
         X[~np.isfinite(best)] = np.nan
         return (X, which) if return_surface else X
 
+    def depth_map(self, view: int, return_surface: bool = False):
+        """The exact depth of every pixel of ``view``: ``(height, width)`` float, the
+        camera z (along the optical axis, world units) of the scene point seen at the
+        pixel's centre (through the lens, distortion included), NaN where no surface is
+        hit - the truth of dense reconstruction.
+
+        With ``return_surface``, also ``(height, width)`` int: the index into
+        ``surfaces`` of the surface seen (-1: none). The images are not touched.
+        """
+        d = sample_rays(self.K, self.R, self.dist, self.image_size, 1)  # unit camera z
+        z, owner = nearest_hits(self.surfaces, d, self.T[view])
+        z = np.where(np.isfinite(z), z, np.nan)
+        return (z, owner) if return_surface else z
+
+    def textured(self) -> np.ndarray:
+        """``(n_surfaces,)`` bool: the surface has a texture (anything but
+        :class:`~transcalib.synth.textures.Constant`)."""
+        return np.array([not isinstance(sf.texture, Constant) for sf in self.surfaces], bool)
+
     def visible(self, X: np.ndarray, margin_px: float = 0.0, tol: float = 1e-6) -> np.ndarray:
         """``(n_views, n)`` bool: point inside the image (by ``margin_px``) and not occluded."""
         X = np.asarray(X, float).reshape(-1, 3)
@@ -293,7 +313,7 @@ def render_scene(
 
     Parameters
     ----------
-    kind : {"checker", "natural", "board", "mixed", "repetitive", "floor"}
+    kind : {"checker", "natural", "board", "mixed", "repetitive", "floor", "workspace"}
         ``checker``: a large checkerboard and a checkered box in front of a plain wall;
         ``natural``: a noise-textured wall and two textured boxes at other depths;
         ``board``: the paper's six black squares on a white board in front of a textured
@@ -302,6 +322,9 @@ def render_scene(
         and a small textured box (descriptors match the wrong tile easily); ``floor``: a
         checkered floor seen obliquely (depths 0.8-1.25 x ``distance``) with a textured
         cube and a textured sphere on it.
+        ``workspace``: surfaces from 0.5 to 1.5 ``distance`` (a textured wall, a
+        slanted textured table top, three textured boxes, one untextured panel) for
+        dense reconstruction, whose truth is :meth:`Rendered.depth_map`.
     n_views : int
         Number of views (>= 2).
     image_size : (width, height)

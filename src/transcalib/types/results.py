@@ -17,7 +17,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ..errors import Diagnostic
+from ..errors import Diagnostic, InputError
 from ..geometry.camera import Camera
 from .options import CalibrateOptions
 
@@ -480,23 +480,34 @@ class Calibration:
     def n_views(self) -> int:
         return int(self.residuals_px.shape[0])
 
-    def camera_poses(self) -> tuple[np.ndarray, np.ndarray]:
+    def camera_poses(self, T=None, flange_rotations=None) -> tuple[np.ndarray, np.ndarray]:
         """Each view's camera pose in the frame of ``X``: rotations world -> camera
         ``(n_views, 3, 3)`` and centres ``(n_views, 3)``.
 
         ``R_cam,i = R R_i^T`` and ``C_i = T_i + R_i t`` with the flange rotations ``R_i``
         (identity without orientations) and ``t`` the camera's offset (``hand_eye.t``;
         zero without orientations: the points are then relative to the camera centre at
-        ``T = 0``)."""
+        ``T = 0``).
+
+        ``T (n, 3)`` and ``flange_rotations (n, 3, 3)`` place other flange poses (in the
+        model's form, eye-to-hand inverted as in ``flange_rotations``) with the same
+        camera: views the calibration did not see. Without orientations the
+        calibration's one orientation is used, and ``flange_rotations`` must be None."""
         R = np.asarray(self.R)
-        re = self.robot_error
-        if re is not None and re.active:
-            return self._camera_poses_with_robot_error(R, re)
-        if self.flange_rotations is None:
-            return np.broadcast_to(R, (self.n_views, 3, 3)).copy(), np.array(self.T, dtype=float)
-        Ri = np.asarray(self.flange_rotations)
+        if T is None:
+            re = self.robot_error
+            if re is not None and re.active:  # the calibration's own views: their poses corrected
+                return self._camera_poses_with_robot_error(R, re)
+            T, Ri = self.T, self.flange_rotations
+        else:
+            T, Ri = np.asarray(T, dtype=float), flange_rotations
+            if (Ri is None) != (self.flange_rotations is None):
+                raise InputError("camera_poses: give flange rotations exactly when the calibration has them")
+        if Ri is None:
+            return np.broadcast_to(R, (len(T), 3, 3)).copy(), np.array(T, dtype=float)
+        Ri = np.asarray(Ri, dtype=float)
         t = np.zeros(3) if self.hand_eye is None else np.asarray(self.hand_eye.t)
-        return R @ np.transpose(Ri, (0, 2, 1)), self.T + Ri @ t
+        return R @ np.transpose(Ri, (0, 2, 1)), T + Ri @ t
 
     def _camera_poses_with_robot_error(self, R: np.ndarray, re: "RobotError"):
         """:meth:`camera_poses` of the true poses, the reported ones times the estimated
