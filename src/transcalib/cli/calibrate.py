@@ -417,12 +417,14 @@ def _order_images(images: list[Path], poses) -> list[Path]:
 # --------------------------------------------------------------------------------------
 
 
-def track_images(images, target, progress: Progress, poses=None, tolerance_deg: float = SESSION_TOLERANCE_DEG):
+def track_images(images, target, progress: Progress, poses=None, tolerance_deg: float = SESSION_TOLERANCE_DEG,
+                 setup: str = "eye-in-hand"):
     """Tracks from images (paths, or a bag's pixels): ``target="squares"`` finds the
     corners of dark squares; else features, with the robot ``poses`` when given: their
     translations check the epipoles and their orientations group the views into sessions
     and single views, tracked each and linked across orientations
-    (:func:`transcalib.images.track`)."""
+    (:func:`transcalib.images.track`). Eye-to-hand, the camera moves relative to the
+    scene the flange carries as the inverted poses say (:func:`~transcalib.pipeline.motion.motion_of`)."""
     images = [p if isinstance(p, np.ndarray) else str(p) for p in images]
     if target == "squares":
         from ..images import track_squares
@@ -432,7 +434,10 @@ def track_images(images, target, progress: Progress, poses=None, tolerance_deg: 
 
     if poses is None:
         return track(images, progress=progress)
-    return track(images, progress=progress, T=poses.T, rotations=poses.R, sessions=poses.session,
+    from ..pipeline.motion import motion_of
+
+    motion = motion_of(poses, setup, tolerance_deg)
+    return track(images, progress=progress, T=motion.T, rotations=motion.R, sessions=poses.session,
                  session_tolerance_deg=tolerance_deg)
 
 
@@ -445,7 +450,7 @@ def _observations(args, plan, folder, progress: Progress):
     poses = plan["poses"]
     if args.images or args.bag:
         progress.log(f"tracking {len(plan['images'])} images ...")
-        tracks = track_images(plan["images"], args.target, progress, poses, args.session_tolerance_deg)
+        tracks = track_images(plan["images"], args.target, progress, poses, args.session_tolerance_deg, args.setup)
         ids = point_id_array(tracks.ids)
         tio.write_tracks_csv(folder.file("tracks.csv"), tracks.uv, ids, poses.views)
         names = plan["bag"].names if args.bag else [p.name for p in plan["images"]]
