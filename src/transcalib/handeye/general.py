@@ -323,19 +323,20 @@ def _normaliser(p: np.ndarray) -> np.ndarray:
     return np.array([[s, 0.0, -s * mu[0]], [0.0, s, -s * mu[1]], [0.0, 0.0, 1.0]])
 
 
-class _EightPoint:
-    """Two views' fundamental matrix as hooks of the generic loop: data are the
-    correspondences ``p1, p2 (n, 2)`` (pixels); a hypothesis is ``F`` flattened (9,), in
-    pixels; errors are Sampson's squared distances (px^2, 1 degree of freedom)."""
+class _TwoViews:
+    """Correspondences ``p1, p2 (n, 2)`` (pixels) of two views as data of the generic loop:
+    homogeneous pixels ``h1, h2``, Hartley-normalised ``q1, q2`` (normalisers ``N1, N2``);
+    the subclasses give ``sample_size``, ``DOF``, ``errors`` and ``_fit``."""
 
-    sample_size = 8
+    sample_size: int
+    DOF: int
 
     def __init__(self, p1: np.ndarray, p2: np.ndarray):
         n = len(p1)
         self.h1, self.h2 = np.c_[p1, np.ones(n)], np.c_[p2, np.ones(n)]
         self.N1, self.N2 = _normaliser(p1), _normaliser(p2)
         self.q1, self.q2 = self.h1 @ self.N1.T, self.h2 @ self.N2.T
-        self.dof = np.ones(n, int)
+        self.dof = np.full(n, self.DOF)
         self.scorable = np.ones(n, bool)
         self.samplable = np.ones(n, bool)
 
@@ -347,6 +348,14 @@ class _EightPoint:
 
     def refit(self, inliers: np.ndarray):
         return self._fit(self.q1[inliers][None], self.q2[inliers][None])
+
+
+class _EightPoint(_TwoViews):
+    """Two views' fundamental matrix as hooks of the generic loop: a hypothesis is ``F``
+    flattened (9,), in pixels; errors are Sampson's squared distances (px^2, 1 degree of
+    freedom)."""
+
+    sample_size, DOF = 8, 1
 
     def errors(self, hypotheses: np.ndarray) -> np.ndarray:
         F = hypotheses.reshape(-1, 3, 3)
@@ -369,35 +378,17 @@ class _EightPoint:
         return F.reshape(-1, 9), np.all(np.isfinite(F), axis=(1, 2))
 
 
-class _FourPoint:
-    """Two views' homography as hooks of the generic loop: data are the correspondences
-    ``p1, p2 (n, 2)`` (pixels); a hypothesis is ``H`` flattened (9,), in pixels; errors
-    are squared transfer errors in the second view (px^2, 2 degrees of freedom)."""
+class _FourPoint(_TwoViews):
+    """Two views' homography as hooks of the generic loop: a hypothesis is ``H`` flattened
+    (9,), in pixels; errors are squared transfer errors in the second view (px^2, 2
+    degrees of freedom)."""
 
-    sample_size = 4
-
-    def __init__(self, p1: np.ndarray, p2: np.ndarray):
-        n = len(p1)
-        self.h1, self.p2 = np.c_[p1, np.ones(n)], p2
-        self.N1, self.N2 = _normaliser(p1), _normaliser(p2)
-        self.q1, self.q2 = self.h1 @ self.N1.T, np.c_[p2, np.ones(n)] @ self.N2.T
-        self.dof = np.full(n, 2)
-        self.scorable = np.ones(n, bool)
-        self.samplable = np.ones(n, bool)
-
-    def sample(self, rng, size: int) -> np.ndarray:
-        return np.argsort(rng.random((size, len(self.h1))), axis=1)[:, : self.sample_size]
-
-    def solve(self, samples: np.ndarray):
-        return self._fit(self.q1[samples], self.q2[samples])
-
-    def refit(self, inliers: np.ndarray):
-        return self._fit(self.q1[inliers][None], self.q2[inliers][None])
+    sample_size, DOF = 4, 2
 
     def errors(self, hypotheses: np.ndarray) -> np.ndarray:
         q = np.einsum("hab,nb->hna", hypotheses.reshape(-1, 3, 3), self.h1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            d = q[..., :2] / q[..., 2:3] - self.p2[None]
+            d = q[..., :2] / q[..., 2:3] - self.h2[None, :, :2]
         e = np.sum(d * d, axis=2)
         return np.where(np.isfinite(e), e, np.inf)
 
