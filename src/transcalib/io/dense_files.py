@@ -20,6 +20,7 @@ import numpy as np
 
 from .dense_report import write_dense_report
 from .files import software_version, write_json
+from .formats import write_vertices_ply
 
 __all__ = ["write_dense", "depth_png_scale", "DENSE_JSON", "dense_document"]
 
@@ -55,12 +56,7 @@ def _ply(result, path: Path) -> None:
     v["x"], v["y"], v["z"] = np.asarray(result.points, float).T
     v["red"], v["green"], v["blue"] = np.asarray(result.colors).T
     v["confidence"], v["depth_std"], v["view"] = result.point_confidence, result.point_std, result.point_view
-    types = {"<f8": "double", "u1": "uchar", "<f4": "float"}
-    header = ["ply", "format binary_little_endian 1.0", "comment written by transcalib dense",
-              f"element vertex {v.size}"] + [f"property {types[t]} {n}" for n, t in dtype] + ["end_header", ""]
-    with open(path, "wb") as fh:
-        fh.write("\n".join(header).encode("ascii"))
-        fh.write(v.tobytes())
+    write_vertices_ply(path, v, "written by transcalib dense")
 
 
 def dense_document(result, files: dict, inputs: dict | None = None) -> dict:

@@ -226,10 +226,21 @@ def write_ply(cal, path, colors=None) -> Path:
         v["red"], v["green"], v["blue"] = c[:, 0], c[:, 1], c[:, 2]
     if cal.X_std is not None:
         v["sx"], v["sy"], v["sz"] = cal.X_std[ok].T
-    types = {"<f8": "double", "u1": "uchar", "<f4": "float"}
-    header = ["ply", "format binary_little_endian 1.0", "comment written by transcalib",
-              f"element vertex {v.size}"] + [f"property {types[t]} {n}" for n, t in dtype] + ["end_header", ""]
+    return write_vertices_ply(path, v, "written by transcalib")
+
+
+#: PLY property types of the numpy field types the writers use.
+_PLY_TYPES = {"<f8": "double", "u1": "uchar", "<f4": "float"}
+
+
+def write_vertices_ply(path, vertices: np.ndarray, comment: str) -> Path:
+    """A binary little-endian PLY of one ``vertex`` element: the structured array
+    ``vertices (n,)`` (fields of types ``<f8``, ``<f4``, ``u1``), written atomically."""
+    props = [f"property {_PLY_TYPES[vertices.dtype[name].str.replace('|', '')]} {name}"
+             for name in vertices.dtype.names]
+    header = ["ply", "format binary_little_endian 1.0", f"comment {comment}", f"element vertex {vertices.size}",
+              *props, "end_header", ""]
     with atomic_write(path, "wb") as fh:
         fh.write("\n".join(header).encode("ascii"))
-        fh.write(v.tobytes())
+        fh.write(vertices.tobytes())
     return Path(path)
