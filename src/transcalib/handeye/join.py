@@ -106,15 +106,7 @@ def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, tolerance_deg: 
         and the one its image shows, when significant, leaves the view out.
     """
     found = [p for p in (view_pose(uv[i], X0, K, i, rng) for i in views) if p is not None]
-    R_X_agreed = central_mean_rotation(np.stack([R_X] + [R[p.view].T @ p.R.T for p in found]), tolerance_deg)[0]
-    errors = [orientation_error(p, R_X_agreed.T @ R[p.view].T) for p in found]
-    limits = spread_limits(np.array([deg for deg, _ in errors]), tolerance_deg)
-    poses, off = [], []
-    for p, (off_deg, chi2), limit in zip(found, errors, limits):
-        if off_deg > limit and chi2 > chi2_ppf(1.0 - ORIENTATION_ALPHA, 3):
-            off.append((p.view, off_deg))
-        else:
-            poses.append(p)
+    poses, off = judge_orientations(found, R, R_X, tolerance_deg)
     t, undetermined, shift = np.asarray(t0, float), U, np.zeros(3)
     if U.shape[1] and poses:
         G = np.concatenate([(R[p.view] - R_ref) @ U for p in poses])  # (3 m, k)
@@ -124,6 +116,25 @@ def join_single_views(uv, T, R, views, K, R_X, t0, U, X0, R_ref, tolerance_deg: 
         c = Vt[:rank].T @ ((Vt[:rank] @ np.linalg.lstsq(G, h, rcond=None)[0]))  # zero along the free directions
         t, undetermined, shift = t + U @ c, U @ Vt[rank:].T, R_ref @ U @ c
     return Joined(t, undetermined, X0 + shift, tuple(poses), tuple(off))
+
+
+def judge_orientations(found: list, R: np.ndarray, R_X: np.ndarray, tolerance_deg: float) -> tuple[list, list]:
+    """Split the single views' image poses ``found`` (:class:`ViewPose`) into those whose
+    recorded flange orientation ``R[view]`` agrees with their image and those off,
+    ``(poses, [(view, degrees), ...])``: each against the consensus of ``R_X`` and every
+    view's implied ``Q_i = R_i^T R_c^T`` (module docstring), beyond the session tolerance
+    or the others' scatter (:func:`spread_limits`) and significantly (chi-square(3) at
+    :data:`ORIENTATION_ALPHA`)."""
+    R_X_agreed = central_mean_rotation(np.stack([R_X] + [R[p.view].T @ p.R.T for p in found]), tolerance_deg)[0]
+    errors = [orientation_error(p, R_X_agreed.T @ R[p.view].T) for p in found]
+    limits = spread_limits(np.array([deg for deg, _ in errors]), tolerance_deg)
+    poses, off = [], []
+    for p, (off_deg, chi2), limit in zip(found, errors, limits):
+        if off_deg > limit and chi2 > chi2_ppf(1.0 - ORIENTATION_ALPHA, 3):
+            off.append((p.view, off_deg))
+        else:
+            poses.append(p)
+    return poses, off
 
 
 def spread_limits(angles_deg: np.ndarray, tolerance_deg: float) -> np.ndarray:

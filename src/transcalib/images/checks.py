@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from .epipoles import direction, epipole_ransac, residuals, signed_distance
 from .local import local_linear
-from .propagate import depth_scales
+from .propagate import STATIC_MIN_FACTOR, STATIC_PX, depth_scales, static_tracks
 
 __all__ = ["smoothness_check", "epipolar_check", "multiview_check", "drop_static", "merge_duplicates",
            "select_spread", "keep_tracks", "n_observations", "check_session", "check_added", "MAX_TREND_PX", "STATIC_PX"]
@@ -35,10 +35,6 @@ __all__ = ["smoothness_check", "epipolar_check", "multiview_check", "drop_static
 #: Largest smooth misfit (px) of the multi-view depth prediction attributed to lens
 #: distortion (k1 = -0.12 at 640 x 480 gives under 2 px); beyond it, a mismatch.
 MAX_TREND_PX = 4.0
-#: A track moving less than this (px) in every view while the scene moves at least
-#: ``STATIC_MIN_FACTOR`` times more between the same views is static.
-STATIC_PX = 1.0
-STATIC_MIN_FACTOR = 10.0
 
 
 def n_observations(uv: np.ndarray) -> int:
@@ -148,32 +144,9 @@ def multiview_check(uv: np.ndarray, epi: dict, thr_px: float, passes: int = 3) -
 
 
 def drop_static(uv: np.ndarray, static_px: float = STATIC_PX, factor: float = STATIC_MIN_FACTOR):
-    """Drop tracks that do not move while the scene does (stage 4).
-
-    A static point is consistent with every epipole (``rho = 0``), so the epipolar tests
-    pass it; under pure translation only a point at infinity stays put, and it carries no
-    information on K. A track is static when its largest displacement from its reference
-    view is below ``static_px`` while the moving tracks (those moving more than
-    ``static_px``) of the same view pairs move at least ``factor * static_px`` (median).
-
-    Returns the kept ``uv`` and the number of tracks dropped.
-    """
-    n_views, n_pts = uv.shape[:2]
-    if n_pts == 0:
-        return uv, 0
-    seen = np.isfinite(uv[..., 0])
-    ref = np.argmax(seen, axis=0)
-    disp = np.linalg.norm(uv - uv[ref, np.arange(n_pts)][None], axis=-1)  # (n_views, n_pts), NaN unseen
-    expected = np.zeros(n_pts)
-    for r in range(n_views):
-        mine = ref == r
-        for j in range(n_views):
-            both = mine & seen[j]
-            moving = both & (np.nan_to_num(disp[j]) >= static_px)
-            if j != r and moving.sum() >= 5:
-                expected[both] = np.maximum(expected[both], np.median(disp[j, moving]))
-    moved = np.max(np.where(seen, disp, 0.0), axis=0)
-    static = (moved < static_px) & (expected >= factor * static_px)
+    """Drop tracks that do not move while the scene does (stage 4,
+    :func:`~.propagate.static_tracks`). Returns the kept ``uv`` and the number dropped."""
+    static = static_tracks(uv, static_px, factor)
     return uv[:, ~static], int(static.sum())
 
 

@@ -213,7 +213,10 @@ class PairGeometry:
         pairs' epipoles), ``"translations"`` (``A (T_j - T_i)`` of the robot translations),
         ``"none"``.
     static : bool
-        The matches barely move (median below :data:`MOVING_PX`): a repeated view.
+        The matches barely move (median below :data:`MOVING_PX`) and fewer than
+        :data:`MIN_VERIFIED` moving ones verify ``e``: a repeated view. (A minority that
+        moves consistently, an object carried by the robot before a static background,
+        makes the pair a moving one.)
     sigma_px : float
         Noise of the inliers' epipolar distances (truncated estimator; NaN without ``e``).
     """
@@ -235,7 +238,9 @@ def _geometry(e, inl, x, y, source, thr) -> PairGeometry:
         dist, _ = residuals(e, x[inl], y[inl])
         sigma = truncated_sigma(dist**2, np.ones(len(dist), np.intp), float(np.median(dist)) * 1.5 + 1e-6,
                                 FALSE_REJECTION)
-    static = len(x) > 0 and bool(np.median(np.linalg.norm(y - x, axis=1)) < MOVING_PX)
+    disp = np.linalg.norm(y - x, axis=1)
+    n_moving = int((inl & (disp >= MOVING_PX)).sum()) if e is not None else 0
+    static = len(x) > 0 and bool(np.median(disp) < MOVING_PX) and n_moving < MIN_VERIFIED
     return PairGeometry(e=e, inliers=inl, source=source, static=static, sigma_px=sigma)
 
 

@@ -32,7 +32,12 @@ from .detect import n_threads, to_u8
 from .epipoles import MOVING_PX, direction, pair_epipole, residuals, signed_distance
 from .local import local_linear
 
-__all__ = ["PropagateOptions", "Pyramids", "propagate", "predict_missing", "depth_scales"]
+__all__ = ["PropagateOptions", "Pyramids", "propagate", "predict_missing", "depth_scales", "static_tracks"]
+
+#: A track moving less than this (px) in every view while the scene moves at least
+#: ``STATIC_MIN_FACTOR`` times more between the same views is static.
+STATIC_PX = 1.0
+STATIC_MIN_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -194,7 +199,9 @@ def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: Prop
                     obs[j] = found
                 if report is not None:
                     report("chain", done, steps)
-            keep = np.isfinite(obs[..., 0]).sum(0) >= 2
+            # static points (the background behind an object the robot carries) go now:
+            # they would take the seeds of the moving ones
+            keep = (np.isfinite(obs[..., 0]).sum(0) >= 2) & ~static_tracks(obs)
             uv = np.concatenate([uv, obs[:, keep]], axis=1)
     return uv
 
@@ -210,6 +217,35 @@ def _sources(sources: dict, uv: np.ndarray, r: int, j: int):
         a = b = np.zeros((0, 2))
     both = np.isfinite(uv[r, :, 0]) & np.isfinite(uv[j, :, 0])
     return np.vstack([a, uv[r, both]]), np.vstack([b, uv[j, both]])
+
+
+def static_tracks(uv: np.ndarray, static_px: float = STATIC_PX, factor: float = STATIC_MIN_FACTOR) -> np.ndarray:
+    """``(n_tracks,)`` bool: the tracks that do not move while the scene does.
+
+    A static point is consistent with every epipole (``rho = 0``), so the epipolar tests
+    pass it; under pure translation only a point at infinity stays put, and it carries no
+    information on K (a burnt-in overlay, dust on the lens, the static background behind
+    an object carried by the robot). A track is static when its largest displacement
+    from its reference view is below ``static_px`` while the moving tracks (those moving
+    more than ``static_px``) of the same view pairs move at least ``factor * static_px``
+    (median).
+    """
+    n_views, n_pts = uv.shape[:2]
+    if n_pts == 0:
+        return np.zeros(0, bool)
+    seen = np.isfinite(uv[..., 0])
+    ref = np.argmax(seen, axis=0)
+    disp = np.linalg.norm(uv - uv[ref, np.arange(n_pts)][None], axis=-1)  # (n_views, n_pts), NaN unseen
+    expected = np.zeros(n_pts)
+    for r in range(n_views):
+        mine = ref == r
+        for j in range(n_views):
+            both = mine & seen[j]
+            moving = both & (np.nan_to_num(disp[j]) >= static_px)
+            if j != r and moving.sum() >= 5:
+                expected[both] = np.maximum(expected[both], np.median(disp[j, moving]))
+    moved = np.max(np.where(seen, disp, 0.0), axis=0)
+    return (moved < static_px) & (expected >= factor * static_px)
 
 
 def depth_scales(uv: np.ndarray, epi: dict, r: int, sel: np.ndarray):

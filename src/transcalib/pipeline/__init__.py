@@ -30,6 +30,7 @@ from .motion import Motion, motion_of
 from .result import with_motion
 from .stages import all_residuals, extend_to_all_tracks, from_linear, masked, refine_and_rejudge
 from .start import explain_motion, initial_estimate
+from .views_off import left_out_mask, orientation_off, rejudge_views
 
 __all__ = ["calibrate"]
 
@@ -137,18 +138,27 @@ def calibrate(
     subset = _fit_subset(uv, opts, rng)
     start = initial_estimate(uv if subset is None else uv[:, subset], motion, opts, rng, progress,
                              coplanar=span is not None, image_size=image_size)
-    if start.views_left_out is not None and start.views_left_out.any():  # their poses contradict their images
-        uv = np.where(start.views_left_out[:, None, None], np.nan, uv)
-    cal, inliers, stages, timings, rotation_data = _fit(uv, motion.T, subset, start, opts, progress)
+    cal, inliers, stages, timings, rotation_data = _fit(_without(uv, start.off_views), motion.T, subset, start, opts,
+                                                        progress)
+    if start.off_views and opts.refine:  # judged again with the refined lens: those that agree come back
+        off = rejudge_views(uv, motion, cal, start.off_views, rng)
+        if len(off) < len(start.off_views):
+            report(progress, "views re-admitted", views=len(start.off_views) - len(off))
+            start = replace(start, off_views=off)
+            cal, inliers, stages, more_timings, rotation_data = _fit(_without(uv, off), motion.T, subset, start, opts,
+                                                                     progress)
+            timings = {**more_timings, "start_s": timings["start_s"]}
+    left_out = left_out_mask(start.off_views, motion.n_views)
+    uv = _without(uv, start.off_views)
     timings = {f"{start.stages[0]}_s": timings.pop("start_s") - t0, **timings}
     result = replace(cal, camera=replace(cal.camera, image_size=image_size), inliers=inliers,
                      residuals_px=all_residuals(uv, cal, inliers), options=opts, diagnostics=(),
                      stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=start.ransac))
     t2 = time.perf_counter()
-    found = list(start.diagnostics) + diagnose(
+    found = [orientation_off(v, deg, motion.grouping.tolerance_deg) for v, deg in start.off_views] + diagnose(
         uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
         unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
-        views_left_out=start.views_left_out, view_ids=getattr(poses, "views", None), setup=setup)
+        views_left_out=left_out, view_ids=getattr(poses, "views", None), setup=setup)
     if span is not None:  # the coplanar motion was understood: say what it allows instead
         found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
     if opts.check_rotation and not opts.refine:
@@ -162,6 +172,11 @@ def calibrate(
     result = replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings),
                      info={**result.info, **info})
     return with_motion(result, motion, start.notes)
+
+
+def _without(uv: np.ndarray, off_views) -> np.ndarray:
+    """``uv`` without the observations of the views ``off_views`` ((view, degrees), ...)."""
+    return np.where(left_out_mask(off_views, uv.shape[0])[:, None, None], np.nan, uv) if off_views else uv
 
 
 def _prediction(fit, motion: Motion, opts: CalibrateOptions, view_ids) -> dict:

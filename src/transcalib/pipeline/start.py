@@ -61,10 +61,10 @@ class Start:
     ransac : RansacStats or None
     flange : FlangeModel or None
         The views' flange rotations and the offset (None: one orientation).
-    views_left_out : (n_views,) bool
-        Single views whose recorded orientation their images contradict.
-    diagnostics : tuple of Diagnostic
-        What the start found (views left out).
+    off_views : tuple of (int, float)
+        Single views whose recorded orientation their images contradict, with the angle
+        (degrees): left out of the refinement, judged again after it
+        (:func:`transcalib.pipeline.rejudge_views`).
     notes : tuple of str
         What the motion leaves undetermined, views off their session's orientation.
     """
@@ -74,8 +74,7 @@ class Start:
     stages: list
     ransac: RansacStats | None
     flange: FlangeModel | None = None
-    views_left_out: np.ndarray | None = None
-    diagnostics: tuple = ()
+    off_views: tuple = ()
     notes: tuple = ()
 
 
@@ -188,12 +187,10 @@ def _from_sessions(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng
                                square_pixels=opts.refinement.square_pixels, distortion=_start_model(opts),
                                frame="flange" if motion.setup == "eye-in-hand" else "base")
     linear = _linear_estimate(lin, joined.X, in_session, motion.n_views)
-    diagnostics = tuple(_orientation_off(i, a, g.tolerance_deg) for i, a in joined.off_views)
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
     return Start(linear, inliers, ["robust" if robust else "linear"], lin.ransac,
                  FlangeModel(np.transpose(motion.R, (0, 2, 1)), joined.t, obs.determined,
-                             inverted=motion.setup == "eye-to-hand"), left_out, diagnostics,
-                 notes)
+                             inverted=motion.setup == "eye-to-hand"), tuple(joined.off_views), notes)
 
 
 def _start_model(opts: CalibrateOptions) -> str:
@@ -239,10 +236,9 @@ def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: boo
     linear = LinearEstimate(K=gs.K, R=gs.R_X.T, A=gs.K @ gs.R_X.T, X=X, depth=np.full(uv.shape[:2], np.nan),
                             singular_values=np.zeros(0), n_used_points=int(used.sum()), used=used, method="general")
     notes = tuple(m for m in [obs.message, *g.messages()] if m)
-    diagnostics = tuple(_orientation_off(v, a, g.tolerance_deg) for v, a in gs.off_views)
     return Start(linear, inliers, ["robust" if robust else "linear"], None,
-                 FlangeModel(F, gs.t_X, obs.determined, inverted=motion.setup == "eye-to-hand"), left_out,
-                 diagnostics, notes)
+                 FlangeModel(F, gs.t_X, obs.determined, inverted=motion.setup == "eye-to-hand"), tuple(gs.off_views),
+                 notes)
 
 
 def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -> LinearEstimate:
@@ -254,13 +250,3 @@ def _linear_estimate(lin, X: np.ndarray, in_session: np.ndarray, n_views: int) -
     return LinearEstimate(K=lin.K, R=lin.R_X.T, A=lin.K @ lin.R_X.T, X=X, depth=depth,
                           singular_values=lin.stacked.singular_values, n_used_points=int(used.sum()), used=used,
                           method="sessions")
-
-
-def _orientation_off(view: int, angle_deg: float, tolerance_deg: float) -> Diagnostic:
-    """The warning for a single view whose recorded orientation its image contradicts."""
-    return Diagnostic(
-        "pose_orientation_off",
-        f"view {view}: its recorded flange orientation is {angle_deg:.2f} deg off the camera orientation its image "
-        f"shows (more than the session tolerance of {tolerance_deg:g} deg, significantly): the pose is "
-        "wrong (a typo, another view's orientation, the wrong rotation format or axis order), or the camera "
-        "moved on the flange. The view is left out; check its pose.")
