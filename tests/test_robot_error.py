@@ -249,3 +249,38 @@ def test_covariance_marginalises_the_robot_error_against_a_dense_oracle():
     reported = cal.cov[np.ix_(k, k)]
     assert np.abs(reported - cov).max() / np.abs(cov).max() < 1e-4
     assert np.allclose(np.sqrt(np.diag(reported)), np.sqrt(np.diag(cov)), rtol=1e-4)
+
+
+def test_default_estimates_the_scales_from_the_data():
+    """``RefineOptions()`` (robot_error=None) estimates the robot error when the data show
+    it, and with a perfect robot keeps it off: through calibrate() (the lens chosen first,
+    then the robot error's score tests) the result equals the exact-pose model's."""
+    assert RefineOptions().robot_error is None
+    sc, err, cal = _sessions_fit(0.1, 1.0, 7, RefineOptions(distortion="none"))
+    assert cal.robot_error.source == ("estimated", "estimated")
+    sc = session_scene(11, n_sessions=3, views_per_session=6, n_points=60, noise_px=0.5)
+    poses = Poses.of(sc.T, sc.R)
+    cal = calibrate(sc.uv, poses, rng=0)
+    off = calibrate(sc.uv, poses, refinement=RefineOptions(robot_error=False), rng=0)
+    assert cal.robot_error.source == ("not detected", "not detected") and off.robot_error is None
+    assert cal.dist_model == off.dist_model
+    assert np.abs(cal.K - off.K).max() < 1e-9 * sc.K[0, 0]
+    assert np.allclose(cal.cov, off.cov, rtol=1e-6, atol=0)
+
+
+def test_scale_consistent_is_the_lower_tail_of_the_score():
+    """The fitted scale against the score at zero: a score at its expectation under the
+    fitted scale is unremarkable; one far below it (the scale grew while fitting, beyond
+    the data's first-order evidence) has a tiny p-value; Monte Carlo of the weighted
+    chi-square agrees with Satterthwaite's approximation within 0.03."""
+    from transcalib.estimate.variance_components import ScoreTest, scale_consistent
+    rng = np.random.default_rng(3)
+    lam = rng.uniform(0.5, 20.0, 30)
+    s_px, s2 = 0.5, 0.01
+    a = s_px**2 * lam + s2 * lam**2
+    q = (a[None, :] * rng.normal(size=(4000, 30)) ** 2).sum(axis=1)
+    for quantile in (0.01, 0.1, 0.5):
+        qq = float(np.quantile(q, quantile))
+        assert abs(scale_consistent(ScoreTest(0.0, 0.0, qq, lam), s2, s_px) - quantile) < 0.03
+    assert scale_consistent(ScoreTest(0.0, 0.0, float(a.sum()) / 50, lam), s2, s_px) < 1e-6
+    assert scale_consistent(ScoreTest(0.0, 0.0, 1.0), s2, s_px) == 1.0  # no score: nothing to check

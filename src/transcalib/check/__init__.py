@@ -31,6 +31,7 @@ code                       meaning
 ``implausible_intrinsics`` intrinsics no real camera has (usually wrong tracks)
 ``robot_error_inseparable``  the data barely separate the robot's pose error from the camera (and what would)
 ``robot_error_dominates``  the robot's pose error, not the pixel noise, limits fx or cx
+``robot_error_misfit``     a per-view pose error the score test found absorbed a model misfit instead (left out)
 ``check_skipped``          a check that could not run, and why (never silent by omission)
 =========================  ==============================================================
 """

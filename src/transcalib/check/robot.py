@@ -7,6 +7,10 @@ data could separate it from the camera, and whether it limits the calibration.
   or one orientation, where a flange rotation error moves the image much as a position
   error does. The message says which motion separates them and that datasheet values
   can be given instead.
+- ``robot_error_misfit``: the score test found a per-view pose error, but its fitted scale
+  is far above what the score showed (the per-view errors absorbed a model misfit
+  together with a large move of the camera); that component was left out, so the poses
+  are taken as exact for it and the uncertainty does not include it.
 - ``robot_error_dominates``: the robot error, not the pixel noise, sets the uncertainty of
   fx or cx: their std with the errors marginalised is more than ``DOMINATES_FACTOR``
   times the std with the errors held at their estimates.
@@ -35,9 +39,11 @@ _MOTION = ("views at more flange orientations (the wrist turned >= 15 deg about 
 def check_robot_error(calibration, unit: str = "units") -> list:
     """The robot error checks (module docstring) of a refined calibration; [] without one."""
     re = getattr(calibration, "robot_error", None)
-    if re is None or not re.active:
+    if re is None:
         return []
-    out = []
+    out = _misfit(re)
+    if not re.active:
+        return out
     vague = []
     for name, s, sd, src, u in (("sigma_rot", re.sigma_rot_deg, re.sigma_rot_std_deg, re.source[0], "deg"),
                                 ("sigma_pos", re.sigma_pos, re.sigma_pos_std, re.source[1], unit)):
@@ -61,6 +67,20 @@ def check_robot_error(calibration, unit: str = "units") -> list:
                               + ": more views average it down (each view's error is its own), as does a "
                               "robot that repeats its poses better"))
     return out
+
+
+def _misfit(re) -> list:
+    """``robot_error_misfit`` for the components left out as a model misfit, else []."""
+    names = [f"{what} (score p = {p:.2g}, fitted scale p = {c:.2g})"
+             for what, src, p, c in zip(("rotation", "position"), re.source, re.p_values, re.consistency_p)
+             if src == "misfit"]
+    if not names:
+        return []
+    return [Diagnostic("robot_error_misfit", "the residuals show a per-view pose error (" + ", ".join(names)
+                       + "), but fitting it moved the camera far beyond what that evidence supports: the per-view "
+                       "errors were absorbing a model misfit (lens distortion, tracking errors), so the poses are "
+                       "taken as exact for it and the uncertainty does not include it. Check the lens model and "
+                       "the tracks, or give the robot's datasheet values (--robot-sigma-deg, --robot-sigma)")]
 
 
 def _one_orientation(R, tolerance_deg: float = 1.0) -> bool:

@@ -14,7 +14,7 @@ covariance are those of the inliers. The covariance is ``sigma^2 S^-1``
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
 from .robot_error import COMPONENTS
 from .solvers import gauss_newton, levenberg_marquardt
-from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, redundancy, score_test
+from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, redundancy, scale_consistent, score_test
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "with_robot_scales"]
 
@@ -176,10 +176,20 @@ def with_robot_scales(opts: RefineOptions, calibration) -> RefineOptions:
 
 
 def robot_error_on(opts: RefineOptions) -> bool:
-    """Whether ``opts`` model the robot pose error: ``robot_error=True``, or None with a
-    scale given; never with ``sigma_T``."""
-    given = opts.robot_sigma_deg is not None or opts.robot_sigma_pos is not None
-    return opts.sigma_T is None and (opts.robot_error is True or (opts.robot_error is None and given))
+    """Whether ``opts`` model the robot pose error: ``robot_error`` True or None (the
+    default: the score tests decide each component), never with ``sigma_T``."""
+    return opts.sigma_T is None and opts.robot_error is not False
+
+
+def _lens_first(opts: RefineOptions) -> RefineOptions:
+    """``opts`` with the robot error components whose scale is to be estimated off (the
+    given scales kept), or ``opts`` itself when none is: the options the distortion climb
+    runs with (:func:`_fit_auto`)."""
+    estimated = [c for c, v in _robot_given(opts).items() if v is None]
+    if not estimated:
+        return opts
+    return replace(opts, robot_sigma_deg=0.0 if "rot" in estimated else opts.robot_sigma_deg,
+                   robot_sigma_pos=0.0 if "pos" in estimated else opts.robot_sigma_pos)
 
 
 def _robot_given(opts: RefineOptions) -> dict:
@@ -240,9 +250,21 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Cal
     with ``D`` the RSS reduction of one Gauss-Newton step: F(k, dof - k) when ``m``
     suffices. ``m'`` is taken when ``p < AUTO_ALPHA`` and its refit determines every
     coefficient (its covariance exists); ``stats.distortion_selection`` says why.
+
+    The lens comes first: the climb runs with the robot error components whose scales
+    are estimated left out (:func:`_lens_first`), then the chosen model is fitted with
+    them (their score tests decide). A handful of lens coefficients shared by every view
+    cannot absorb independent per-view pose errors, but ``3 n_views`` per-view errors
+    can absorb much of an unmodelled lens, and trade with the focal length doing it.
     """
-    cal = fit_refine(uv, T, initial, replace(opts, distortion=AUTO_CHAIN[0]), progress, flange)
-    return climb_distortion(uv, T, cal, opts, progress)
+    lens = _lens_first(opts)
+    cal = fit_refine(uv, T, initial, replace(lens, distortion=AUTO_CHAIN[0]), progress, flange)
+    cal = climb_distortion(uv, T, cal, lens, progress)
+    if lens is opts:
+        return cal
+    full = fit_refine(uv, T, cal, replace(opts, distortion=cal.dist_model), progress)
+    return replace(full, options=replace(full.options, refinement=opts),
+                   stats=replace(full.stats, distortion_selection=cal.stats.distortion_selection))
 
 
 def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None) -> Calibration:
@@ -380,9 +402,13 @@ class _Fitter:
         """:meth:`__call__` with the robot pose error: the fit without it, the score test
         of each component whose scale is not given, then rounds of fit and
         variance-component update (:mod:`.variance_components`) of the scales found and
-        the pixel noise. Near the solution (scales given by the fit of a subset) one round."""
+        the pixel noise; a component whose fitted scale the score at zero does not support
+        (:func:`.variance_components.scale_consistent` below ``GATE_ALPHA``: it absorbed a
+        model misfit) is left out again. Near the solution (scales given by the fit of a
+        subset) one round."""
         pb, n_views = self.pb, len(self.pb.T)
         given, p_values, sig = pb.robot_given, {c: np.nan for c in COMPONENTS}, {}
+        consistent = {}  # component -> p-value of its fitted scale against its score (scale_consistent)
         state = replace(state, E=None)
         dof = pb.lay.residual_dof(int(mask[:, idx].sum()), len(idx))
         plain, sigma_px = None, pb.opts.sigma_px
@@ -409,14 +435,20 @@ class _Fitter:
                 break
             sig[c] = float(np.sqrt(tests[c].sigma2))
             tried.add(c)  # tested once: a component the rounds drop again is not tried twice
+            before = (out, self.lay, self.robot)
             out = self._rounds(state, idx, mask, sig, dof, sigma_px)
             sig = dict(self.robot.sigma)
+            if c in sig:
+                consistent[c] = scale_consistent(tests[c], sig[c] ** 2, self.robot.sigma_px)
+                if consistent[c] < GATE_ALPHA:  # absorbed a misfit: back to the model without it
+                    out, self.lay, self.robot = before
+                    sig = {} if self.robot is None else dict(self.robot.sigma)
         if out is None or not sig:
             self.lay = pb.lay
-            self.robot = _RobotFit({}, {}, p_values, given, None)
+            self.robot = _RobotFit({}, {}, p_values, given, None, consistent)
             return out if out is not None and plain is not None and out is plain else self._plain(
                 replace(state, E=None), idx, mask, "linear")
-        self.robot = replace(self.robot, p_values=p_values)
+        self.robot = replace(self.robot, p_values=p_values, consistency=consistent)
         return out
 
     def _rounds(self, state, idx, mask, sig, dof, sigma_px):
@@ -486,13 +518,16 @@ class _Fitter:
 @dataclass(frozen=True)
 class _RobotFit:
     """Scales of the robot error components found (``sigma``: rad / unit), their
-    redundancies, the score tests' p-values, what was given, and the pixel noise."""
+    redundancies, the score tests' p-values, what was given, the pixel noise, and the
+    p-values of the fitted scales against their scores (``consistency``; a component
+    below ``GATE_ALPHA`` there was left out as a misfit)."""
 
     sigma: dict
     r: dict
     p_values: dict
     given: dict
     sigma_px: float | None
+    consistency: dict = field(default_factory=dict)
 
 
 #: A robot error component estimated while fitting is dropped again when its scale falls
@@ -721,15 +756,17 @@ def _robot_error(pb: _Problem, fit: _Fit, cov: np.ndarray) -> RobotError | None:
         s = rf.sigma.get(comp, 0.0) if rf is not None else 0.0
         r = rf.r.get(comp, 0.0) if rf is not None else 0.0
         given = pb.robot_given.get(comp, 0.0)
+        misfit = rf is not None and rf.consistency.get(comp, 1.0) < GATE_ALPHA
         source.append("off" if comp not in pb.robot_given else "given" if given is not None
-                      else "estimated" if s > 0 else "not detected")
+                      else "estimated" if s > 0 else "misfit" if misfit else "not detected")
         sigma.append(s)
         sd.append(s / np.sqrt(2 * r) if source[-1] == "estimated" and r > 0 else 0.0)
     p = np.array([np.nan, np.nan]) if rf is None else np.array([rf.p_values[c] for c in COMPONENTS])
     r = np.zeros(2) if rf is None else np.array([rf.r.get(c, 0.0) for c in COMPONENTS])
+    pc = np.array([np.nan if rf is None else rf.consistency.get(c, np.nan) for c in COMPONENTS])
     return RobotError(float(np.degrees(sigma[0])), float(sigma[1]), float(np.degrees(sd[0])), float(sd[1]),
                       tuple(source), np.degrees(E[:, :3]), E[:, 3:].copy(), std[:, :3], std[:, 3:], r, p,
-                      bool(lay.robot_inverted))
+                      bool(lay.robot_inverted), pc)
 
 
 def _view_rotations(lay, state, cov, n_views) -> ViewRotations | None:

@@ -89,13 +89,14 @@ def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOption
 
 def _as_estimated(full: Calibration, subset: Calibration) -> Calibration:
     """``full``'s robot error (fitted with the scales of ``subset`` given) reported as the
-    subset estimated them: sources, the scales' std, redundancies and p-values."""
+    subset estimated them: sources, the scales' std, redundancies and p-values (score
+    tests and scale checks)."""
     a, b = full.robot_error, subset.robot_error
     if a is None or b is None:
         return full
     return replace(full, robot_error=replace(a, source=b.source, sigma_rot_std_deg=b.sigma_rot_std_deg,
                                              sigma_pos_std=b.sigma_pos_std, redundancy=b.redundancy,
-                                             p_values=b.p_values))
+                                             p_values=b.p_values, consistency_p=b.consistency_p))
 
 
 def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress, flange: FlangeModel | None = None):

@@ -249,7 +249,10 @@ class RobotError:
         0 when given or off.
     source : tuple of str
         For ``(rot, pos)``: ``"estimated"``, ``"given"``, ``"not detected"`` (the score
-        test at zero did not find it, p-value in ``p_values``) or ``"off"``.
+        test at zero did not find it, p-value in ``p_values``), ``"misfit"`` (the score
+        test found it, but the fitted scale is far above what the score shows: the
+        per-view errors absorbed a model misfit, p-value in ``consistency_p``; the poses
+        are taken as exact for it) or ``"off"``.
     rot_deg : (n_views, 3) float
         Each view's estimated rotation error ``delta_i`` (degrees, flange frame; one
         orientation: the camera's rotation error in the robot axes).
@@ -265,6 +268,10 @@ class RobotError:
     scene_side : bool
         The errors act as eye-to-hand (eq. 2 of :mod:`transcalib.estimate.robot_error`:
         the flange carries the scene) rather than on the camera (eq. 1).
+    consistency_p : (2,) float
+        Lower-tail p-values of each fitted scale against its score test
+        (:func:`transcalib.estimate.variance_components.scale_consistent`; NaN where not
+        fitted); below 1 %: ``"misfit"``.
     """
 
     sigma_rot_deg: float
@@ -279,9 +286,10 @@ class RobotError:
     redundancy: np.ndarray
     p_values: np.ndarray
     scene_side: bool = False
+    consistency_p: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
 
     def __post_init__(self):
-        _freeze(self, arrays=("rot_deg", "pos", "rot_std_deg", "pos_std", "redundancy", "p_values"),
+        _freeze(self, arrays=("rot_deg", "pos", "rot_std_deg", "pos_std", "redundancy", "p_values", "consistency_p"),
                 sequences=("source",))
 
     def __eq__(self, other) -> bool:
