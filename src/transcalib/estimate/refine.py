@@ -262,9 +262,19 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Cal
     cal = climb_distortion(uv, T, cal, lens, progress)
     if lens is opts:
         return cal
-    full = fit_refine(uv, T, cal, replace(opts, distortion=cal.dist_model), progress)
+    a = cal.stats.refine
+    full = fit_refine(uv, T, cal, replace(opts, distortion=cal.dist_model), _counting_on(progress, a.iterations))
+    b = full.stats.refine
+    both = replace(b, iterations=a.iterations + b.iterations, time_s=a.time_s + b.time_s)
     return replace(full, options=replace(full.options, refinement=opts),
-                   stats=replace(full.stats, distortion_selection=cal.stats.distortion_selection))
+                   stats=replace(full.stats, refine=both, distortion_selection=cal.stats.distortion_selection))
+
+
+def _counting_on(progress, done: int):
+    """``progress`` with the iteration events' ``done`` counted on from ``done`` (None stays None)."""
+    if progress is None:
+        return None
+    return lambda event: progress(replace(event, done=event.done + done) if event.done is not None else event)
 
 
 def climb_distortion(uv, T, cal: Calibration, opts: RefineOptions, progress=None) -> Calibration:

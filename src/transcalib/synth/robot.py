@@ -23,7 +23,7 @@ single views tilted from it, the scene 0.5-1 m away (:mod:`.robot_layout`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -317,7 +317,7 @@ def _sessions(R: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 
 def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views: int = 6, tilt_deg=(15.0, 45.0),
                 distance_mm=(500.0, 1000.0), image_size=(640, 480), degrade: bool | Degradations = True, rng=0,
-                supersample: int = 2, images: bool = True) -> RobotRendered:
+                supersample: int = 2, images: bool = True, pose_error=None) -> RobotRendered:
     """The issue-20 preset: one 3-D pure-translation session plus single views tilted from it.
 
     Eye-in-hand, the camera on the flange looks down at a work cell (a textured table top,
@@ -346,6 +346,14 @@ def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views
     supersample : int
     images : bool
         False: the layout and the truth only, no pixel cast (see :func:`render_robot`).
+    pose_error : (n_views, 6) float, optional
+        The robot's pose error per view (:mod:`transcalib.estimate.robot_error`:
+        ``delta_i`` rad in the flange frame, ``eps_i`` mm in the base frame, e.g. from
+        :func:`~transcalib.estimate.robot_error.sample_errors`): the views are rendered at
+        the true poses ``R_i exp([delta_i]x)``, ``T_i + eps_i`` while ``R``, ``T`` of the
+        result stay the reported ones (what a controller records); the true poses are in
+        ``meta["true_R"]``, ``meta["true_T"]``, the errors in ``meta["pose_error"]``.
+        (The result's truth methods use ``R``, ``T``: the reported poses.)
 
     Returns
     -------
@@ -362,10 +370,27 @@ def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views
     R, T = flange_poses(Q, c, R_X, t_X, setup)
     sess = np.r_[np.zeros(session_views, int), 1 + np.arange(single_views)] - (session_views == 0)
     effects = preset_degradations(image_size) if degrade is True else (None if degrade is False else degrade)
-    return render_robot(scene.scene_surfaces, K, R, T, R_X, t_X, image_size, setup=setup,
-                        static_surfaces=scene.static_surfaces, dist=PRESET_DIST if degrade is not False else (),
-                        session_of_view=sess, corners=scene.corners, supersample=supersample, degrade=effects,
-                        images=images, rng=rng)
+    R_true, T_true = _true_poses(R, T, pose_error)
+    out = render_robot(scene.scene_surfaces, K, R_true, T_true, R_X, t_X, image_size, setup=setup,
+                       static_surfaces=scene.static_surfaces, dist=PRESET_DIST if degrade is not False else (),
+                       session_of_view=sess, corners=scene.corners, supersample=supersample, degrade=effects,
+                       images=images, rng=rng)
+    if pose_error is None:
+        return out
+    return replace(out, R=R, T=T, meta={**out.meta, "true_R": R_true, "true_T": T_true,
+                                        "pose_error": np.array(pose_error, float)})
+
+
+def _true_poses(R: np.ndarray, T: np.ndarray, pose_error):
+    """The poses rendered: ``(R, T)`` themselves, or perturbed by ``pose_error (n_views, 6)``."""
+    if pose_error is None:
+        return R, T
+    from ..estimate.robot_error import perturb_poses
+
+    e = np.asarray(pose_error, float)
+    if e.shape != (len(T), 6) or not np.all(np.isfinite(e)):
+        raise InputError(f"robot_scene: pose_error must be finite with shape ({len(T)}, 6), got {e.shape}")
+    return perturb_poses(R, T, e)
 
 
 def _preset_scene(setup, seed, distance_mm):
