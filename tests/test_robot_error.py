@@ -284,3 +284,19 @@ def test_scale_consistent_is_the_lower_tail_of_the_score():
         assert abs(scale_consistent(ScoreTest(0.0, 0.0, qq, lam), s2, s_px) - quantile) < 0.03
     assert scale_consistent(ScoreTest(0.0, 0.0, float(a.sum()) / 50, lam), s2, s_px) < 1e-6
     assert scale_consistent(ScoreTest(0.0, 0.0, 1.0), s2, s_px) == 1.0  # no score: nothing to check
+
+
+def test_misfit_component_is_reported():
+    """A component left out as a misfit: not active, but the robot_error_misfit warning
+    names it with its two p-values."""
+    from types import SimpleNamespace
+
+    from transcalib.check.robot import check_robot_error
+    from transcalib.types import RobotError
+    z = np.zeros((5, 3))
+    re = RobotError(0.0, 0.0, 0.0, 0.0, ("misfit", "not detected"), z, z, z, z, np.zeros(2),
+                    np.array([1e-5, 0.5]), consistency_p=np.array([2e-5, np.nan]))
+    found = check_robot_error(SimpleNamespace(robot_error=re, flange_rotations=None))
+    assert [d.code for d in found] == ["robot_error_misfit"] and "rotation" in str(found[0])
+    assert not re.active and RobotError(0.0, 0.0, 0.0, 0.0, ("off", "off"), z, z, z, z, np.zeros(2),
+                                        np.zeros(2)).consistency_p.shape == (2,)

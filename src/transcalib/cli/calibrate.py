@@ -106,9 +106,11 @@ def _model(g) -> None:
                         "(0: exact orientations; turns the robot error on)")
     g.add_argument("--robot-error", action="store_true",
                    help="estimate each view's robot pose error (rotation and position) with the pixel noise and "
-                        "include it in the uncertainty")
+                        "include it in the uncertainty (the default: a score test switches each component on only "
+                        "when the data show it, and one that absorbs a model misfit is left out with a "
+                        "robot_error_misfit warning; docs/uncertainty.md)")
     g.add_argument("--no-robot-error", action="store_true",
-                   help="take the robot's poses as exact (the default without --robot-error or a robot sigma)")
+                   help="take the robot's poses as exact (the model before issue 22)")
 
 
 def _robust(g) -> None:

@@ -94,11 +94,14 @@ class RefineOptions:
     robot_error : bool or None
         Model each view's robot pose error (flange rotation and position,
         :mod:`transcalib.estimate.robot_error`) as nuisance parameters with Gaussian
-        priors: True, or None (default) when a scale below is given. A component whose
-        scale is not given is estimated from the data together with the pixel noise
-        (variance components) when a score test at zero finds it (1 %), else it stays
-        off. The covariance then includes it. False / None without scales: exact poses
-        (off by default until it is robust on few-view, misfitting data: docs/uncertainty.md).
+        priors: None (default) or True. A component whose scale is not given is
+        estimated from the data together with the pixel noise (variance components)
+        when a score test at zero finds it (1 %), else it stays off (with a perfect
+        robot the result is then the exact-pose model's); a fitted scale far above what
+        that score showed (lower 1 % tail: the per-view errors absorbed a model misfit) is
+        left out again (``RobotError.source`` ``"misfit"``). With ``distortion="auto"``
+        the lens is chosen first, with exact poses. The covariance includes the
+        components kept. False: exact poses. ``sigma_T`` turns it off.
     robot_sigma_deg : float, optional
         Known per-axis std of each view's flange rotation error (degrees; 0: exact
         orientations). None (default): estimated.
