@@ -181,7 +181,8 @@ def _refit(uv, T, calibration: Calibration, views) -> tuple:
     if calibration.inliers is not None:
         uv = np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)
     try:
-        c = refine(uv, T, calibration, options=replace(opts, sigma_T=sigma, estimate_view_rotations=rot or False))
+        c = refine(uv, T, calibration, options=replace(opts, sigma_T=sigma, estimate_view_rotations=rot or False,
+                                                       robot_sigma_deg=None, robot_sigma_pos=None))  # sigma_T's model
     except DegenerateError:
         return None
     dT = np.asarray(c.T)[list(views)] - np.asarray(T)[list(views)]

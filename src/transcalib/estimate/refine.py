@@ -446,9 +446,17 @@ class _Fitter:
             sig[c] = float(np.sqrt(tests[c].sigma2))
             tried.add(c)  # tested once: a component the rounds drop again is not tried twice
             before = (out, self.lay, self.robot)
-            out = self._rounds(state, idx, mask, sig, dof, sigma_px)
-            sig = dict(self.robot.sigma)
-            if c in sig:
+            try:
+                out = self._rounds(state, idx, mask, sig, dof, sigma_px)
+                sig = dict(self.robot.sigma)
+                fitted = all(np.isfinite(v) for v in sig.values())
+            except DegenerateError:  # the rounds ran off to where the fit breaks down: a misfit too
+                fitted = False
+            if not fitted:
+                consistent[c] = 0.0
+                out, self.lay, self.robot = before
+                sig = {} if self.robot is None else dict(self.robot.sigma)
+            elif c in sig:
                 consistent[c] = scale_consistent(tests[c], sig[c] ** 2, self.robot.sigma_px)
                 if consistent[c] < GATE_ALPHA:  # absorbed a misfit: back to the model without it
                     out, self.lay, self.robot = before
