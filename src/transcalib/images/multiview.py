@@ -43,7 +43,7 @@ from scipy.sparse.csgraph import connected_components
 from .checks import drop_static, keep_tracks
 from .detect import Features, match_pair, n_threads
 from .frames import PairInfo
-from .link import MIN_LINK_MATCHES, fundamental
+from .link import MIN_LINK_MATCHES, STATIC_LINK_PX, fundamental
 from .local import local_affine, local_linear
 from .refine import SmoothedImages, lk_affine
 
@@ -209,7 +209,60 @@ def _align(smoothed, r, v, x, p0, J, opts: GeneralOptions, shape):
     return out
 
 
-def _refine(smoothed, uv, ref, verified, feats, V, opts, shape, pool, report, extend: bool):
+#: A pixel is static between two views when a 5 x 5 window around it correlates better than
+#: this at zero motion and is textured (local standard deviation above STATIC_MIN_STD in both)
+STATIC_NCC = 0.95
+STATIC_MIN_STD = 2.0
+#: An observation whose window has more than this (Gaussian-weighted) share of static pixels
+#: goes: next to the silhouette of an object carried before a static background, or under
+#: a burnt-in overlay, part of the window does not move with the point.
+MAX_STATIC_SHARE = 0.05
+
+
+def _static_map(ga: np.ndarray, gb: np.ndarray, radius: int) -> np.ndarray:
+    """``(h, w)`` float32: the share of the LK window (Gaussian weights, as
+    :func:`~.refine.lk_affine`) around each pixel made of pixels that did not move between
+    the grey views ``ga``, ``gb``."""
+    a, b = np.asarray(ga, np.float32), np.asarray(gb, np.float32)
+    box = (5, 5)
+    ma, mb = cv2.blur(a, box), cv2.blur(b, box)
+    va = np.maximum(cv2.blur(a * a, box) - ma * ma, 0.0)
+    vb = np.maximum(cv2.blur(b * b, box) - mb * mb, 0.0)
+    cov = cv2.blur(a * b, box) - ma * mb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ncc = cov / np.sqrt(va * vb)
+    static = ((ncc > STATIC_NCC) & (np.minimum(va, vb) > STATIC_MIN_STD**2)).astype(np.float32)
+    return cv2.GaussianBlur(static, (2 * radius + 1, 2 * radius + 1), 0.5 * radius + 0.5,
+                            borderType=cv2.BORDER_REPLICATE)
+
+
+def _at(img: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Values of ``img (h, w)`` at the nearest pixels of ``x (k, 2)``."""
+    h, w = img.shape
+    xi = np.clip(np.rint(np.nan_to_num(x[:, 0])).astype(int), 0, w - 1)
+    yi = np.clip(np.rint(np.nan_to_num(x[:, 1])).astype(int), 0, h - 1)
+    return img[yi, xi]
+
+
+def _static_windows(grey, uv, ref, V, radius: int, pool) -> np.ndarray:
+    """``(n_views, n_tracks)`` bool: the window of the track's reference observation is
+    partly static (share above :data:`MAX_STATIC_SHARE`) between its reference view and
+    that view; one map per verified pair."""
+    n = uv.shape[0]
+    out = np.zeros(uv.shape[:2], bool)
+
+    def one(ab):
+        a, b = ab
+        share = _static_map(grey[a], grey[b], radius)
+        ja, jb = np.flatnonzero(ref == a), np.flatnonzero(ref == b)
+        return ab, ja, _at(share, uv[a, ja]) > MAX_STATIC_SHARE, jb, _at(share, uv[b, jb]) > MAX_STATIC_SHARE
+
+    for (a, b), ja, fa, jb, fb in pool.map(one, [(a, b) for a in range(n) for b in range(a + 1, n) if V[a, b]]):
+        out[b, ja], out[a, jb] = fa, fb
+    return out
+
+
+def _refine(smoothed, uv, ref, fixed, verified, feats, V, opts, shape, pool, report, extend: bool):
     """Step 4 (``extend=False``: the observations there, from their keypoints) or step 5
     (``extend=True``: the verified views a track lacks, from the local affine prediction)."""
     n = uv.shape[0]
@@ -218,7 +271,7 @@ def _refine(smoothed, uv, ref, verified, feats, V, opts, shape, pool, report, ex
 
     def one(rv):
         r, v = rv
-        sel = np.flatnonzero((ref == r) & (~seen[v] if extend else seen[v]))
+        sel = np.flatnonzero((ref == r) & (~seen[v] if extend else seen[v]) & ~fixed[v])
         if len(sel) == 0:
             return rv, sel, None
         xa, xb = _pair_points(uv, verified, feats, r, v)
@@ -231,7 +284,9 @@ def _refine(smoothed, uv, ref, verified, feats, V, opts, shape, pool, report, ex
             p0 = pred
         else:
             p0 = uv[v, sel]
-        return rv, sel, _align(smoothed, r, v, uv[r, sel], p0, J, opts, shape)
+        p = _align(smoothed, r, v, uv[r, sel], p0, J, opts, shape)
+        moved = np.linalg.norm(p - uv[r, sel], axis=1) >= STATIC_LINK_PX  # NaN (not found) stays NaN
+        return rv, sel, np.where(moved[:, None], p, np.nan)
 
     out = uv.copy()
     if not extend:
@@ -324,14 +379,15 @@ def track_general(grey: list, feats: list[Features], opts: GeneralOptions, min_v
         smoothed[v]
     t0 = time.perf_counter()
     with ThreadPoolExecutor(n_threads()) as pool:
-        uv = _refine(smoothed, uv, ref, verified, feats, V, opts, shape, pool, report, extend=False)
+        fixed = _static_windows(grey, uv, ref, V, opts.window_radius, pool)
+        uv = _refine(smoothed, uv, ref, fixed, verified, feats, V, opts, shape, pool, report, extend=False)
         keep = np.isfinite(uv[..., 0]).sum(0) >= 2
-        uv, ref = uv[:, keep], ref[keep]
+        uv, ref, fixed = uv[:, keep], ref[keep], fixed[:, keep]
         counts["refine"] = n_observations(uv)
         times["refine"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         if opts.extend:
-            uv = _refine(smoothed, uv, ref, verified, feats, V, opts, shape, pool, report, extend=True)
+            uv = _refine(smoothed, uv, ref, fixed, verified, feats, V, opts, shape, pool, report, extend=True)
             counts["extend"] = n_observations(uv)
         times["extend"] = time.perf_counter() - t0
     t0 = time.perf_counter()
