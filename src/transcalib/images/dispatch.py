@@ -5,8 +5,11 @@ Views are grouped by camera orientation (the flange rotations ``rotations``, or 
 epipolar geometry ``F = [e]x`` (:mod:`.session`); a group of one view is a **single view**
 at its own orientation. Images are read and detected once (:mod:`.detect`, two threads);
 the groups are then linked across orientations (:mod:`.link`), so that a point keeps one
-index across every view it is seen in. Without rotations all views are one session,
-today's pure-translation tracker; ``target="squares"`` (or ``method="auto"`` on a scene
+index across every view it is seen in. When **no two views share an orientation** (general
+motion: every group a single view) there is no session to chain along: SIFT keypoints are
+matched in every view pair, verified by a fundamental matrix, joined into tracks and
+aligned by affine Lucas-Kanade (:mod:`.multiview`). Without rotations all views are one
+session, today's pure-translation tracker; ``target="squares"`` (or ``method="auto"`` on a scene
 that is only a board of dark squares) runs the target mode (:mod:`.target`).
 """
 
@@ -61,8 +64,16 @@ def track(
     progress=None,
     rng=0,
 ) -> Tracks:
-    """Track points across images taken by a robot: pure translations, or any mix of
-    pure-translation sessions and single views at other orientations.
+    """Track points across images taken by a robot: pure translations, any mix of
+    pure-translation sessions and single views at other orientations, or views each at
+    its own orientation (general motion).
+
+    General motion (no two views within ``session_tolerance_deg``, or every ``sessions``
+    label used once) runs :func:`.multiview.track_general`: SIFT keypoints are the points
+    tracked (``method`` and ``max_corners`` do not apply), every observation is aligned by
+    affine LK whatever ``refine`` says, ``T`` is not used; ``info.method`` is
+    ``"features (general motion)"``, ``info.pairs`` holds every view pair (``source``
+    ``"fundamental"`` when its ``F`` was verified).
 
     Parameters
     ----------
