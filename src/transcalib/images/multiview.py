@@ -40,7 +40,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .checks import drop_static, keep_tracks
+from .checks import drop_static, keep_tracks, select_spread
 from .detect import Features, match_pair, n_threads
 from .frames import PairInfo
 from .link import MIN_LINK_MATCHES, STATIC_LINK_PX, fundamental
@@ -110,6 +110,11 @@ class GeneralResult:
     time_s: dict
     n_static_dropped: int
     n_conflicting: int
+
+
+#: Before the extension (the costliest step) at most this many times ``max_tracks`` tracks
+#: are kept, the longest first, spread over the image.
+PRESELECT = 2
 
 
 def _verify(feats: list[Features], opts: GeneralOptions, report):
@@ -382,6 +387,8 @@ def track_general(grey: list, feats: list[Features], opts: GeneralOptions, min_v
         fixed = _static_windows(grey, uv, ref, V, opts.window_radius, pool)
         uv = _refine(smoothed, uv, ref, fixed, verified, feats, V, opts, shape, pool, report, extend=False)
         keep = np.isfinite(uv[..., 0]).sum(0) >= 2
+        if max_tracks is not None and keep.sum() > PRESELECT * max_tracks:  # the longest, spread: fewer to extend
+            keep = np.flatnonzero(keep)[select_spread(uv[:, keep], PRESELECT * max_tracks, shape, return_index=True)]
         uv, ref, fixed = uv[:, keep], ref[keep], fixed[:, keep]
         counts["refine"] = n_observations(uv)
         times["refine"] = time.perf_counter() - t0
