@@ -249,7 +249,8 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
 
 
-def _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, min_tracks, max_tracks, report, times) -> Tracks:
+def _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, min_tracks, max_tracks, report,
+                   times) -> Tracks:
     """Every view at its own orientation: SIFT keypoints matched in every pair, joined into
     tracks and aligned by affine LK (:func:`.multiview.track_general`)."""
     t0 = time.perf_counter()

@@ -32,6 +32,7 @@ keypoints (:func:`track_general`):
 
 from __future__ import annotations
 
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -40,10 +41,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .checks import drop_static, keep_tracks, select_spread
+from .checks import drop_static, keep_tracks, n_observations, select_spread
 from .detect import Features, match_pair, n_threads
 from .frames import PairInfo
-from .link import MIN_LINK_MATCHES, STATIC_LINK_PX, fundamental
+from .link import MIN_LINK_MATCHES, STATIC_LINK_PX, _plain, fundamental
 from .local import local_affine, local_linear
 from .refine import SmoothedImages, lk_affine
 
@@ -281,11 +282,8 @@ def _refine(smoothed, uv, ref, fixed, verified, feats, V, opts, shape, pool, rep
             return rv, sel, None
         xa, xb = _pair_points(uv, verified, feats, r, v)
         pred, J, res = local_affine(xa, xb, uv[r, sel], return_residual=True)
-        if extend:
-            s = np.linalg.svd(np.nan_to_num(J), compute_uv=False)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                plain = (res <= 1.0) & (s[:, 0] / s[:, 1] <= 3.5) & (np.linalg.det(np.nan_to_num(J)) > 0)
-            J = np.where(plain[:, None, None], J, np.nan)
+        if extend:  # only where the window maps nearly affinely, as the links across orientations
+            J = np.where(_plain(J, res)[:, None, None], J, np.nan)
             p0 = pred
         else:
             p0 = uv[v, sel]
@@ -363,10 +361,6 @@ def track_general(grey: list, feats: list[Features], opts: GeneralOptions, min_v
     GeneralResult
         ``uv (n_views, n_tracks, 2)`` px, NaN where unseen.
     """
-    import time
-
-    from .checks import n_observations
-
     times, counts = {}, {}
     shape = grey[0].shape[:2]
     n = len(grey)
