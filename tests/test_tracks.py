@@ -326,9 +326,3 @@ def test_one_rotated_view_is_named():
     v = sc.config["rotated_view"]
     with pytest.raises(tracks.RotatedViewsError, match=f"rotated at view\\(s\\) {v}, seen"):
         tracks.track(sc.images)
-
-
-def test_views_all_at_different_orientations_say_what_is_needed():
-    r = render.render_scene("natural", n_views=3, image_size=(160, 120), supersample=1, rng=1)
-    with pytest.raises(DegenerateError, match="at least one session"):
-        tracks.track(r.images, sessions=["a", "b", "c"])
