@@ -44,8 +44,8 @@ from scipy.sparse.csgraph import connected_components
 from .checks import drop_static, keep_tracks, n_observations, select_spread
 from .detect import Features, match_pair, n_threads
 from .frames import PairInfo
-from .link import MIN_LINK_MATCHES, STATIC_LINK_PX, _plain, fundamental
-from .local import local_affine, local_linear
+from .link import MIN_LINK_MATCHES, STATIC_LINK_PX, fundamental
+from .local import local_affine, local_linear, plain_window
 from .refine import SmoothedImages, lk_affine
 
 __all__ = ["GeneralOptions", "GeneralResult", "track_general"]
@@ -283,7 +283,7 @@ def _refine(smoothed, uv, ref, fixed, verified, feats, V, opts, shape, pool, rep
         xa, xb = _pair_points(uv, verified, feats, r, v)
         pred, J, res = local_affine(xa, xb, uv[r, sel], return_residual=True)
         if extend:  # only where the window maps nearly affinely, as the links across orientations
-            J = np.where(_plain(J, res)[:, None, None], J, np.nan)
+            J = np.where(plain_window(J, res)[:, None, None], J, np.nan)
             p0 = pred
         else:
             p0 = uv[v, sel]
