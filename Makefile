@@ -37,6 +37,10 @@ demo: $(STAMP)
 	@echo "== 4. Three sessions: K and the full camera-to-flange transform, no target =="
 	$(BIN)/transcalib calibrate --images examples/sessions3/view*.png --poses examples/sessions3/poses.csv \
 		--unit mm --out out/demo-sessions3 --truth examples/sessions3/truth.json
+	@echo
+	@echo "== 5. Eye-to-hand: a fixed camera watching an object the robot carries (one session + 6 single views) =="
+	$(BIN)/transcalib calibrate --images examples/eye_to_hand/view*.jpg --poses examples/eye_to_hand/poses.csv \
+		--setup eye-to-hand --unit mm --out out/demo-eye-to-hand --truth examples/eye_to_hand/truth.json
 
 test: $(STAMP) chromium
 	$(BIN)/python -m pip freeze --exclude-editable | grep -iE '^(numpy|scipy|opencv-python-headless)=='

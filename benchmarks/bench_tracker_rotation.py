@@ -69,7 +69,7 @@ def decision(images, T=None) -> None:
     grey, _, _ = load_images(images)
     xy = _matches(detect_all(grey, DetectOptions()), opts.ratio, lambda *a: None)
     verify_pairs(xy, len(grey), opts.threshold_px, rng)
-    check_pure_translation(xy, len(grey), opts.threshold_px, rng)
+    check_pure_translation(xy, len(grey), opts.threshold_px, rng, grey=grey)
 
 
 def outcome(images, T=None, rotated_view: int = -1, T_true=None, decision_only: bool = False):

@@ -5,8 +5,11 @@ Views are grouped by camera orientation (the flange rotations ``rotations``, or 
 epipolar geometry ``F = [e]x`` (:mod:`.session`); a group of one view is a **single view**
 at its own orientation. Images are read and detected once (:mod:`.detect`, two threads);
 the groups are then linked across orientations (:mod:`.link`), so that a point keeps one
-index across every view it is seen in. Without rotations all views are one session,
-today's pure-translation tracker; ``target="squares"`` (or ``method="auto"`` on a scene
+index across every view it is seen in. When **no two views share an orientation** (general
+motion: every group a single view) there is no session to chain along: SIFT keypoints are
+matched in every view pair, verified by a fundamental matrix, joined into tracks and
+aligned by affine Lucas-Kanade (:mod:`.multiview`). Without rotations all views are one
+session, today's pure-translation tracker; ``target="squares"`` (or ``method="auto"`` on a scene
 that is only a board of dark squares) runs the target mode (:mod:`.target`).
 """
 
@@ -23,6 +26,7 @@ from .checks import keep_tracks
 from .detect import DetectOptions, detect_all
 from .frames import GroupInfo, PairInfo, TrackInfo, Tracks, load_images, progress_fn
 from .link import link_groups
+from .multiview import GeneralOptions, track_general
 from .propagate import PropagateOptions
 from .refine import RefineOptions
 from .rotation import RotatedViewsError
@@ -60,8 +64,16 @@ def track(
     progress=None,
     rng=0,
 ) -> Tracks:
-    """Track points across images taken by a robot: pure translations, or any mix of
-    pure-translation sessions and single views at other orientations.
+    """Track points across images taken by a robot: pure translations, any mix of
+    pure-translation sessions and single views at other orientations, or views each at
+    its own orientation (general motion).
+
+    General motion (no two views within ``session_tolerance_deg``, or every ``sessions``
+    label used once) runs :func:`.multiview.track_general`: SIFT keypoints are the points
+    tracked (``method`` and ``max_corners`` do not apply), every observation is aligned by
+    affine LK whatever ``refine`` says, ``T`` is not used; ``info.method`` is
+    ``"features (general motion)"``, ``info.pairs`` holds every view pair (``source``
+    ``"fundamental"`` when its ``F`` was verified).
 
     Parameters
     ----------
@@ -187,12 +199,9 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     grey, rgb, names = load_images(images)
     if groups is None:
         groups, labels = [list(range(len(grey)))], ["0"]
-    if max(len(g) for g in groups) < 2:
-        raise DegenerateError(
-            f"the {len(grey)} views all have different orientations (no two within the session tolerance): the "
-            "tracker needs at least one session, 2 or more views taken at one orientation (pure translations), to "
-            "which the other views are linked. Take a few views by translating the robot only, or pass tracks "
-            "made elsewhere (--tracks)")
+    if max(len(g) for g in groups) < 2:  # every view at its own orientation: general motion
+        return _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, min_tracks, max_tracks, report,
+                              {"load": time.perf_counter() - t0})
     times = {"load": time.perf_counter() - t0}
     t0 = time.perf_counter()
     if method == "sift":
@@ -237,6 +246,30 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
                      n_static_dropped=n_static, inconsistent_pairs=tuple(flags[0]), repaired_pairs=tuple(flags[1]),
                      pairs_set_by_translations=tuple(flags[2]), groups=group_info, links=tuple(links),
                      n_shared_points=int((in_groups.sum(0) >= 2).sum()), rotation_tests=tuple(rot))
+    return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
+
+
+def _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, min_tracks, max_tracks, report,
+                   times) -> Tracks:
+    """Every view at its own orientation: SIFT keypoints matched in every pair, joined into
+    tracks and aligned by affine LK (:func:`.multiview.track_general`)."""
+    t0 = time.perf_counter()
+    feats = detect_all(grey, replace(detect, max_corners=0), report)
+    times["detect"] = time.perf_counter() - t0
+    gopts = GeneralOptions(ratio=opts.ratio, threshold_px=opts.threshold_px,
+                           final_threshold_px=opts.final_threshold_px, window_radius=opts.refinement.window_radius,
+                           min_ncc=opts.refinement.min_ncc, max_shift_px=opts.refinement.max_shift_px)
+    res = track_general(grey, feats, gopts, min_views, max_tracks, report)
+    _merge_times(times, res.time_s)
+    uv = res.uv
+    if uv.shape[1] < min_tracks:
+        raise DegenerateError(_too_few_msg(uv.shape[1], res.pairs, min_tracks).replace(
+            "(translations of a few percent of the scene distance)", "(turns of at most 30-45 deg between views)"))
+    group_info = tuple(GroupInfo(label=str(labels[g]), views=tuple(int(v) for v in views), n_tracks=0)
+                       for g, views in enumerate(groups))
+    info = TrackInfo(method="features (general motion)", time_s=times, pairs=res.pairs,
+                     n_observations=res.counts, n_static_dropped=res.n_static_dropped, groups=group_info,
+                     n_shared_points=int((np.isfinite(uv[..., 0]).sum(0) >= 2).sum()))
     return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
 
 

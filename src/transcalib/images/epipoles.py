@@ -367,16 +367,24 @@ def _span_basis(T, tol=COPLANAR_RTOL):
 def _fit_A(epi_list, t_list, scale):
     """Least-squares ``M`` (3, k) with ``e_p x (M b_p) = 0`` for normalised epipoles ``e_p``
     and translation coordinates ``b_p``: DLT, right singular vector."""
-    k = t_list.shape[1]
+    return _fit_A_batch(np.asarray(epi_list, float)[None], np.asarray(t_list, float)[None], scale)[0]
+
+
+def _fit_A_batch(E: np.ndarray, B: np.ndarray, scale: float) -> np.ndarray:
+    """:func:`_fit_A` of ``h`` sets at once: epipoles ``E (h, n, 3)``, translation
+    coordinates ``B (h, n, k)``; ``(h, 3, k)``. Each pair gives the rows
+    ``[e_p]_x (I_3 kron b_p^T)``, i.e. ``[e_p]_x[r, a] b_p[c]`` at column ``a k + c`` of
+    ``vec_row(M)``."""
+    h, n, k = B.shape
     Hn = np.array([1.0 / scale, 1.0 / scale, 1.0])
-    rows = []
-    for e, b in zip(epi_list, t_list):
-        en = e * Hn
-        en = en / np.linalg.norm(en)
-        ex = np.array([[0, -en[2], en[1]], [en[2], 0, -en[0]], [-en[1], en[0], 0]])
-        rows.append(ex @ np.kron(np.eye(3), b[None]))  # M b = (I3 kron b^T) vec_row(M)
-    M = np.linalg.svd(np.vstack(rows))[2][-1].reshape(3, k)
-    return M / Hn[:, None]  # back to pixels: e = Hn^-1 M_n b
+    en = E * Hn
+    en = en / np.linalg.norm(en, axis=-1, keepdims=True)
+    ex = np.zeros((h, n, 3, 3))
+    ex[..., 0, 1], ex[..., 0, 2], ex[..., 1, 2] = -en[..., 2], en[..., 1], -en[..., 0]
+    ex = ex - np.swapaxes(ex, -1, -2)
+    rows = np.einsum("hpra,hpc->hprac", ex, B).reshape(h, n * 3, 3 * k)
+    M = np.linalg.svd(rows)[2][:, -1].reshape(h, 3, k)
+    return M / Hn[None, :, None]  # back to pixels: e = Hn^-1 M_n b
 
 
 def _agrees(e_pred, x, y, inliers, thr, min_fraction=0.8):
@@ -422,8 +430,9 @@ def fit_translations(geo: dict, xy: dict, T: np.ndarray, threshold_px: float, sc
         return geo, []
     coords = {p: B.T @ (np.asarray(T[p[1]], float) - T[p[0]]) for p in geo}
     n_min = int(np.ceil((3 * k - 1) / 2))
-    Ms = np.array([_fit_A([geo[pairs[s]].e for s in sub], np.array([coords[pairs[s]] for s in sub]), scale)
-                   for sub in (rng.choice(len(pairs), n_min, replace=False) for _ in range(trials))])
+    subsets = np.array([rng.choice(len(pairs), n_min, replace=False) for _ in range(trials)])
+    Ms = _fit_A_batch(np.array([geo[p].e for p in pairs])[subsets], np.array([coords[p] for p in pairs])[subsets],
+                      scale)
     score = sum(_support_counts(np.einsum("hak,k->ha", Ms, coords[p]), x, y, threshold_px) for p, (x, y) in xy.items())
     best_M = Ms[int(np.argmax(score))]
     consistent = [p for p in pairs if _agrees(best_M @ coords[p], *xy[p], geo[p].inliers, threshold_px)]

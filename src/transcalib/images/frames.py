@@ -22,7 +22,7 @@ __all__ = ["Tracks", "TrackInfo", "PairInfo", "GroupInfo", "LinkInfo", "load_ima
 
 @dataclass(frozen=True)
 class PairInfo:
-    """One view pair of a session (``views``, global indices, ``a < b``).
+    """One view pair of a session, or of general motion (``views``, global indices, ``a < b``).
 
     Attributes
     ----------
@@ -30,9 +30,10 @@ class PairInfo:
     n_matches : int
         Descriptor matches.
     n_verified : int
-        Of them consistent with the pair's epipole.
+        Of them consistent with the pair's epipole (general motion: its fundamental matrix).
     source : str
-        Where the epipole came from: ``"ransac"``, ``"repaired"``, ``"translations"``, ``"none"``.
+        Where the epipole came from: ``"ransac"``, ``"repaired"``, ``"translations"``, ``"none"``;
+        general motion ``"fundamental"`` (verified by ``F``) or ``"none"``.
     epipole : tuple of 3 float or None
         Unit epipole re-estimated from the refined tracks (signed as ``A (T_b - T_a)``).
     """
@@ -87,12 +88,13 @@ class TrackInfo:
     Attributes
     ----------
     method : str
-        ``"features"``, ``"squares"`` or ``"squares (auto: too few feature tracks)"``.
+        ``"features"``, ``"features (general motion)"`` (no two views at one orientation:
+        :mod:`.multiview`), ``"squares"`` or ``"squares (auto: too few feature tracks)"``.
     time_s : dict str -> float
         Wall time of each stage (``load``, ``detect``, ``match``, ``verify``, ``chain``,
         ``refine``, ``checks``, ``extend``, ``link``), summed over sessions.
     pairs : tuple of PairInfo
-        Every view pair inside a session.
+        Every view pair inside a session (general motion: every view pair).
     n_observations : dict str -> int
         Observations (of tracks in 2+ views) after each stage, summed over sessions.
     n_static_dropped : int

@@ -34,7 +34,7 @@ from .checks import merge_duplicates
 from .detect import match_pair, n_threads
 from .epipoles import pair_epipole, residuals
 from .frames import LinkInfo
-from .local import local_affine
+from .local import local_affine, plain_window
 from .refine import SmoothedImages, lk_affine
 from .resect import affine_structure, infinite_homography, interpolate_w, project_structure, resect, session_camera
 
@@ -152,7 +152,7 @@ def _transfer(smoothed, pairs, x, w, a, b, opts, shape, rng, H=None, rounds: int
         pred = project_structure(P, x[ok], w[ok])
         fin = np.isfinite(pred).all(1)
         _, J, res = local_affine(x[ok][fin], pred[fin], x[todo], return_residual=True)
-        todo, J = todo[_plain(J, res)], J[_plain(J, res)]
+        todo, J = todo[plain_window(J, res)], J[plain_window(J, res)]
         out[todo] = _lk_accept(smoothed, a, b, x[todo], project_structure(P, x[todo], w[todo]), J, opts, shape,
                                opts.refinement.max_shift_px)
         found = np.isfinite(out[:, 0])
@@ -161,24 +161,6 @@ def _transfer(smoothed, pairs, x, w, a, b, opts, shape, rng, H=None, rounds: int
                               opts.threshold_px, rng, H=H)
             P = P if P_new is None else P_new
     return _agree_with_camera(out, x, w, rng, opts.threshold_px, H)
-
-
-#: A transfer is tried only where the window's map is nearly affine (its neighbours'
-#: predictions within this many px of an affine map: no depth discontinuity) ...
-MAX_LOCAL_MISFIT_PX = 1.0
-#: ... and the window is not foreshortened much more in one view than in the other (ratio
-#: of the singular values of the local map; a face seen at a grazing angle).
-MAX_ANISOTROPY = 3.5
-
-
-def _plain(J: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """Where a window can be found across the views: its local map ``J (m, 2, 2)`` is
-    affine (``residual (m,)``), not too anisotropic, and keeps the orientation."""
-    s = np.linalg.svd(np.nan_to_num(J), compute_uv=False)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        aniso = s[:, 0] / s[:, 1]
-    return (np.isfinite(J).all((1, 2)) & (residual <= MAX_LOCAL_MISFIT_PX) & (aniso <= MAX_ANISOTROPY)
-            & (np.linalg.det(np.nan_to_num(J)) > 0))
 
 
 def _agree_with_camera(out, x, w, rng, threshold_px, H):

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["local_median", "local_linear", "local_affine", "detrended"]
+__all__ = ["local_median", "local_linear", "local_affine", "detrended", "plain_window"]
 
 
 def local_median(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k: int = 6) -> np.ndarray:
@@ -165,3 +165,21 @@ def detrended(x: np.ndarray, r: np.ndarray, trusted: np.ndarray, k: int = 10) ->
         return np.abs(r)
     trend = local_linear(x[sel], r[sel], x, k=k)
     return np.nan_to_num(np.abs(r - trend), nan=np.inf)
+
+
+#: A window is searched across views only where its map is nearly affine (its neighbours'
+#: predictions within this many px of an affine map: no depth discontinuity) ...
+MAX_LOCAL_MISFIT_PX = 1.0
+#: ... and the window is not foreshortened much more in one view than in the other (ratio
+#: of the singular values of the local map; a face seen at a grazing angle).
+MAX_ANISOTROPY = 3.5
+
+
+def plain_window(J: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """Where a window can be found across the views: its local map ``J (m, 2, 2)`` is
+    affine (``residual (m,)``), not too anisotropic, and keeps the orientation."""
+    s = np.linalg.svd(np.nan_to_num(J), compute_uv=False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        aniso = s[:, 0] / s[:, 1]
+    return (np.isfinite(J).all((1, 2)) & (residual <= MAX_LOCAL_MISFIT_PX) & (aniso <= MAX_ANISOTROPY)
+            & (np.linalg.det(np.nan_to_num(J)) > 0))

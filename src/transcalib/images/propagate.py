@@ -201,7 +201,8 @@ def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: Prop
                     report("chain", done, steps)
             # static points (the background behind an object the robot carries) go now:
             # they would take the seeds of the moving ones
-            keep = (np.isfinite(obs[..., 0]).sum(0) >= 2) & ~static_tracks(obs)
+            static = static_tracks(np.concatenate([uv, obs], axis=1))[uv.shape[1]:]  # judged among all tracks
+            keep = (np.isfinite(obs[..., 0]).sum(0) >= 2) & ~static
             uv = np.concatenate([uv, obs[:, keep]], axis=1)
     return uv
 
@@ -225,26 +226,21 @@ def static_tracks(uv: np.ndarray, static_px: float = STATIC_PX, factor: float = 
     A static point is consistent with every epipole (``rho = 0``), so the epipolar tests
     pass it; under pure translation only a point at infinity stays put, and it carries no
     information on K (a burnt-in overlay, dust on the lens, the static background behind
-    an object carried by the robot). A track is static when its largest displacement
-    from its reference view is below ``static_px`` while the moving tracks (those moving
-    more than ``static_px``) of the same view pairs move at least ``factor * static_px``
-    (median).
+    an object carried by the robot). A track is static when it moves less than
+    ``static_px`` between every two of its views while the moving tracks (those moving
+    more than ``static_px``) seen in the same two views move at least
+    ``factor * static_px`` (median).
     """
     n_views, n_pts = uv.shape[:2]
-    if n_pts == 0:
-        return np.zeros(0, bool)
     seen = np.isfinite(uv[..., 0])
-    ref = np.argmax(seen, axis=0)
-    disp = np.linalg.norm(uv - uv[ref, np.arange(n_pts)][None], axis=-1)  # (n_views, n_pts), NaN unseen
-    expected = np.zeros(n_pts)
-    for r in range(n_views):
-        mine = ref == r
-        for j in range(n_views):
-            both = mine & seen[j]
-            moving = both & (np.nan_to_num(disp[j]) >= static_px)
-            if j != r and moving.sum() >= 5:
-                expected[both] = np.maximum(expected[both], np.median(disp[j, moving]))
-    moved = np.max(np.where(seen, disp, 0.0), axis=0)
+    moved, expected = np.zeros(n_pts), np.zeros(n_pts)
+    for i in range(n_views):
+        for j in range(i + 1, n_views):
+            both = np.flatnonzero(seen[i] & seen[j])
+            disp = np.linalg.norm(uv[j, both] - uv[i, both], axis=1)
+            moved[both] = np.maximum(moved[both], disp)
+            if (disp >= static_px).sum() >= 5:
+                expected[both] = np.maximum(expected[both], np.median(disp[disp >= static_px]))
     return (moved < static_px) & (expected >= factor * static_px)
 
 

@@ -155,7 +155,7 @@ def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, 
         xy = _matches(feats, opts.ratio, report)
     with timer("verify"):
         geo, inconsistent, repaired = verify_pairs(xy, n, opts.threshold_px, rng, report)
-        rotation = check_pure_translation(xy, n, opts.threshold_px, rng, names)
+        rotation = check_pure_translation(xy, n, opts.threshold_px, rng, names, grey)
         replaced = []
         if T is not None:
             geo, replaced = fit_translations(geo, xy, T, opts.threshold_px, float(max(shape)), rng)
