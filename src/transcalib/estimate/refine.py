@@ -263,11 +263,25 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Cal
     if lens is opts:
         return cal
     a = cal.stats.refine
-    full = fit_refine(uv, T, cal, replace(opts, distortion=cal.dist_model), _counting_on(progress, a.iterations))
+    try:
+        full = fit_refine(uv, T, cal, replace(opts, distortion=cal.dist_model), _counting_on(progress, a.iterations))
+    except DegenerateError:  # the fit breaks down with the robot error where it held without: a misfit
+        return _as_misfit(cal, opts)
     b = full.stats.refine
     both = replace(b, iterations=a.iterations + b.iterations, time_s=a.time_s + b.time_s)
     return replace(full, options=replace(full.options, refinement=opts),
                    stats=replace(full.stats, refine=both, distortion_selection=cal.stats.distortion_selection))
+
+
+def _as_misfit(cal: Calibration, opts: RefineOptions) -> Calibration:
+    """The exact-pose fit ``cal`` of :func:`_fit_auto` as the result of ``opts``: the robot
+    error components to estimate marked ``"misfit"`` (consistency p-value 0)."""
+    re = cal.robot_error
+    if re is not None:
+        estimated = [_robot_given(opts).get(c, 0.0) is None for c in COMPONENTS]
+        re = replace(re, source=tuple("misfit" if e else s for e, s in zip(estimated, re.source)),
+                     consistency_p=np.where(estimated, 0.0, re.consistency_p))
+    return replace(cal, robot_error=re, options=replace(cal.options, refinement=opts))
 
 
 def _counting_on(progress, done: int):
