@@ -471,7 +471,7 @@ def run(args) -> int:
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)  # (1): before importing the numerics
-    import_in_background("scipy.special")  # the numerics' heavy imports, while we read
+    import_in_background("scipy.special", "pyarrow.csv", "pyarrow.compute")  # heavy imports, while we read / track
     note = replacing(plan["out"])
     if note:
         progress.log(note)
