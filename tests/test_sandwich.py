@@ -120,3 +120,68 @@ def test_sandwich_with_robot_error_priors_equals_the_dense_oracle():
     k = [cal.param_names.index(nm) for nm in names]
     got = cal.uncertainty.cov_robust[np.ix_(k, k)]
     assert np.abs(got - oracle).max() / np.abs(oracle).max() < 1e-4
+
+
+def test_noise_free_meat_is_zero_and_the_std_exact():
+    """Exact data: every residual is ~0, so the meat and the sandwich std vanish (the
+    model's too: sigma ~ 0); the result is the model's to the last bit."""
+    sc = simulate.random_scene(30, 5, rng=5)
+    cal = refine(sc.uv, sc.T, estimate_linear(sc.uv, sc.T), options=RefineOptions(distortion="none"))
+    u = cal.uncertainty
+    assert max(u.std_robust[k] for k in ("fx", "fy", "cx", "cy")) < 1e-7
+    assert np.all(np.abs(u.cov_robust) < 1e-12)
+
+
+def _heteroscedastic(seed: int):
+    """A 60-point scene whose pixel noise grows with the distance from the image centre
+    (0.15 + 1.2 (rho / rho_max)^2 px): the points that determine f are the noisy ones."""
+    rng = np.random.default_rng(seed)
+    sc = simulate.random_scene(60, 6, rng=7)
+    uv = simulate.observe(sc, 0.0).uv
+    c = np.array(sc.image_size) / 2 - 0.5
+    rho = np.linalg.norm(uv - c, axis=2, keepdims=True) / np.linalg.norm(c)
+    return sc, uv + rng.normal(size=uv.shape) * (0.15 + 1.2 * rho**2)
+
+
+def test_model_right_sandwich_agrees_with_the_model_within_its_sampling_noise():
+    """White 0.5 px noise, 30 scenes: the sandwich / model variance ratio averages 1 within
+    3 standard errors predicted from the effective dof (``2 / dof`` per trial); the default
+    reports the model's std in (nearly) every trial."""
+    ratios, dofs, robust = [], [], 0
+    for seed in range(30):
+        sc = simulate.random_scene(60, 6, noise_px=0.5, rng=100 + seed)
+        cal = refine(sc.uv, sc.T, estimate_linear(sc.uv, sc.T), options=RefineOptions(distortion="none",
+                                                                                      robot_error=False))
+        u = cal.uncertainty
+        ratios.append((u.std_robust["fx"] / u.std_model["fx"]) ** 2)
+        dofs.append(u.dof["fx"])
+        robust += u.reported["fx"] == "robust"
+        assert cal.std["fx"] == (u.std_robust if u.reported["fx"] == "robust" else u.std_model)["fx"]
+    se = np.sqrt(np.mean(2 / np.array(dofs)) / len(ratios))
+    assert abs(np.mean(ratios) - 1) < 3 * se
+    assert np.std(ratios) < 2 * np.sqrt(np.mean(2 / np.array(dofs)))  # the spread the dof predicts, not more
+    assert robust <= 2
+
+
+def test_heteroscedastic_noise_switches_fx_to_the_sandwich():
+    """Noise growing towards the edges: the model's fx std is too small (by ~2x, measured
+    in bench_sandwich); the sandwich is significantly larger and the default reports it."""
+    sc, uv = _heteroscedastic(1)
+    cal = refine(uv, sc.T, estimate_linear(uv, sc.T), options=RefineOptions(distortion="none", robot_error=False))
+    u = cal.uncertainty
+    assert u.std_robust["fx"] > 1.3 * u.std_model["fx"]
+    assert u.p_value["fx"] < 0.01 and u.reported["fx"] == "robust"
+    assert cal.std["fx"] == pytest.approx(u.std_robust["fx"])
+    k = cal.param_names.index("fx")
+    assert np.sqrt(cal.cov[k, k]) == pytest.approx(u.std_robust["fx"])
+    model = refine(uv, sc.T, estimate_linear(uv, sc.T),
+                   options=RefineOptions(distortion="none", robot_error=False, uncertainty="model"))
+    assert model.std["fx"] == pytest.approx(u.std_model["fx"], rel=1e-9)
+    robust = refine(uv, sc.T, estimate_linear(uv, sc.T),
+                    options=RefineOptions(distortion="none", robot_error=False, uncertainty="robust"))
+    assert np.allclose(robust.cov, u.cov_robust, rtol=1e-9, atol=0)
+
+
+def test_uncertainty_option_validated():
+    with pytest.raises(InputError, match="uncertainty"):
+        RefineOptions(uncertainty="sandwich")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
 import numpy as np
@@ -275,6 +275,14 @@ class Uncertainty:
 
     def __eq__(self, other) -> bool:
         return isinstance(other, Uncertainty) and _same_fields(self, other)
+
+    def scaled(self, c: float) -> "Uncertainty":
+        """Both covariances divided by ``c`` (std by ``sqrt(c)``): a variance correction
+        common to every residual (``pipeline.stages.untruncated``); the test statistics
+        are ratios and stay."""
+        root = float(np.sqrt(c))
+        return replace(self, std_model={k: v / root for k, v in self.std_model.items()},
+                       std_robust={k: v / root for k, v in self.std_robust.items()}, cov_robust=self.cov_robust / c)
 
     __hash__ = None
 
