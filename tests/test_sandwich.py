@@ -146,8 +146,9 @@ def _heteroscedastic(seed: int):
 def test_model_right_sandwich_agrees_with_the_model_within_its_sampling_noise():
     """White 0.5 px noise, 30 scenes: the sandwich / model variance ratio averages 1 within
     3 standard errors predicted from the effective dof (``2 / dof`` per trial); the default
-    reports the model's std in (nearly) every trial."""
+    reports the model's std in all but a few trials (its test at 5 %)."""
     ratios, dofs, robust = [], [], 0
+    robust_fx = lambda u: u.reported["fx"] == "robust"  # noqa: E731
     for seed in range(30):
         sc = simulate.random_scene(60, 6, noise_px=0.5, rng=100 + seed)
         cal = refine(sc.uv, sc.T, estimate_linear(sc.uv, sc.T), options=RefineOptions(distortion="none",
@@ -155,12 +156,12 @@ def test_model_right_sandwich_agrees_with_the_model_within_its_sampling_noise():
         u = cal.uncertainty
         ratios.append((u.std_robust["fx"] / u.std_model["fx"]) ** 2)
         dofs.append(u.dof["fx"])
-        robust += u.reported["fx"] == "robust"
-        assert cal.std["fx"] == (u.std_robust if u.reported["fx"] == "robust" else u.std_model)["fx"]
+        robust += robust_fx(u)
+        assert cal.std["fx"] == pytest.approx((u.std_robust if robust_fx(u) else u.std_model)["fx"], rel=1e-12)
     se = np.sqrt(np.mean(2 / np.array(dofs)) / len(ratios))
     assert abs(np.mean(ratios) - 1) < 3 * se
     assert np.std(ratios) < 2 * np.sqrt(np.mean(2 / np.array(dofs)))  # the spread the dof predicts, not more
-    assert robust <= 2
+    assert robust <= 4  # the test's 5 % level: 1.5 expected
 
 
 def test_heteroscedastic_noise_switches_fx_to_the_sandwich():

@@ -70,7 +70,7 @@ class RansacOptions:
 
 
 #: What ``Calibration.std`` reports (``RefineOptions.uncertainty``).
-UNCERTAINTIES = ("auto", "model", "robust")
+UNCERTAINTIES = ("auto", "model", "robust", "max")
 
 
 @dataclass(frozen=True)
@@ -131,12 +131,13 @@ class RefineOptions:
     estimate_view_rotations : bool or tuple of int
         A rotation per view ``i >= 1`` (True) or per listed view: the model-violation
         alternative used by the rotation test.
-    uncertainty : {"auto", "model", "robust"}
+    uncertainty : {"auto", "model", "robust", "max"}
         What ``Calibration.std`` / ``cov`` report (both are always in
         ``Calibration.uncertainty``): the model-based ``sigma^2 S^-1`` ("model"), the
-        cluster-robust sandwich ("robust"), or per parameter the sandwich where it is
-        significantly larger than the model's (the model misses a misfit), else the
-        model's ("auto", default; docs/uncertainty.md §7).
+        cluster-robust sandwich ("robust"), per parameter the larger ("max"), or per
+        parameter the sandwich where it is significantly (5 %) larger than the model's
+        (the model misses a misfit), else the model's ("auto", default;
+        docs/uncertainty.md §7).
     """
 
     distortion: str = "auto"
