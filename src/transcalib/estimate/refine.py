@@ -676,8 +676,8 @@ def _inlier_observations(pb: _Problem, state: State, thr: float) -> np.ndarray:
 
 #: Level of the per-parameter test with which ``uncertainty="auto"`` reports the sandwich
 #: (its variance significantly above the model's). 5 %: with the model right the reported
-#: std stays within 1.5 % of the model's (the CRB), under misfit the coverage is within
-#: 1-2 points of the sandwich's own (1 %: 2-4 points below; bench_sandwich.py).
+#: RMS std stays within 2 % of the model's (the CRB), under misfit the coverage is within
+#: 0.5-2 points of the sandwich's own (1 %: 2-3 points below; bench_sandwich.py).
 SANDWICH_ALPHA = 0.05
 
 
