@@ -55,6 +55,13 @@ FIRST_SEED = 22500
 def trial(layout: str, s_rot: float, s_pos: float, seed: int) -> dict:
     """Render, write, calibrate through the CLI: errors and reported std per parameter,
     the robot error found, or ``{"failed": why}``."""
+    out = calibrate_render(layout, s_rot, s_pos, seed)
+    return out if isinstance(out, dict) else _row(*out, layout)
+
+
+def calibrate_render(layout: str, s_rot: float, s_pos: float, seed: int):
+    """Render, write, calibrate through the CLI: ``(robot scene, --json summary,
+    hand_eye.json)`` or ``{"failed": why}``."""
     opts = LAYOUTS[layout]
     n_views = opts["session_views"] + opts["single_views"]
     err = sample_errors(n_views, s_rot, s_pos, rng=seed + 7)
@@ -75,7 +82,7 @@ def trial(layout: str, s_rot: float, s_pos: float, seed: int) -> dict:
             he = json.loads((out / "hand_eye.json").read_text())
         except (json.JSONDecodeError, FileNotFoundError):
             return {"failed": (run.stderr.strip().splitlines() or ["?"])[-1]}
-    return _row(r, s, he, layout)
+    return r, s, he
 
 
 def _row(r, s: dict, he: dict, layout: str) -> dict:

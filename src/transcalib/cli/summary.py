@@ -6,7 +6,7 @@ import numpy as np
 
 from ..io.ids import truth_index
 
-__all__ = ["summary_text", "summary_json", "point_errors"]
+__all__ = ["summary_text", "summary_json", "point_errors", "uncertainty_lines"]
 
 
 def _fmt_param(cal, name: str, value: float) -> str:
@@ -77,6 +77,7 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
     n_rec = int(np.isfinite(cal.X[:, 0]).sum())
     lines.append(f"Reprojection RMS: {cal.rms_px:.4f} px; {n_rec} points reconstructed [{unit}]")
     lines += robot_error_lines(cal, unit)
+    lines += uncertainty_lines(cal)
     if cal.inliers is not None:
         tracked, inl = _counts(cal, uv)
         lines.append(f"Inliers: {inl} of {tracked} points seen in 2 or more views")
@@ -117,6 +118,23 @@ def robot_error_lines(cal, unit: str) -> list:
     return lines
 
 
+#: Parameters whose sandwich / model std ratio the summary shows.
+_RATIO_NAMES = ("fx", "fy", "cx", "cy", "rx", "ry", "rz")
+
+
+def uncertainty_lines(cal) -> list:
+    """Which std the summary shows (model-based or sandwich per parameter) and the
+    sandwich / model std ratios; [] without :attr:`Calibration.uncertainty`."""
+    u = cal.uncertainty
+    if u is None:
+        return []
+    names = [k for k in _RATIO_NAMES if k in u.std_model and u.std_model[k] > 0]
+    ratios = ", ".join(f"{k} {u.std_robust[k] / u.std_model[k]:.2f}" for k in names)
+    robust = [k for k, v in u.reported.items() if v == "robust" and not k.startswith("robot")]
+    which = ("model-based" if not robust else "sandwich for " + ", ".join(robust) + ", model-based for the rest")
+    return [f"Uncertainty: std {which}; sandwich / model std: {ratios} (misfit ratio {u.misfit:.2f})"]
+
+
 def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:
     """The machine-readable summary printed by ``--json``."""
     tracked, inl = _counts(cal, uv)
@@ -129,6 +147,7 @@ def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
         "R_cam_world": cal.R, "rms_px": cal.rms_px, "sigma_px": cal.sigma_px,
         "std": {k: v for k, v in cal.std.items() if not k.startswith("robot")},
         "robot_error": _robot_error_json(cal.robot_error),
+        "uncertainty": _uncertainty_json(cal.uncertainty),
         "stages": list(cal.stats.stages),
         "diagnostics": [{"code": getattr(d, "code", ""), "message": str(d)} for d in cal.diagnostics],
         "timings_s": dict(cal.stats.timings_s),
@@ -152,3 +171,12 @@ def _robot_error_json(re) -> dict | None:
             "p_values": {"rot": re.p_values[0], "pos": re.p_values[1]},
             "consistency_p": {"rot": re.consistency_p[0], "pos": re.consistency_p[1]}, "view_rot_deg": re.rot_deg,
             "view_pos": re.pos, "view_rot_std_deg": re.rot_std_deg, "view_pos_std": re.pos_std}
+
+
+def _uncertainty_json(u) -> dict | None:
+    """Both std (robot error columns left out, as in ``std``) and which one ``std`` is."""
+    if u is None:
+        return None
+    keep = lambda m: {k: v for k, v in m.items() if not k.startswith("robot")}  # noqa: E731
+    return {"std_model": keep(u.std_model), "std_robust": keep(u.std_robust), "reported": keep(u.reported),
+            "p_value": keep(u.p_value), "dof": keep(u.dof), "misfit": u.misfit, "n_clusters": u.n_clusters}

@@ -427,3 +427,49 @@ class BundleProblem:
     def apply(self, state: State, step) -> State:
         dg, dX = step
         return state.moved(self.lay, dg, dX)
+
+
+def reduced_rows(state: State, lay: Layout, data: Data, Y: np.ndarray, lo: int, hi: int, ok=None) -> list:
+    """The Schur-reduced Jacobian rows and residuals of the points ``lo <= j < hi``, view
+    by view: the per-point pieces of :func:`reduced_system` that a cluster-robust
+    (sandwich) covariance needs (:func:`transcalib.estimate.covariance.sandwich`).
+
+    With ``P_j = I - J_Xj V_j^-1 J_Xj^T`` the projection that eliminates point j, its
+    observations' reduced rows are ``P_j J_cj``; for observation ``(i, j)``, with
+    ``J_cij (p, 2)`` and ``J_Xij (3, 2)`` the derivatives of its prediction ::
+
+        R_ij = J_cij - Y_j J_Xij        (p x 2,  Y_j = W_j V_j^-1)
+
+    so that ``S_j = sum_i R_ij R_ij^T`` is point j's share of ``S`` and ``g_j = sum_i
+    R_ij r_ij`` its reduced score (``J_cj^T r_j - Y_j J_Xj^T r_j``). Unit weights (the
+    covariance's), no priors.
+
+    Parameters
+    ----------
+    Y : (p, 3, n) float
+        ``W V^-1`` of the reduced system (:attr:`transcalib.estimate.schur.Reduced.Y`).
+    ok : (n,) bool, optional
+        Points that count; the others get zero rows.
+
+    Returns
+    -------
+    list of (R (p, 2, m) float, r (2, m) float px, pts (m,) int)
+        Per view with observations in the block: rows (d pred / d global parameters,
+        reduced), residuals ``uv - pred`` and the points' indices within the block.
+    """
+    part = data.points(lo, hi)
+    sub = replace(state, X=state.X[lo:hi])
+    keep = None if ok is None else ok[lo:hi]
+    out = []
+    for i in range(len(part.pts)):
+        if len(part.pts[i]) == 0:
+            continue
+        r, w, Jg, JX, pts, _ = _view_system(sub, lay, part, i, "linear", 1.0, None)
+        mask = np.ones(len(pts)) if w is None else np.asarray(w, float)
+        if keep is not None:
+            mask = mask * keep[pts]
+        R = np.zeros((lay.size, 2, len(pts)))
+        R[lay.view_columns(i)] = Jg
+        R -= np.einsum("pdm,dkm->pkm", Y[:, :, lo + pts], JX)
+        out.append((R * mask, r * mask, pts))
+    return out

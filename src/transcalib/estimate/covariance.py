@@ -14,19 +14,21 @@ problem does not determine some parameters: :func:`check_identifiable` names the
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, pad_dist
 from ..types import RefineOptions
-from .bundle import BundleProblem, cost, reduced_system
+from .bundle import BundleProblem, cost, reduced_rows, reduced_system
 from .layout import FlangeModel, Layout, State, robot_sigma
 from .observations import build_data
+from .robot_error import COMPONENTS
 from .schur import Reduced
 from .solvers import levenberg_marquardt
 
-__all__ = ["reduced_information", "covariance", "check_identifiable", "crlb", "bound_std", "linearise", "profile_step"]
+__all__ = ["reduced_information", "covariance", "sandwich", "Sandwich", "check_identifiable", "crlb", "bound_std", "linearise", "profile_step"]
 
 #: Relative eigenvalue of the (Jacobi-scaled) reduced information below which a parameter
 #: combination counts as undetermined.
@@ -73,9 +75,21 @@ def check_identifiable(S: np.ndarray, names: tuple, hint="", scale=None) -> tupl
     return evals, evecs * d[:, None]
 
 
+class Covariance(NamedTuple):
+    """:func:`covariance`'s result: ``Sinv (p, p)``, the points' variances ``var_X (n,
+    3)`` (unit noise), the mask ``ok (n,)`` of points that count and the reduced
+    ``system`` it came from (its ``Y`` serves :func:`sandwich`)."""
+
+    Sinv: np.ndarray
+    var_X: np.ndarray
+    ok: np.ndarray
+    system: Reduced
+
+
 def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "", system: Reduced | None = None):
-    """Unscaled covariances at the solution: ``S^-1 (p, p)`` and each point's diagonal
-    ``(n, 3)``, with the mask ``ok`` of points whose covariance exists.
+    """Unscaled covariances at the solution (:class:`Covariance`): ``S^-1 (p, p)`` and
+    each point's diagonal ``(n, 3)``, with the mask ``ok`` of points whose covariance
+    exists.
 
     Observations with weight 0 are left out; so are points left with fewer than 2
     observations or whose 3x3 block is (numerically) singular (variances NaN).
@@ -97,7 +111,7 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "",
     Sinv = _checked_inverse(red, lay, hint)
     var_X = red.point_variances(Sinv)
     var_X[~ok] = np.nan
-    return Sinv, var_X, ok
+    return Covariance(Sinv, var_X, ok, red)
 
 
 def _checked_inverse(red: Reduced, lay: Layout, hint) -> np.ndarray:
@@ -290,3 +304,165 @@ def profile_step(S: np.ndarray, b: np.ndarray, test: np.ndarray, nuisance: np.nd
     cov = np.linalg.pinv(info_t, rcond=1e-13, hermitian=True)
     w = cov @ g
     return w, cov, float(g @ w)
+
+
+# ----------------------------------------------------------------------------------------
+# Cluster-robust (sandwich) covariance
+# ----------------------------------------------------------------------------------------
+
+#: Points per block of :func:`sandwich` (its reduced rows are ``p x 2 n_views`` per point).
+SANDWICH_BLOCK = 2048
+#: Terms of the CR2 series at most, and its relative tolerance (it converges like
+#: ``h^t``, ``h`` a cluster's largest leverage).
+CR2_MAX_TERMS = 200
+CR2_RTOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class Sandwich:
+    """A cluster-robust covariance of the global parameters (:func:`sandwich`).
+
+    Attributes
+    ----------
+    cov : (p, p) float
+        ``S^-1 M S^-1`` in the parameters' own units (px^2 for K; rotations in radians):
+        no ``sigma^2`` factor, the residuals carry the scale.
+    meat : (p, p) float
+        ``M = sum_c g*_c g*_c^T`` over the clusters (points, then each view's priors).
+    dof : (p,) float
+        Satterthwaite's effective degrees of freedom of each diagonal element of ``cov``
+        under the model: ``(sum_c q_ck)^2 / sum_c q_ck^2``, ``q_ck = a_k^T S_c a_k``,
+        ``a_k = S^-1 e_k``. Its relative sampling std is ``sqrt(2 / dof)``.
+    n_clusters : int
+        Points that count plus views with priors.
+    terms : int
+        Terms the CR2 series took (the worst block).
+    """
+
+    cov: np.ndarray
+    meat: np.ndarray
+    dof: np.ndarray
+    n_clusters: int
+    terms: int
+
+
+def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok=None) -> Sandwich:
+    """Cluster-robust covariance ``S^-1 M S^-1`` of the global parameters, clustered by
+    point (and by view for the priors), at the least-squares solution ``state``.
+
+    Each point ``j`` is a cluster: its Schur-reduced score ``g_j = J_cj^T r_j - Y_j
+    J_Xj^T r_j = sum_i R_ij r_ij`` (:func:`transcalib.estimate.bundle.reduced_rows`;
+    ``Y = W V^-1`` of ``red``) carries the point's own parameters profiled out, so its
+    residuals may be correlated along the track and heteroscedastic across points.
+    Each view's priors (robot pose errors, translations: pseudo-observations ``0 = w
+    e_i``, ``w T_i^meas = w T_i``, rows ``w I``) form one more cluster. At the solution
+    the scores (with the priors') sum to zero.
+
+    Small-sample correction (CR2, Bell & McCaffrey 2002): in the reduced model ``r_c =
+    (I - H) e`` the cluster's residuals have covariance ``sigma^2 (I - H_cc)``, so ``g_c``
+    underestimates its spread by the cluster's leverage ``H_cc = R_c S^-1 R_c^T``. With
+
+        g*_c = R_c^T (I - H_cc)^(-1/2) r_c = sum_t b_t (S_c S^-1)^t g_c,
+        b_0 = 1, b_t = b_(t-1) (2t - 1) / (2t)            (the series of (1 - x)^(-1/2))
+
+    ``E[g*_c g*_c^T] = sigma^2 S_c`` exactly when the model holds, so ``E[M] = sigma^2 S``
+    and ``E[cov] = sigma^2 S^-1``: the model's covariance (at a perfect model only the
+    sandwich's own sampling noise, ``dof``, separates the two). ``S_c x = R_c^T (R_c x)``
+    costs ``O(p n_obs)``: no ``p x p`` block per point, O(n) memory, points
+    :data:`SANDWICH_BLOCK` at a time.
+
+    Parameters
+    ----------
+    red : Reduced
+        The reduced system at (or one converging step before) ``state``
+        (:class:`Covariance.system`), unit weights.
+    Sinv : (p, p) float
+        ``S^-1`` of ``red`` (:func:`covariance`).
+    ok : (n,) bool, optional
+        Points that count (:class:`Covariance.ok`).
+
+    Returns
+    -------
+    Sandwich
+    """
+    p = lay.size
+    M, q1, q2 = np.zeros((p, p)), np.zeros(p), np.zeros(p)
+    n_clusters, terms = 0, 0
+    blocks = [reduced_rows(state, lay, data, red.Y, lo, min(lo + SANDWICH_BLOCK, data.n_points), ok)
+              for lo in range(0, data.n_points, SANDWICH_BLOCK)]
+    sizes = [min(SANDWICH_BLOCK, data.n_points - lo) for lo in range(0, data.n_points, SANDWICH_BLOCK)]
+    prior = _prior_rows(state, lay, data)
+    if prior is not None:
+        blocks.append([prior])
+        sizes.append(lay.n_views)
+    for rows, nb in zip(blocks, sizes):
+        G = _cluster_sum(rows, nb, p, lambda R, r, pts: np.einsum("pkm,km->pm", R, r))
+        Gs, t = _cr2(G, rows, Sinv)
+        M += Gs @ Gs.T
+        q = _cluster_sum(rows, nb, p, lambda R, r, pts: np.sum(np.einsum("pkm,pq->qkm", R, Sinv) ** 2, axis=1))
+        q1 += q.sum(axis=1)
+        q2 += np.sum(q * q, axis=1)
+        n_clusters, terms = n_clusters + int(_has_rows(rows, nb).sum()), max(terms, t)
+    M = 0.5 * (M + M.T)
+    dof = q1**2 / np.where(q2 > 0, q2, np.inf)
+    return Sandwich(Sinv @ M @ Sinv, M, dof, n_clusters, terms)
+
+
+def _cluster_sum(rows: list, n: int, p: int, term) -> np.ndarray:
+    """``(p, n)``: per cluster the sum over its row groups of ``term(R, r, pts) (p, m)``
+    (each cluster appears at most once in a group, so ``+=`` on ``pts`` adds)."""
+    out = np.zeros((p, n))
+    for R, r, pts in rows:
+        out[:, pts] += term(R, r, pts)
+    return out
+
+
+def _has_rows(rows: list, n: int) -> np.ndarray:
+    """(n,) bool: clusters with a non-zero row."""
+    out = np.zeros(n, bool)
+    for R, _, pts in rows:
+        out[pts] |= np.any(R != 0, axis=(0, 1))
+    return out
+
+
+def _cr2(G: np.ndarray, rows: list, Sinv: np.ndarray):
+    """CR2-corrected scores ``g*_c = sum_t b_t (S_c S^-1)^t g_c`` of ``G (p, n)`` and the
+    number of terms (:func:`sandwich`). Raises if the series does not converge (a
+    cluster with leverage 1: it alone determines some parameter combination)."""
+    p, n = G.shape
+    out, term = G.copy(), G
+    scale = max(float(np.abs(G).max()), 1e-300)
+    for t in range(1, CR2_MAX_TERMS):
+        X = Sinv @ term
+        term = (2 * t - 1) / (2 * t) * _cluster_sum(
+            rows, n, p, lambda R, r, pts: np.einsum("pkm,km->pm", R, np.einsum("pkm,pm->km", R, X[:, pts])))
+        out += term
+        if np.abs(term).max() <= CR2_RTOL * scale:
+            return out, t
+    raise DegenerateError("the sandwich covariance is not defined: a point (or a view's priors) alone "
+                          "determines some parameter combination (leverage 1)")
+
+
+def _prior_rows(state: State, lay: Layout, data):
+    """The priors as one group of clusters, one per view: ``(R (p, k, V), r (k, V),
+    arange(V))`` with the rows ``w I`` and residuals of the translation priors ``t_w
+    (T^meas - T)`` and robot pose error priors ``w (0 - e)`` (as ``_add_priors``
+    weights them); None without priors."""
+    if not lay.i_T and not lay.robot:
+        return None
+    V = lay.n_views
+    k = 3 * (1 + len(lay.robot))
+    R, r = np.zeros((lay.size, k, V)), np.zeros((k, V))
+    eye = np.arange(3)
+    for i, s in lay.i_T.items():
+        tw = data.t_weight[i]
+        R[s + eye, eye, i] = tw
+        r[eye, i] = tw * (data.T_meas[i] - state.T[i])
+    for c, comp in enumerate(lay.robot):
+        w = data.robot_weight[COMPONENTS.index(comp)]
+        at = 0 if comp == "rot" else 3
+        for i, cols in zip(lay.i_robot, lay.robot_columns(comp)):
+            R[cols, 3 + 3 * c + eye, i] = w
+            e = np.zeros(3) if state.E is None else state.E[i, at: at + 3]
+            r[3 + 3 * c + eye, i] = -w * e
+    return R, r, np.arange(V)

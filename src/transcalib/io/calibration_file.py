@@ -187,10 +187,12 @@ def _estimates_to_json(cal) -> dict:
     """The estimates beside the camera (each None when not estimated): refined
     translations' std, the robot's pose error, view rotations, the flange rotations and
     the hand-eye pose."""
-    vr, he, re = cal.view_rotations, cal.hand_eye, cal.robot_error
+    vr, he, re, un = cal.view_rotations, cal.hand_eye, cal.robot_error, cal.uncertainty
     return _tagged({
         "T_std": cal.T_std,
         "robot_error": None if re is None else {f.name: getattr(re, f.name) for f in fields(re)},
+        "uncertainty": None if un is None else {f.name: (dict(v) if isinstance(v, MappingProxyType) else v)
+                                                for f in fields(un) for v in [getattr(un, f.name)]},
         "view_rotations": None if vr is None else {"deg": vr.deg, "std_deg": vr.std_deg, "chi2": vr.chi2},
         "flange_rotations": cal.flange_rotations,
         "hand_eye": None if he is None else {"setup": he.setup, **{k: np.asarray(getattr(he, k)) for k in
@@ -199,12 +201,13 @@ def _estimates_to_json(cal) -> dict:
 
 
 def _estimates_from_json(doc: dict) -> dict:
-    from ..types import HandEye, RobotError, ViewRotations
+    from ..types import HandEye, RobotError, Uncertainty, ViewRotations
 
     d = _untagged(doc)
-    vr, he, re = d["view_rotations"], d["hand_eye"], d.get("robot_error")
+    vr, he, re, un = d["view_rotations"], d["hand_eye"], d.get("robot_error"), d.get("uncertainty")
     return {"T_std": d["T_std"], "flange_rotations": d["flange_rotations"],
             "robot_error": None if re is None else RobotError(**re),
+            "uncertainty": None if un is None else Uncertainty(**un),
             "view_rotations": None if vr is None else ViewRotations(vr["deg"], vr["std_deg"], vr["chi2"]),
             "hand_eye": None if he is None else HandEye(**{**he, "session_labels": tuple(he["session_labels"]),
                                                            "notes": tuple(he["notes"])})}

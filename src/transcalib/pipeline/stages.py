@@ -139,6 +139,7 @@ def untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
     return replace(cal, sigma_px=float(cal.sigma_px / root), cov=cal.cov / c,
                    std={name: float(v / root) for name, v in cal.std.items()}, X_std=cal.X_std / root,
                    T_std=None if cal.T_std is None else cal.T_std / root,
+                   uncertainty=None if cal.uncertainty is None else cal.uncertainty.scaled(c),
                    stats=replace(cal.stats, sigma_truncation_factor=c))
 
 

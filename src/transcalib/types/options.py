@@ -69,6 +69,10 @@ class RansacOptions:
             raise InputError(f"max_trials must be a positive integer, got {self.max_trials!r}")
 
 
+#: What ``Calibration.std`` reports (``RefineOptions.uncertainty``).
+UNCERTAINTIES = ("auto", "model", "robust", "max")
+
+
 @dataclass(frozen=True)
 class RefineOptions:
     """Options of the maximum-likelihood refinement (the bundle adjuster).
@@ -127,6 +131,13 @@ class RefineOptions:
     estimate_view_rotations : bool or tuple of int
         A rotation per view ``i >= 1`` (True) or per listed view: the model-violation
         alternative used by the rotation test.
+    uncertainty : {"auto", "model", "robust", "max"}
+        What ``Calibration.std`` / ``cov`` report (both are always in
+        ``Calibration.uncertainty``): the model-based ``sigma^2 S^-1`` ("model"), the
+        cluster-robust sandwich ("robust"), per parameter the larger ("max"), or per
+        parameter the sandwich where it is significantly (5 %) larger than the model's
+        (the model misses a misfit), else the model's ("auto", default;
+        docs/uncertainty.md §7).
     """
 
     distortion: str = "auto"
@@ -144,8 +155,11 @@ class RefineOptions:
     robot_error: bool | None = None
     robot_sigma_deg: float | None = None
     robot_sigma_pos: float | None = None
+    uncertainty: str = "auto"
 
     def __post_init__(self):
+        if self.uncertainty not in UNCERTAINTIES:
+            raise InputError(f"uncertainty must be one of {', '.join(UNCERTAINTIES)}, got {self.uncertainty!r}")
         if self.distortion not in ("auto", *DIST_MODELS):
             raise InputError(f"distortion must be 'auto' or one of {', '.join(DIST_MODELS)}, got {self.distortion!r}")
         if self.loss not in LOSSES:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
 import numpy as np
@@ -231,6 +231,63 @@ class ViewRotations:
 
 
 @dataclass(frozen=True, eq=False)
+class Uncertainty:
+    """The model-based and the cluster-robust (sandwich) uncertainty of a refined
+    calibration, and which one :attr:`Calibration.std` reports
+    (:func:`transcalib.estimate.covariance.sandwich`; docs/uncertainty.md §7).
+
+    Attributes
+    ----------
+    std_model : mapping of str to float
+        ``sigma sqrt(diag S^-1)``: exact when the model (white pixel noise of one scale,
+        the robot error model) is right; the Cramér-Rao bound at the truth.
+    std_robust : mapping of str to float
+        ``sqrt(diag(S^-1 M S^-1))`` with ``M`` the CR2-corrected outer products of each
+        point's (and each view's priors') score: valid when pixel errors are correlated
+        along a track or heteroscedastic across points, i.e. under model misfit.
+    cov_robust : (p, p) float
+        The sandwich covariance (names and units as :attr:`Calibration.cov`).
+    dof : mapping of str to float
+        Effective degrees of freedom of each robust variance (its relative std is
+        ``sqrt(2 / dof)``).
+    p_value : mapping of str to float
+        ``P(chi2(dof)/dof >= (std_robust/std_model)^2)``: small when the model-based std
+        is too small for that parameter.
+    reported : mapping of str to str
+        ``"model"`` or ``"robust"``: which one :attr:`Calibration.std` / ``cov`` use.
+    misfit : float
+        ``tr(S^-1 M) / (sigma^2 p)``: 1 in expectation under the model.
+    n_clusters : int
+        Points (and views with priors) whose scores form ``M``.
+    """
+
+    std_model: Mapping
+    std_robust: Mapping
+    cov_robust: np.ndarray
+    dof: Mapping
+    p_value: Mapping
+    reported: Mapping
+    misfit: float
+    n_clusters: int
+
+    def __post_init__(self):
+        _freeze(self, arrays=("cov_robust",), mappings=("std_model", "std_robust", "dof", "p_value", "reported"))
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Uncertainty) and _same_fields(self, other)
+
+    def scaled(self, c: float) -> "Uncertainty":
+        """Both covariances divided by ``c`` (std by ``sqrt(c)``): a variance correction
+        common to every residual (``pipeline.stages.untruncated``); the test statistics
+        are ratios and stay."""
+        root = float(np.sqrt(c))
+        return replace(self, std_model={k: v / root for k, v in self.std_model.items()},
+                       std_robust={k: v / root for k, v in self.std_robust.items()}, cov_robust=self.cov_robust / c)
+
+    __hash__ = None
+
+
+@dataclass(frozen=True, eq=False)
 class RobotError:
     """The robot's pose error as the refinement found it (:attr:`Calibration.robot_error`).
 
@@ -418,6 +475,9 @@ class Calibration:
         The camera relative to the robot (with orientations in the poses).
     robot_error : RobotError or None
         The robot's pose error: its scales and each view's error (refined runs).
+    uncertainty : Uncertainty or None
+        The model-based and the cluster-robust (sandwich) std side by side, and which
+        one ``std`` / ``cov`` report (refined runs).
     options : CalibrateOptions or None
         What the calibration was asked to do.
     stats : CalibrationStats
@@ -445,6 +505,7 @@ class Calibration:
     flange_rotations: np.ndarray | None = None
     hand_eye: HandEye | None = None
     robot_error: RobotError | None = None
+    uncertainty: Uncertainty | None = None
     options: CalibrateOptions | None = None
     stats: CalibrationStats = field(default_factory=CalibrationStats)
     info: Mapping = field(default_factory=dict)
