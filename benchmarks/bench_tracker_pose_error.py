@@ -45,7 +45,6 @@ FIRST_SEED = 23100
 TOL_PX = 0.5
 
 
-
 def measure(r, tracks, views: list) -> dict:
     """Tracks, mean length and share within :data:`TOL_PX` of the truth in ``views``; the
     rotation error of the session's estimated rotations (deg, per axis RMS)."""

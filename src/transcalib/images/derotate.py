@@ -153,15 +153,12 @@ class Lens:
         return self.centre + d / (1.0 + self.lam * (d * d).sum(-1, keepdims=True) / self.s**2)
 
     def distort(self, xu: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`undistort`: the root ``r`` of ``lam r_u r^2 - r + r_u = 0``
-        nearest ``r_u`` (radii in units of ``s``)."""
+        """Inverse of :meth:`undistort`: the root ``r = 2 r_u / (1 + sqrt(1 - 4 lam r_u^2))``
+        of ``lam r_u r^2 - r + r_u = 0`` nearest ``r_u`` (radii in units of ``s``; the form
+        without cancellation for small ``lam``)."""
         d = np.asarray(xu, float) - self.centre
-        ru = np.sqrt((d * d).sum(-1, keepdims=True)) / self.s
-        a = self.lam * ru
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.where(np.abs(a * ru) < 1e-12, ru, (1.0 - np.sqrt(np.maximum(1.0 - 4.0 * a * ru, 0.0))) / (2.0 * a))
-            f = np.where(ru > 0, r / ru, 1.0)
-        return self.centre + d * f
+        ru2 = (d * d).sum(-1, keepdims=True) / self.s**2
+        return self.centre + d * (2.0 / (1.0 + np.sqrt(np.maximum(1.0 - 4.0 * self.lam * ru2, 0.0))))
 
 
 def _apply(H: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ from .propagate import PropagateOptions, Pyramids, predict_missing, propagate
 from .refine import RefineOptions, SmoothedImages, refine_to_reference
 from .rotation import RotationTest, check_pure_translation, general_inliers
 
-__all__ = ["SessionOptions", "SessionResult", "track_session"]
+__all__ = ["SessionOptions", "SessionResult", "track_session", "verify_session"]
 
 
 @dataclass(frozen=True)
@@ -170,15 +170,8 @@ def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, 
     with timer("match"):
         xy = _matches(feats, opts.ratio, report)
     with timer("verify"):
-        general = general_inliers(xy, opts.threshold_px)
-        derot = _derotation(xy, general, T, opts, shape, rng, n)
-        xy_m = derot.pairs_to_model(xy)  # every stage below on model pixels
-        geo, inconsistent, repaired = verify_pairs(xy_m, n, opts.threshold_px, rng, report)
-        rotation = check_pure_translation(xy_m, n, opts.threshold_px, rng, names, grey, general, derot,
-                                          opts.session_tolerance_deg)
-        replaced = []
-        if T is not None:
-            geo, replaced = fit_translations(geo, xy_m, T, opts.threshold_px, float(max(shape)), rng)
+        xy_m, derot, geo, inconsistent, repaired, replaced, rotation = verify_session(xy, grey, opts, rng, report, T,
+                                                                                      names)
     sources = {p: (xy_m[p][0][g.inliers], xy_m[p][1][g.inliers]) for p, g in geo.items()}
     pyr = Pyramids(grey, opts.propagate.window_px, opts.propagate.levels)
     with timer("chain"):
@@ -203,6 +196,26 @@ def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, 
     return SessionResult(uv=uv, geometry=geo, n_matches={p: len(v[0]) for p, v in xy.items()}, epipoles=epi_final,
                          inconsistent=inconsistent, repaired=repaired, set_by_translations=replaced, counts=counts,
                          n_static_dropped=n_static, time_s=timer.times, rotation=rotation, derotation=derot)
+
+
+def verify_session(xy: dict, grey: list, opts: SessionOptions, rng, report=None, T=None, names=None):
+    """Stage 2 (module docstring): the derotation, every pair's epipole, the rotation test.
+
+    Returns ``(xy_m, derotation, geo, inconsistent, repaired, set_by_translations,
+    rotation_test)``, ``xy_m`` the matches in model pixels; raises
+    :class:`~.rotation.RotatedViewsError` where :func:`track_session` would.
+    """
+    n, shape = len(grey), grey[0].shape[:2]
+    general = general_inliers(xy, opts.threshold_px)
+    derot = _derotation(xy, general, T, opts, shape, rng, n)
+    xy_m = derot.pairs_to_model(xy)  # every stage below on model pixels
+    geo, inconsistent, repaired = verify_pairs(xy_m, n, opts.threshold_px, rng, report)
+    rotation = check_pure_translation(xy_m, n, opts.threshold_px, rng, names, grey, general, derot,
+                                      opts.session_tolerance_deg)
+    replaced = []
+    if T is not None:
+        geo, replaced = fit_translations(geo, xy_m, T, opts.threshold_px, float(max(shape)), rng)
+    return xy_m, derot, geo, inconsistent, repaired, replaced, rotation
 
 
 def _derotation(xy, general, T, opts: SessionOptions, shape, rng, n: int) -> Derotation:
