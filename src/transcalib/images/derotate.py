@@ -55,12 +55,25 @@ class RotationOptions:
         on Gaussian residuals).
     inlier_sigmas : float
         A residual within this many sigmas counts as explained (per-view statistics).
+    prior_deg : float
+        Scale of the prior on the rotations: ``sum_i |w_i - mean w|^2 / prior^2`` is added
+        to the cost. The data leave some rotations unseen (over a flat scene, or with 4
+        views, a rotation across the optical axis moves the image like a translation that
+        ``A`` absorbs); the prior keeps those at zero, where the tracker's geometry is the
+        same, while rotations the matches show are estimated (half the 1 deg session
+        tolerance: a rotation the data leave open is not pushed past the tolerance).
+    prior_lam : float
+        Scale of the prior ``lam^2 / prior^2`` on the radial term (a large ``lam`` shrinks
+        every match towards the centre, a degenerate zero-residual fit; real lenses give
+        ``|lam|`` below ~0.1 here).
     """
 
     max_matches_per_pair: int = 150
     iterations: int = 20
     cauchy_c: float = 2.385
     inlier_sigmas: float = 3.0
+    prior_deg: float = 0.5
+    prior_lam: float = 0.1
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +97,9 @@ class Derotation:
         Share of each view's matches within ``inlier_sigmas`` sigmas.
     lens : Lens
         The radial term removed before the derotation (zero when not estimated).
+    std_deg : (n_views,) float or None
+        Standard deviation (degrees) of each view's rotation along its worst-determined
+        axis (from the fit's normal matrix, noise and priors; not systematic errors).
     """
 
     H: np.ndarray
@@ -93,6 +109,7 @@ class Derotation:
     view_rms_px: np.ndarray | None = None
     view_explained: np.ndarray | None = None
     lens: "Lens" = None
+    std_deg: np.ndarray | None = None
 
     @classmethod
     def identity(cls, n_views: int) -> "Derotation":
@@ -121,6 +138,10 @@ class Derotation:
     def uv_to_image(self, uv: np.ndarray) -> np.ndarray:
         """:meth:`to_image` of tracks ``uv (n_views, m, 2)``."""
         return uv if not self.estimated else np.stack([self.to_image(v, uv[v]) for v in range(len(uv))])
+
+    def pairs_to_image(self, xy: dict) -> dict:
+        """Matches in model pixels -> image pixels."""
+        return {p: (self.to_image(p[0], x), self.to_image(p[1], y)) for p, (x, y) in xy.items()}
 
     def pairs_to_model(self, xy: dict) -> dict:
         """Matches ``{(i, j): (x_i, x_j)}`` in model pixels."""
@@ -204,6 +225,9 @@ def residuals(A: np.ndarray, lam: float, omega: np.ndarray, d: _Data) -> np.ndar
     disp = yd - xd
     with np.errstate(divide="ignore", invalid="ignore"):
         r = (dirn[:, 0] * disp[:, 1] - dirn[:, 1] * disp[:, 0]) / np.linalg.norm(dirn, axis=1)
+    # back to image pixels: undistortion scales lengths near y by 1 / (1 + lam r^2), and a
+    # large lam would otherwise shrink every residual (a degenerate fit)
+    r = r * (1.0 + lam * ((d.y - np.asarray(d.centre)) ** 2).sum(1) / d.s**2)
     return np.where(np.linalg.norm(d.y - d.x, axis=1) < MOVING_PX, 0.0, np.nan_to_num(r, nan=1e6))
 
 
@@ -212,53 +236,59 @@ def _unpack(p: np.ndarray, n: int):
     return p[:9].reshape(3, 3), p[9], np.vstack([np.zeros(3), p[10:].reshape(n - 1, 3)])
 
 
-def _jacobian(p: np.ndarray, n: int, d: _Data, mine: list) -> np.ndarray:
-    """``(N, len(p))`` central differences of :func:`residuals` (steps 1e-6 of ``|A|``,
-    1e-6 in ``lam`` and in radians: far above rounding, far below the curvature); a view's
-    rotation only on its own matches ``mine[v]``."""
+def _jacobian(p: np.ndarray, n: int, d: _Data, mine: list, r: np.ndarray) -> np.ndarray:
+    """``(N, len(p))`` forward differences of :func:`residuals` ``r`` at ``p`` (steps 1e-7
+    of ``|A|``, 1e-7 in ``lam`` and in radians: the truncation error, ~1e-7 of a residual's
+    curvature, is far below the noise; Gauss-Newton needs no more); a view's rotation
+    only on its own matches ``mine[v]``."""
     J = np.zeros((len(d.x), len(p)))
-    step = np.r_[np.full(9, 1e-6 * np.linalg.norm(p[:9])), np.full(len(p) - 9, 1e-6)]
+    step = np.r_[np.full(9, 1e-7 * np.linalg.norm(p[:9])), np.full(len(p) - 9, 1e-7)]
     for k in range(len(p)):  # one column per parameter, vectorised over the matches
         idx = mine[1 + (k - 10) // 3] if k >= 10 else slice(None)
         dk = d if k < 10 else d.subset(idx)
         dp = np.zeros_like(p)
         dp[k] = step[k]
-        J[idx, k] = (residuals(*_unpack(p + dp, n), dk) - residuals(*_unpack(p - dp, n), dk)) / (2 * step[k])
+        J[idx, k] = (residuals(*_unpack(p + dp, n), dk) - r[idx]) / step[k]
     return J
 
 
-def _lm(p: np.ndarray, n: int, d: _Data, opts: RotationOptions) -> tuple[np.ndarray, float]:
+def _lm(p: np.ndarray, n: int, d: _Data, opts: RotationOptions):
     """Levenberg-Marquardt with a Cauchy loss (IRLS weights ``1 / (1 + (r / c sigma)^2)``,
-    ``sigma`` the MAD scale of the current residuals). Returns parameters and sigma."""
+    ``sigma`` the MAD scale of the current residuals) and the priors. Returns parameters,
+    sigma and the covariance ``(3 (n - 1), 3 (n - 1))`` of ``w_1 .. w_{n-1}`` (the inverse
+    of the last normal matrix)."""
     mine = [np.flatnonzero((d.vi == v) | (d.vj == v)) for v in range(n)]
     lam = 1e-3
     r = residuals(*_unpack(p, n), d)
     sigma = mad_sigma(r, len(p))
+    P = np.zeros((len(p), len(p)))  # the prior: sum_i |w_i - mean w|^2 (w_0 = 0) / prior^2
+    P[10:, 10:] = np.kron(np.eye(n - 1) - 1.0 / n, np.eye(3)) / np.radians(opts.prior_deg) ** 2
+    P[9, 9] = 1.0 / opts.prior_lam**2  # lam -> infinity shrinks every match to the centre: zero residuals
 
-    def cost(res, s):
-        return float(np.sum(np.log1p((res / (opts.cauchy_c * s)) ** 2)))
+    def cost(res, q, s):  # Cauchy loss of the residuals (in sigmas) + the prior, halved
+        return float(0.5 * opts.cauchy_c**2 * np.sum(np.log1p((res / (opts.cauchy_c * s)) ** 2)) + 0.5 * q @ P @ q)
 
     for _ in range(opts.iterations):
         w = 1.0 / (1.0 + (r / (opts.cauchy_c * sigma)) ** 2)
-        J = _jacobian(p, n, d, mine)
+        J = _jacobian(p, n, d, mine, r)
         Jw = J * w[:, None]
-        N, g = Jw.T @ J, Jw.T @ r
-        c0, improved = cost(r, sigma), False
+        N, g = Jw.T @ J / sigma**2 + P, Jw.T @ r / sigma**2 + P @ p
+        c0, improved = cost(r, p, sigma), False
         for _ in range(8):
             step = -np.linalg.solve(N + lam * np.diag(np.diag(N) + 1e-12 * np.trace(N)), g)
             q = p + step
             q[:9] /= np.linalg.norm(q[:9])
             rq = residuals(*_unpack(q, n), d)
-            if cost(rq, sigma) < c0:
+            if cost(rq, q, sigma) < c0:
                 p, r, lam, improved = q, rq, max(lam / 10, 1e-9), True
                 break
             lam *= 10
         new_sigma = mad_sigma(r, len(p))
-        done = not improved or (np.max(np.abs(step[10:]), initial=0.0) < 1e-7 and abs(new_sigma - sigma) < 1e-3 * sigma)
+        done = not improved or (np.max(np.abs(step[10:]), initial=0.0) < 1e-6 and abs(new_sigma - sigma) < 1e-2 * sigma)
         sigma = new_sigma
-        if done:
+        if done:  # rotations still by < 1e-6 rad (6e-5 deg), the noise scale settled
             break
-    return p, sigma
+    return p, sigma, np.linalg.pinv(N)[10:, 10:]
 
 
 def _pair_data(xy: dict, general: dict, T: np.ndarray, shape, opts: RotationOptions, rng):
@@ -323,13 +353,23 @@ def estimate_rotations(xy: dict, general: dict, T: np.ndarray, threshold_px: flo
     A0 = fit[0] @ fit[1].T
     if abs(np.linalg.det(A0 / np.linalg.norm(A0))) < 1e-9:
         return None
-    p, sigma = _lm(np.r_[(A0 / np.linalg.norm(A0)).ravel(), 0.0, np.zeros(3 * (n - 1))], n, data, opts)
+    p, sigma, cov = _lm(np.r_[(A0 / np.linalg.norm(A0)).ravel(), 0.0, np.zeros(3 * (n - 1))], n, data, opts)
     A, lam, omega = _unpack(p, n)
     return _centred(A, omega, Lens(data.centre, data.s, float(lam)), residuals(A, lam, omega, data), data, sigma,
-                    opts)
+                    opts, _view_std(cov, n))
 
 
-def _centred(A, omega, lens: Lens, r, data: _Data, sigma: float, opts: RotationOptions) -> Derotation:
+def _view_std(cov: np.ndarray, n: int) -> np.ndarray:
+    """``(n,)`` std (radians) of each view's rotation from the mean orientation, along its
+    worst-determined axis: the covariance of ``w_i - mean w`` (``w_0 = 0``), the largest
+    eigenvalue of each 3 x 3 block."""
+    C = np.kron(np.eye(n) - 1.0 / n, np.eye(3))[:, 3:]
+    full = C @ cov @ C.T
+    blocks = np.stack([full[3 * v:3 * v + 3, 3 * v:3 * v + 3] for v in range(n)])
+    return np.sqrt(np.maximum(np.linalg.eigvalsh(blocks)[:, -1], 0.0))
+
+
+def _centred(A, omega, lens: Lens, r, data: _Data, sigma: float, opts: RotationOptions, std) -> Derotation:
     """The result relative to the median orientation ``Q_m``: ``Q_i Q_m^T`` and ``A Q_m^T``
     (``A Q_i^T = (A Q_m^T) (Q_i Q_m^T)^T``), with the per-view residual statistics."""
     n = len(omega)
@@ -345,4 +385,4 @@ def _centred(A, omega, lens: Lens, r, data: _Data, sigma: float, opts: RotationO
             share[v] = ok[mine].mean()
             rms[v] = np.sqrt(np.mean(r[mine & ok] ** 2)) if (mine & ok).any() else np.nan
     return Derotation(H=_homographies(Ac, omega_c), omega=omega_c, A=Ac / np.linalg.norm(Ac), sigma_px=float(sigma),
-                      view_rms_px=rms, view_explained=share, lens=lens)
+                      view_rms_px=rms, view_explained=share, lens=lens, std_deg=np.degrees(std))

@@ -122,12 +122,16 @@ class RotationTest:
         empty when not estimated: no robot positions, or translations not spanning 3-D).
     tolerance_deg : float
         The session tolerance the angles were judged against (NaN when not estimated).
+    image_pairs : tuple of PairRotationTest
+        With estimated rotations, the pairs' test on the matches as imaged (not
+        derotated); empty otherwise.
     """
 
     pairs: tuple
     rotated_views: tuple
     angles_deg: tuple = ()
     tolerance_deg: float = float("nan")
+    image_pairs: tuple = ()
 
     @property
     def n_tested(self) -> int:
@@ -242,25 +246,38 @@ def rotation_test(xy: dict, n_views: int, threshold_px: float, rng, grey=None, g
     ``grey`` the views (list of ``(h, w)`` arrays; None: no twins).
 
     With a ``derotation`` (:class:`~.derotate.Derotation`, estimated) ``xy`` are the
-    derotated matches, ``general`` the general ``F``'s inliers of each pair, and a view
-    is also rotated when its estimated rotation exceeds ``tolerance_deg``.
+    derotated matches, ``general`` the general ``F``'s inliers of each pair; a view is
+    rotated when the derotated pairs flag it (residuals the rotations do not explain), or
+    when its estimated rotation exceeds ``tolerance_deg`` **and** the pairs as imaged
+    flag it (an angle alone refuses nothing: on flat scenes seen from few views the fit
+    can find rotations the matches do not show, measured on
+    ``benchmarks/bench_tracker_rotation.py``'s scenes).
     """
     general = general or {}
-    maps = (lambda p: None) if derotation is None or not derotation.estimated else (
+    est = derotation is not None and derotation.estimated
+    maps = (lambda p: None) if not est else (
         lambda p: (lambda x: derotation.to_image(p[0], x), lambda x: derotation.to_image(p[1], x)))
-    pairs = tuple(pair_test(x, y, threshold_px, rng, views=p, images=None if grey is None else (grey[p[0]], grey[p[1]]),
-                            general=general.get(p), to_image=maps(p))
-                  for p, (x, y) in xy.items())
-    rotated, need = [], min(2, n_views - 1)
-    angles = derotation.angles_deg() if derotation is not None and derotation.estimated else None
-    for v in range(n_views):
-        mine = [p for p in pairs if v in p.views and p.tested]
-        n_flagged = sum(p.flagged for p in mine)
-        if (n_flagged >= need and n_flagged > len(mine) / 2) or (angles is not None and angles[v] > tolerance_deg):
-            rotated.append(v)
+
+    def tests(matches, to_image):
+        return tuple(pair_test(x, y, threshold_px, rng, views=p, general=general.get(p), to_image=to_image(p),
+                               images=None if grey is None else (grey[p[0]], grey[p[1]]))
+                     for p, (x, y) in matches.items())
+
+    pairs = tests(xy, maps)
+    image_pairs = tests(derotation.pairs_to_image(xy), lambda p: None) if est else ()
+    angles = derotation.angles_deg() if est else None
+    rotated = [v for v in range(n_views) if _flagged_view(pairs, v, n_views)
+               or (est and angles[v] > tolerance_deg and _flagged_view(image_pairs, v, n_views))]
     return RotationTest(pairs=pairs, rotated_views=tuple(rotated),
                         angles_deg=() if angles is None else tuple(float(a) for a in angles),
-                        tolerance_deg=float(tolerance_deg) if angles is not None else float("nan"))
+                        tolerance_deg=float(tolerance_deg) if est else float("nan"), image_pairs=image_pairs)
+
+
+def _flagged_view(pairs: tuple, v: int, n_views: int) -> bool:
+    """More than half of view ``v``'s tested pairs flagged, and at least 2 (1 with 2 views)."""
+    mine = [p for p in pairs if v in p.views and p.tested]
+    n_flagged = sum(p.flagged for p in mine)
+    return n_flagged >= min(2, n_views - 1) and n_flagged > len(mine) / 2
 
 
 def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, names=None, grey=None, general=None,

@@ -33,7 +33,7 @@ from .detect import Features, match_pair, n_threads
 from .epipoles import PairGeometry, fit_translations, verify_pairs
 from .propagate import PropagateOptions, Pyramids, predict_missing, propagate
 from .refine import RefineOptions, SmoothedImages, refine_to_reference
-from .rotation import RotationTest, check_pure_translation, general_inliers
+from .rotation import RotationTest, _explained, check_pure_translation, general_inliers
 
 __all__ = ["SessionOptions", "SessionResult", "track_session", "verify_session"]
 
@@ -224,7 +224,23 @@ def _derotation(xy, general, T, opts: SessionOptions, shape, rng, n: int) -> Der
     est = None
     if T is not None and opts.derotate:
         est = estimate_rotations(xy, general, T, opts.threshold_px, shape, rng, opts.rotations)
-    return est if est is not None else Derotation.identity(n)
+    if est is None or not _explains_more(xy, general, est, opts.threshold_px, rng):
+        return Derotation.identity(n)
+    return est
+
+
+def _explains_more(xy: dict, general: dict, derot: Derotation, threshold_px: float, rng) -> bool:
+    """Whether the derotated matches are explained by pure translations (each pair's
+    general-``F`` inliers within ``threshold_px`` of its own epipole's lines) at least as
+    often as the matches themselves: the rotations are used only when they explain the
+    images better than none (on flat scenes with few views, repetitive textures, a wrong
+    start of ``A``, the fit can find rotations that the matches do not support)."""
+    n_image = n_model = 0
+    for p, S in general.items():
+        x, y = xy[p][0][S], xy[p][1][S]
+        n_image += _explained(x, y, threshold_px, rng) * len(x)
+        n_model += _explained(derot.to_model(p[0], x), derot.to_model(p[1], y), threshold_px, rng) * len(x)
+    return bool(np.isfinite(derot.sigma_px) and abs(derot.lens.lam) < 0.5 and n_model >= n_image)
 
 
 def _extend(smoothed, uv, epi, opts: SessionOptions, thr, counts, derot: Derotation):
