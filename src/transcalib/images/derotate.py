@@ -187,7 +187,8 @@ def _apply(H: np.ndarray, x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, float)
     xh = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], axis=-1)
     y = xh @ H.T if H.ndim == 2 else np.einsum("mab,mb->ma", H, xh)
-    return y[..., :2] / y[..., 2:3]
+    with np.errstate(divide="ignore", invalid="ignore"):  # unseen (NaN) points stay NaN
+        return y[..., :2] / y[..., 2:3]
 
 
 # --------------------------------------------------------------------------- the fit
