@@ -56,20 +56,18 @@ def named(tracks, T, view: int) -> bool:
 
 
 def decision(images, T=None) -> None:
-    """The tracker's stages up to its rotation test (detection, matching, epipoles, the
-    test), which raises :class:`RotatedViewsError` where ``track`` would: the refusal
-    decision alone, at about 40 % of the cost of tracking."""
+    """The tracker's stages up to its rotation test (detection, matching, with ``T`` the
+    views' rotations, epipoles, the test: ``session.verify_session``), which raises
+    :class:`RotatedViewsError` where ``track`` would: the refusal decision alone, at about
+    40 % of the cost of tracking."""
     from transcalib.images.detect import DetectOptions, detect_all
-    from transcalib.images.epipoles import verify_pairs
     from transcalib.images.frames import load_images
-    from transcalib.images.rotation import check_pure_translation
-    from transcalib.images.session import SessionOptions, _matches
+    from transcalib.images.session import SessionOptions, _matches, verify_session
 
     opts, rng = SessionOptions(), np.random.default_rng(0)
     grey, _, _ = load_images(images)
     xy = _matches(detect_all(grey, DetectOptions()), opts.ratio, lambda *a: None)
-    verify_pairs(xy, len(grey), opts.threshold_px, rng)
-    check_pure_translation(xy, len(grey), opts.threshold_px, rng, grey=grey)
+    verify_session(xy, grey, opts, rng, T=T)
 
 
 def outcome(images, T=None, rotated_view: int = -1, T_true=None, decision_only: bool = False):

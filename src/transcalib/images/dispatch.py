@@ -162,7 +162,7 @@ def track(
     T = _check_T(T, n_images)
     groups, labels = _groups(rotations, sessions, n_images, session_tolerance_deg)
     opts = SessionOptions(ratio=ratio, threshold_px=threshold_px, final_threshold_px=final_threshold_px,
-                          smooth_px=smooth_px, refine=refine,
+                          smooth_px=smooth_px, refine=refine, session_tolerance_deg=session_tolerance_deg,
                           propagate=PropagateOptions(threshold_px=threshold_px,
                                                      max_seeds=2000 if max_tracks is None else int(1.3 * max_tracks)),
                           refinement=RefineOptions(window_radius=window_radius, min_ncc=min_ncc))
@@ -211,11 +211,12 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
         feats = [replace(f, corners=f.keypoints) for f in feats]
     times["detect"] = time.perf_counter() - t0
     shape = grey[0].shape[:2]
-    per, epis, info_pairs, counts, n_static, flags, rot = [], [], [], {}, 0, ([], [], []), []
+    per, epis, derots, info_pairs, counts, n_static, flags, rot = [], [], [], [], {}, 0, ([], [], []), []
     for g, views in enumerate(groups):
         if len(views) < 2:
             per.append(None)
             epis.append(None)
+            derots.append(None)
             continue
         res = track_session([grey[v] for v in views], [feats[v] for v in views], opts, rng,
                             _prefixed(report, labels[g], len(groups)), T=None if T is None else T[views],
@@ -223,6 +224,7 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
         uv = keep_tracks(res.uv, min_views, max_tracks, shape)
         per.append(uv)
         epis.append(res.epipoles)
+        derots.append(res.derotation)
         rot.append(res.rotation)
         _merge_times(times, res.time_s)
         for k, v in res.counts.items():
@@ -233,14 +235,12 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
             lst += [(views[a], views[b]) for a, b in src]
     t0 = time.perf_counter()
     uv, links = link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=T,
-                            rotations=None if rotations is None else np.asarray(rotations, float))
+                            rotations=None if rotations is None else np.asarray(rotations, float), derotations=derots)
     times["link"] = time.perf_counter() - t0
     uv = uv[:, np.isfinite(uv[..., 0]).sum(0) >= min_views]
     if uv.shape[1] < min_tracks:
         raise DegenerateError(_too_few_msg(uv.shape[1], info_pairs, min_tracks))
-    group_info = tuple(GroupInfo(label=str(labels[g]), views=tuple(int(v) for v in views),
-                                 n_tracks=0 if per[g] is None else int(per[g].shape[1]))
-                       for g, views in enumerate(groups))
+    group_info = tuple(_group_info(labels[g], views, per[g], derots[g]) for g, views in enumerate(groups))
     in_groups = np.array([np.isfinite(uv[views, :, 0]).any(axis=0) for views in groups])
     info = TrackInfo(method="features", time_s=times, pairs=tuple(info_pairs), n_observations=counts,
                      n_static_dropped=n_static, inconsistent_pairs=tuple(flags[0]), repaired_pairs=tuple(flags[1]),
@@ -271,6 +271,14 @@ def _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, mi
                      n_observations=res.counts, n_static_dropped=res.n_static_dropped, groups=group_info,
                      n_shared_points=int((np.isfinite(uv[..., 0]).sum(0) >= 2).sum()))
     return Tracks(uv=uv, ids=np.arange(uv.shape[1]), colors=_colors(rgb, uv), view_names=names, info=info)
+
+
+def _group_info(label, views, uv, derot) -> GroupInfo:
+    """The :class:`GroupInfo` of one group, with its views' estimated rotations (degrees)."""
+    est = derot is not None and derot.estimated
+    return GroupInfo(label=str(label), views=tuple(int(v) for v in views), n_tracks=0 if uv is None else int(uv.shape[1]),
+                     rotations_deg=tuple(tuple(float(c) for c in np.degrees(w)) for w in derot.omega) if est else (),
+                     sigma_px=derot.sigma_px if est else float("nan"))
 
 
 def _prefixed(report, label, n_groups):

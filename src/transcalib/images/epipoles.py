@@ -33,7 +33,7 @@ from ..validate import COPLANAR_RTOL
 from .local import detrended
 
 __all__ = ["epipole_ransac", "PairGeometry", "verify_pairs", "pair_epipole", "residuals", "signed_distance",
-           "direction", "fit_translations", "MOVING_PX"]
+           "direction", "fit_translations", "robust_A", "MOVING_PX"]
 
 log = logging.getLogger("transcalib.tracks")
 
@@ -411,38 +411,61 @@ def _support_counts(E: np.ndarray, x: np.ndarray, y: np.ndarray, thr: float) -> 
     return np.maximum((on & ((along > 0) | ~moving)).sum(1), (on & ((along < 0) | ~moving)).sum(1))
 
 
+def robust_A(epi: dict, xy: dict, T: np.ndarray, threshold_px: float, scale: float, rng, inliers: dict,
+             trials: int = 200) -> tuple[np.ndarray, np.ndarray, list] | None:
+    """The robust fit of ``e_ij ~ M B^T (T_j - T_i)`` (``A = M B^T`` on the span ``B (3, k)``
+    of the translations) to the pairs' epipoles ``epi {(i, j): e (3,)}``.
+
+    Hypotheses from random minimal sets of pairs (DLT, :func:`_fit_A_batch`) are scored by
+    the matches ``xy`` of **all** pairs that their predicted epipoles explain (within
+    ``threshold_px``, either sign); the best is refitted on the pairs whose own inliers it
+    explains (:func:`_agrees`; ``inliers {(i, j): (m,) bool}`` the pairs' own inliers).
+
+    Returns
+    -------
+    (M (3, k), B (3, k), consistent pairs), or None (translations spanning less than a
+    plane, or too few pairs).
+    """
+    B = _span_basis(T)
+    k = B.shape[1]
+    pairs = sorted(p for p, e in epi.items() if e is not None)
+    if k < 2 or len(pairs) < k + 2:
+        return None
+    coords = {p: B.T @ (np.asarray(T[p[1]], float) - T[p[0]]) for p in xy}
+    n_min = int(np.ceil((3 * k - 1) / 2))
+    subsets = np.array([rng.choice(len(pairs), n_min, replace=False) for _ in range(trials)])
+    Ms = _fit_A_batch(np.array([epi[p] for p in pairs])[subsets], np.array([coords[p] for p in pairs])[subsets],
+                      scale)
+    score = sum(_support_counts(np.einsum("hak,k->ha", Ms, coords[p]), x, y, threshold_px) for p, (x, y) in xy.items())
+    best_M = Ms[int(np.argmax(score))]
+    consistent = [p for p in pairs if _agrees(best_M @ coords[p], *xy[p], inliers[p], threshold_px)]
+    if len(consistent) >= n_min:
+        best_M = _fit_A([epi[p] for p in consistent], np.array([coords[p] for p in consistent]), scale)
+    return best_M, B, consistent
+
+
 def fit_translations(geo: dict, xy: dict, T: np.ndarray, threshold_px: float, scale: float, rng,
                      trials: int = 200) -> tuple[dict, list]:
     """Known robot translations: every epipole is ``e_ij ~ A (T_j - T_i)`` with one ``A = K R``.
 
     ``A`` (restricted to the span of the translations) is fitted robustly to the pairs'
-    epipoles, a hypothesis scored by the matches of **all** pairs that its predicted
-    epipoles explain; pairs whose own epipole disagrees (a repetitive texture can make a
-    wrong epipole win a pair, consistently for one view, which the triplet test cannot
-    see) get the predicted epipole and its inliers.
+    epipoles (:func:`robust_A`), a hypothesis scored by the matches of **all** pairs that
+    its predicted epipoles explain; pairs whose own epipole disagrees (a repetitive
+    texture can make a wrong epipole win a pair, consistently for one view, which the
+    triplet test cannot see) get the predicted epipole and its inliers.
 
     Returns the updated ``geo`` and the pairs replaced.
     """
-    B = _span_basis(T)
-    k = B.shape[1]
-    pairs = sorted(p for p, g in geo.items() if g.e is not None)
-    if k < 2 or len(pairs) < k + 2:
+    fit = robust_A({p: g.e for p, g in geo.items() if g.e is not None}, xy, T, threshold_px, scale, rng,
+                   {p: g.inliers for p, g in geo.items()}, trials)
+    if fit is None:
         return geo, []
-    coords = {p: B.T @ (np.asarray(T[p[1]], float) - T[p[0]]) for p in geo}
-    n_min = int(np.ceil((3 * k - 1) / 2))
-    subsets = np.array([rng.choice(len(pairs), n_min, replace=False) for _ in range(trials)])
-    Ms = _fit_A_batch(np.array([geo[p].e for p in pairs])[subsets], np.array([coords[p] for p in pairs])[subsets],
-                      scale)
-    score = sum(_support_counts(np.einsum("hak,k->ha", Ms, coords[p]), x, y, threshold_px) for p, (x, y) in xy.items())
-    best_M = Ms[int(np.argmax(score))]
-    consistent = [p for p in pairs if _agrees(best_M @ coords[p], *xy[p], geo[p].inliers, threshold_px)]
-    if len(consistent) >= n_min:
-        best_M = _fit_A([geo[p].e for p in consistent], np.array([coords[p] for p in consistent]), scale)
+    best_M, B, consistent = fit
     out, replaced = dict(geo), []
     for p, (x, y) in xy.items():
         if p in consistent:
             continue
-        e = best_M @ coords[p]
+        e = best_M @ (B.T @ (np.asarray(T[p[1]], float) - T[p[0]]))
         e = e / np.linalg.norm(e)
         inl_pos, inl_neg = _support(e, x, y, threshold_px), _support(-e, x, y, threshold_px)
         e, inl = (e, inl_pos) if inl_pos.sum() >= inl_neg.sum() else (-e, inl_neg)

@@ -55,11 +55,27 @@ class GroupInfo:
     views : tuple of int
     n_tracks : int
         Tracks of the session alone (0 for a single view).
+    rotations_deg : tuple of (float, float, float)
+        A session's views' small rotations (the robot's orientation error), estimated from
+        the images with the robot positions (:mod:`.derotate`): rotation vectors in
+        degrees, robot base frame, from the session's median orientation, one per view of
+        ``views``; empty when not estimated (a single view, no ``T``, translations not
+        spanning 3-D).
+    sigma_px : float
+        Robust scale (px) of the derotated epipolar distances of the descriptor matches
+        (NaN when the rotations were not estimated).
     """
 
     label: str
     views: tuple
     n_tracks: int
+    rotations_deg: tuple = ()
+    sigma_px: float = float("nan")
+
+    @property
+    def angles_deg(self) -> tuple:
+        """Each view's rotation angle (degrees) from the session's median orientation."""
+        return tuple(float(np.linalg.norm(w)) for w in self.rotations_deg)
 
 
 @dataclass(frozen=True)

@@ -212,7 +212,7 @@ def _by_support(uv, views):
     return sorted(views, key=lambda v: -int(np.isfinite(uv[v, :, 0]).sum()))
 
 
-def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=None, rotations=None):
+def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=None, rotations=None, derotations=None):
     """One ``uv (n_views, n_points, 2)`` over all views from the sessions' tracks, linked
     across orientations (module docstring).
 
@@ -235,6 +235,9 @@ def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=Non
         Flange positions and rotations: with both, each session's camera (its linear
         estimate) and the flange rotations predict the infinite homography to every other
         view (:func:`~.resect.infinite_homography`), a hint for the resection.
+    derotations : list of Derotation or None, optional
+        Each session's map from image to model pixels (:mod:`.derotate`), where its
+        epipoles ``epis`` hold (None: the identity).
 
     Returns
     -------
@@ -265,21 +268,27 @@ def link_groups(grey, feats, groups, labels, per, epis, opts, rng, report, T=Non
         smoothed[v]
     with ThreadPoolExecutor(n_threads()) as pool:
         _link_steps(uv, owner, steps, groups, per, epis, cams, rotations, smoothed, pairs, opts, shape, rng, report,
-                    pool)
+                    pool, derotations or [None] * len(groups))
     uv = merge_duplicates(uv, min_shared=2)  # one common view is no evidence of one point
     return uv, _link_infos(uv, groups, labels, pairs)
 
 
-def _link_steps(uv, owner, steps, groups, per, epis, cams, rotations, smoothed, pairs, opts, shape, rng, report, pool):
+def _link_steps(uv, owner, steps, groups, per, epis, cams, rotations, smoothed, pairs, opts, shape, rng, report, pool,
+                derots):
     """The points of session ``A`` found in the views of group ``B``, for every step
-    ``(A, B)``, written into ``uv`` (the views of ``B`` on the threads of ``pool``)."""
+    ``(A, B)``, written into ``uv`` (the views of ``B`` on the threads of ``pool``); the
+    sessions' epipolar geometry judged in their model pixels (``derots``)."""
+
+    def model(g, uvg):
+        return uvg if derots[g] is None else derots[g].uv_to_model(uvg)
+
     for k, (A, B) in enumerate(steps):
         pts = np.flatnonzero(owner == A)
         a1 = _by_support(uv[:, pts], groups[A])[0]
         # points seen in 3+ views of A (when it has them): their depth is checked in several views
         need = min(3, len(groups[A]))
         in_a1 = np.flatnonzero(np.isfinite(uv[a1, pts, 0]) & (np.isfinite(uv[groups[A]][:, pts, 0]).sum(0) >= need))
-        w = affine_structure(uv[groups[A]][:, pts], epis[A] or {}, groups[A].index(a1), in_a1)
+        w = affine_structure(model(A, uv[groups[A]][:, pts]), epis[A] or {}, groups[A].index(a1), in_a1)
         found = np.full((len(groups[B]), len(pts), 2), np.nan)
 
         def into(b, seed, A=A, a1=a1, pts=pts, in_a1=in_a1, w=w):
@@ -292,7 +301,7 @@ def _link_steps(uv, owner, steps, groups, per, epis, cams, rotations, smoothed, 
         for bi, (sel, got) in enumerate(pool.map(into, groups[B], seeds)):
             found[bi, in_a1[sel]] = got
         if len(groups[B]) > 1:
-            keep = _consistent_in_session(found, epis[B] or {}, opts.threshold_px)
+            keep = _consistent_in_session(model(B, found), epis[B] or {}, opts.threshold_px)
             found[~keep] = np.nan
         for bi, b in enumerate(groups[B]):
             new = np.isfinite(found[bi, :, 0])

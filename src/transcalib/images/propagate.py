@@ -96,10 +96,16 @@ def _lk(pyr: Pyramids, a: int, b: int, pts: np.ndarray, guess: np.ndarray, level
     return found, st.ravel().astype(bool) & np.all(np.isfinite(found), axis=1)
 
 
-def _follow(pyr, r, j, seeds, sources, e, static, opts, shape):
-    """Search ``seeds`` of view ``r`` in view ``j``: ``(m, 2)`` positions, NaN where not found.
+def _identity(v, x):
+    return x
 
-    ``sources``: ``(x_r (k, 2), x_j (k, 2))`` verified correspondences of the pair.
+
+def _follow(pyr, r, j, seeds, sources, e, static, opts, shape, to_model=_identity, to_image=_identity):
+    """Search ``seeds`` of view ``r`` in view ``j``: ``(m, 2)`` image positions, NaN where not found.
+
+    ``sources``: ``(x_r (k, 2), x_j (k, 2))`` verified correspondences of the pair, in
+    model pixels (derotated: :class:`~.derotate.Derotation`), where ``e`` holds;
+    ``to_model(view, x)``, ``to_image(view, x)`` map between the two.
     """
     h, w = shape
     out = np.full(seeds.shape, np.nan)
@@ -111,31 +117,33 @@ def _follow(pyr, r, j, seeds, sources, e, static, opts, shape):
         return out
     if e is None or len(src_r) < 4 or len(seeds) == 0:
         return out
-    d_near = cKDTree(src_r).query(seeds)[0]
+    seeds_m = to_model(r, seeds)
+    d_near = cKDTree(src_r).query(seeds_m)[0]
     order = np.argsort(d_near, kind="stable")
     # far from every source (a checkerboard without descriptor matches): step by step
     rounds = opts.rounds if np.median(d_near) > 3 * opts.window_px else 1
     for batch in np.array_split(order, max(1, min(rounds, len(seeds) // 50 + 1))):
-        x = seeds[batch]
+        x = seeds_m[batch]
         _, rho_src = residuals(e, src_r, src_j)
         # the neighbours' inverse depth and their trend of epipolar distances (lens distortion)
         fit = local_linear(src_r, np.column_stack([rho_src, signed_distance(e, src_r, src_j)]), x, k=10)
         rho, trend = fit[:, 0], fit[:, 1]
-        pred = x + np.nan_to_num(rho, nan=0.0)[:, None] * direction(e, x)
+        pred = to_image(j, x + np.nan_to_num(rho, nan=0.0)[:, None] * direction(e, x))
         inside = (np.isfinite(rho) & (pred[:, 0] >= 0) & (pred[:, 0] <= w - 1) & (pred[:, 1] >= 0)
                   & (pred[:, 1] <= h - 1))
-        found, ok = _lk(pyr, r, j, x[inside], pred[inside], pyr.levels)
-        back, okb = _lk(pyr, j, r, found, x[inside], pyr.levels)
-        ok &= okb & (np.linalg.norm(back - x[inside], axis=1) < opts.fb_px)
+        x_img = seeds[batch][inside]
+        found, ok = _lk(pyr, r, j, x_img, pred[inside], pyr.levels)
+        back, okb = _lk(pyr, j, r, found, x_img, pyr.levels)
+        ok &= okb & (np.linalg.norm(back - x_img, axis=1) < opts.fb_px)
         idx = np.flatnonzero(inside)[ok]
         if len(idx) == 0:
             continue
-        xi, yj = x[idx], found[ok]
+        xi, yj, yj_img = x[idx], to_model(j, found[ok]), found[ok]
         _, rho_f = residuals(e, xi, yj)
         dev = np.abs(signed_distance(e, xi, yj) - np.nan_to_num(trend[idx], nan=np.inf))
         moving = np.linalg.norm(yj - xi, axis=1) >= MOVING_PX
         good = (dev < opts.threshold_px) & ((rho_f > 0) | ~moving)
-        out[batch[idx[good]]] = yj[good]
+        out[batch[idx[good]]] = yj_img[good]
         src_r, src_j = np.vstack([src_r, xi[good]]), np.vstack([src_j, yj[good]])
     return out
 
@@ -157,8 +165,8 @@ def _spread(points: np.ndarray, k: int, shape, cells: int = 24) -> np.ndarray:
 
 
 def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: PropagateOptions, shape,
-              report=None) -> np.ndarray:
-    """Tracks of one session: ``uv (n_views, n_tracks, 2)``, NaN where not found.
+              report=None, derotation=None) -> np.ndarray:
+    """Tracks of one session: ``uv (n_views, n_tracks, 2)`` image pixels, NaN where not found.
 
     Parameters
     ----------
@@ -169,11 +177,16 @@ def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: Prop
     geo : dict ``(i, j) -> PairGeometry``
         The verified pairs (``i < j``).
     sources : dict ``(i, j) -> (x_i, x_j)``
-        Verified matches of each pair (``i < j``).
+        Verified matches of each pair (``i < j``), in model pixels.
     opts : PropagateOptions
     shape : (h, w)
     report : callable ``(stage, done, total)``, optional
+    derotation : Derotation, optional
+        Image <-> model pixels (:mod:`.derotate`): the epipoles of ``geo`` hold between
+        model pixels; the corners, Lucas-Kanade and the result are in image pixels.
     """
+    to_model = _identity if derotation is None else derotation.to_model
+    to_image = _identity if derotation is None else derotation.to_image
     n = len(corners)
     uv = np.zeros((n, 0, 2))
     steps, done = n * (n - 1), 0
@@ -189,8 +202,8 @@ def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: Prop
 
             def follow(j, r=r, seeds=seeds):
                 g = geo.get((min(r, j), max(r, j)))
-                return _follow(pyr, r, j, seeds, _sources(sources, uv, r, j), pair_epipole(geo, r, j),
-                               bool(g is not None and g.static), opts, shape)
+                return _follow(pyr, r, j, seeds, _sources(sources, uv, r, j, to_model), pair_epipole(geo, r, j),
+                               bool(g is not None and g.static), opts, shape, to_model, to_image)
 
             others = [j for j in range(n) if j != r]
             for j, found in zip(others, pool.map(follow, others) if len(seeds) else [None] * len(others)):
@@ -207,9 +220,9 @@ def propagate(pyr: Pyramids, corners: list, geo: dict, sources: dict, opts: Prop
     return uv
 
 
-def _sources(sources: dict, uv: np.ndarray, r: int, j: int):
-    """Correspondences ``(x_r, x_j)`` of views ``r``, ``j``: the pair's verified matches and
-    the tracks already seen in both."""
+def _sources(sources: dict, uv: np.ndarray, r: int, j: int, to_model=_identity):
+    """Correspondences ``(x_r, x_j)`` of views ``r``, ``j`` in model pixels: the pair's
+    verified matches and the tracks (image pixels ``uv``) already seen in both."""
     if (r, j) in sources:
         a, b = sources[(r, j)]
     elif (j, r) in sources:
@@ -217,7 +230,7 @@ def _sources(sources: dict, uv: np.ndarray, r: int, j: int):
     else:
         a = b = np.zeros((0, 2))
     both = np.isfinite(uv[r, :, 0]) & np.isfinite(uv[j, :, 0])
-    return np.vstack([a, uv[r, both]]), np.vstack([b, uv[j, both]])
+    return np.vstack([a, to_model(r, uv[r, both])]), np.vstack([b, to_model(j, uv[j, both])])
 
 
 def static_tracks(uv: np.ndarray, static_px: float = STATIC_PX, factor: float = STATIC_MIN_FACTOR) -> np.ndarray:

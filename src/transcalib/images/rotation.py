@@ -53,7 +53,8 @@ from ..errors import DegenerateError
 from .epipoles import direction, epipole_ransac, residuals
 from .local import local_linear
 
-__all__ = ["RotatedViewsError", "RotationTest", "PairRotationTest", "check_pure_translation", "rotation_test"]
+__all__ = ["RotatedViewsError", "RotationTest", "PairRotationTest", "check_pure_translation", "rotation_test",
+           "general_inliers", "testable"]
 
 #: A pair is tested when a general fundamental matrix explains at least this fraction of its matches.
 MIN_GENERAL_FRACTION = 0.85
@@ -112,13 +113,25 @@ class RotationTest:
     Attributes
     ----------
     pairs : tuple of PairRotationTest
+        On the derotated matches when the rotations were estimated.
     rotated_views : tuple of int
         Views (session indices) with more than half of their tested pairs flagged (and at
-        least 2 of them, 1 with 2 views).
+        least 2 of them, 1 with 2 views), or turned beyond the session tolerance.
+    angles_deg : tuple of float
+        Each view's estimated rotation from the session's median orientation (degrees;
+        empty when not estimated: no robot positions, or translations not spanning 3-D).
+    tolerance_deg : float
+        The session tolerance the angles were judged against (NaN when not estimated).
+    image_pairs : tuple of PairRotationTest
+        With estimated rotations, the pairs' test on the matches as imaged (not
+        derotated); empty otherwise.
     """
 
     pairs: tuple
     rotated_views: tuple
+    angles_deg: tuple = ()
+    tolerance_deg: float = float("nan")
+    image_pairs: tuple = ()
 
     @property
     def n_tested(self) -> int:
@@ -137,28 +150,30 @@ def _general_inliers(x: np.ndarray, y: np.ndarray, threshold_px: float) -> np.nd
     return mask.ravel().astype(bool)
 
 
-def _explained(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, images=None) -> float:
+def _explained(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, images=None, to_image=None) -> float:
     """Fraction of the matches ``x -> y`` within ``threshold_px`` of the epipolar lines of
     the epipole fitted to them (2-match RANSAC), by distance alone; with ``images`` (the
-    pair's two grey views) the twins (module docstring, step 3) count as explained."""
+    pair's two grey views) the twins (module docstring, step 3) count as explained
+    (``to_image``: the two views' maps from the matches' pixels to the images')."""
     e, _, _ = epipole_ransac(x, y, threshold_px=threshold_px, rng=rng, max_trials=300)
     if e is None:
         return 0.0
     dist, rho = residuals(e, x, y)
     ok = dist < threshold_px
     if images is not None and ok.sum() >= TWIN_MIN_EXPLAINED and not ok.all():
-        ok[~ok] = _twins(images, e, x[ok], rho[ok], x[~ok], y[~ok])
+        ok[~ok] = _twins(images, e, x[ok], rho[ok], x[~ok], y[~ok], to_image)
     return float(np.mean(ok))
 
 
-def _twins(images, e: np.ndarray, x_ok, rho_ok, x, y) -> np.ndarray:
+def _twins(images, e: np.ndarray, x_ok, rho_ok, x, y, to_image=None) -> np.ndarray:
     """``(m,)`` bool: the unexplained matches ``x -> y`` whose translation-predicted place
     ``x + rho (e3 x - e_xy)`` (``rho`` of the explained matches ``x_ok`` around them)
-    looks like them as much as ``y`` does (step 3)."""
+    looks like them as much as ``y`` does (step 3); patches cut at ``to_image`` of them."""
     rho = np.nan_to_num(local_linear(x_ok, rho_ok, x, k=10), nan=0.0)
     predicted = x + rho[:, None] * direction(e, x)
-    first = _patches(images[0], x)
-    return _ncc(first, _patches(images[1], predicted)) >= _ncc(first, _patches(images[1], y)) - TWIN_NCC_DROP
+    fi, fj = to_image or (lambda p: p, lambda p: p)
+    first = _patches(images[0], fi(x))
+    return _ncc(first, _patches(images[1], fj(predicted))) >= _ncc(first, _patches(images[1], fj(y))) - TWIN_NCC_DROP
 
 
 def _patches(image: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -184,17 +199,36 @@ def _undistort(x: np.ndarray, centre: np.ndarray, scale: float, lam: float) -> n
     return centre + d / (1.0 + lam * (d * d).sum(1, keepdims=True) / scale**2)
 
 
-def pair_test(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, views=(0, 1), images=None) -> PairRotationTest:
+def testable(x: np.ndarray, y: np.ndarray) -> bool:
+    """Enough matches ``x -> y`` moving enough for a pair to show a rotation (step 1)."""
+    return len(x) >= MIN_TEST_MATCHES and bool(np.median(np.linalg.norm(y - x, axis=1)) >= MIN_MOTION_PX)
+
+
+def general_inliers(xy: dict, threshold_px: float) -> dict:
+    """``{(i, j): (m,) bool}``: the matches of every :func:`testable` pair that a general
+    fundamental matrix explains (USAC MAGSAC; pairs where it fails left out)."""
+    out = {}
+    for p, (x, y) in xy.items():
+        S = _general_inliers(x, y, threshold_px) if testable(x, y) else None
+        if S is not None:
+            out[p] = S
+    return out
+
+
+def pair_test(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, views=(0, 1), images=None, general=None,
+              to_image=None) -> PairRotationTest:
     """The test of one pair of matches ``x -> y`` ``(m, 2)`` (module docstring, steps 1-4);
-    ``images`` the two grey views (None: no twins)."""
+    ``images`` the two grey views (None: no twins), ``general`` the general ``F``'s
+    inliers when known (a homography close to the identity applied to both views, such as
+    the derotation, leaves them), ``to_image`` the views' maps to image pixels."""
     m = len(x)
-    if m < MIN_TEST_MATCHES or np.median(np.linalg.norm(y - x, axis=1)) < MIN_MOTION_PX:
+    if not testable(x, y):
         return PairRotationTest(views=views, n_matches=m)
-    S = _general_inliers(x, y, threshold_px)
+    S = _general_inliers(x, y, threshold_px) if general is None else general
     n_f = 0 if S is None else int(S.sum())
     if n_f < max(MIN_TEST_MATCHES, MIN_GENERAL_FRACTION * m):
         return PairRotationTest(views=views, n_matches=m, n_general=n_f)
-    explained = _explained(x[S], y[S], threshold_px, rng, images)
+    explained = _explained(x[S], y[S], threshold_px, rng, images, to_image)
     if explained < MIN_EXPLAINED:  # lens distortion bends the lines: undistorted by the best radial term
         c = x[S].mean(0)
         scale = max(float(np.abs(np.vstack([x[S], y[S]]) - c).max()), 1.0)
@@ -205,24 +239,52 @@ def pair_test(x: np.ndarray, y: np.ndarray, threshold_px: float, rng, views=(0, 
                             flagged=explained < MIN_EXPLAINED)
 
 
-def rotation_test(xy: dict, n_views: int, threshold_px: float, rng, grey=None) -> RotationTest:
+def rotation_test(xy: dict, n_views: int, threshold_px: float, rng, grey=None, general=None, derotation=None,
+                  tolerance_deg: float = float("nan")) -> RotationTest:
     """The test of every pair of ``xy`` (``(i, j) -> (x (m, 2), y (m, 2))``) and the views
     with more than half of their tested pairs flagged, and at least 2 (1 with 2 views);
-    ``grey`` the views (list of ``(h, w)`` arrays; None: no twins)."""
-    pairs = tuple(pair_test(x, y, threshold_px, rng, views=p, images=None if grey is None else (grey[p[0]], grey[p[1]]))
-                  for p, (x, y) in xy.items())
-    rotated, need = [], min(2, n_views - 1)
-    for v in range(n_views):
-        mine = [p for p in pairs if v in p.views and p.tested]
-        n_flagged = sum(p.flagged for p in mine)
-        if n_flagged >= need and n_flagged > len(mine) / 2:
-            rotated.append(v)
-    return RotationTest(pairs=pairs, rotated_views=tuple(rotated))
+    ``grey`` the views (list of ``(h, w)`` arrays; None: no twins).
+
+    With a ``derotation`` (:class:`~.derotate.Derotation`, estimated) ``xy`` are the
+    derotated matches, ``general`` the general ``F``'s inliers of each pair; a view is
+    rotated when the derotated pairs flag it (residuals the rotations do not explain), or
+    when its estimated rotation exceeds ``tolerance_deg`` **and** the pairs as imaged
+    flag it (an angle alone refuses nothing: on flat scenes seen from few views the fit
+    can find rotations the matches do not show, measured on
+    ``benchmarks/bench_tracker_rotation.py``'s scenes).
+    """
+    general = general or {}
+    est = derotation is not None and derotation.estimated
+    maps = (lambda p: None) if not est else (
+        lambda p: (lambda x: derotation.to_image(p[0], x), lambda x: derotation.to_image(p[1], x)))
+
+    def tests(matches, to_image):
+        return tuple(pair_test(x, y, threshold_px, rng, views=p, general=general.get(p), to_image=to_image(p),
+                               images=None if grey is None else (grey[p[0]], grey[p[1]]))
+                     for p, (x, y) in matches.items())
+
+    pairs = tests(xy, maps)
+    image_pairs = tests(derotation.pairs_to_image(xy), lambda p: None) if est else ()
+    angles = derotation.angles_deg() if est else None
+    rotated = [v for v in range(n_views) if _flagged_view(pairs, v, n_views)
+               or (est and angles[v] > tolerance_deg and _flagged_view(image_pairs, v, n_views))]
+    return RotationTest(pairs=pairs, rotated_views=tuple(rotated),
+                        angles_deg=() if angles is None else tuple(float(a) for a in angles),
+                        tolerance_deg=float(tolerance_deg) if est else float("nan"), image_pairs=image_pairs)
 
 
-def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, names=None, grey=None) -> RotationTest:
-    """:func:`rotation_test`, raising :class:`RotatedViewsError` when a view is rotated."""
-    test = rotation_test(xy, n_views, threshold_px, rng, grey)
+def _flagged_view(pairs: tuple, v: int, n_views: int) -> bool:
+    """More than half of view ``v``'s tested pairs flagged, and at least 2 (1 with 2 views)."""
+    mine = [p for p in pairs if v in p.views and p.tested]
+    n_flagged = sum(p.flagged for p in mine)
+    return n_flagged >= min(2, n_views - 1) and n_flagged > len(mine) / 2
+
+
+def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, names=None, grey=None, general=None,
+                           derotation=None, tolerance_deg: float = float("nan")) -> RotationTest:
+    """:func:`rotation_test`, raising :class:`RotatedViewsError` when a view is rotated
+    (the message names the views, their estimated angles and the pairs that show them)."""
+    test = rotation_test(xy, n_views, threshold_px, rng, grey, general, derotation, tolerance_deg)
     if not test.rotated_views:
         return test
     name = (lambda i: str(i)) if names is None else (lambda i: str(names[i]))
@@ -230,9 +292,15 @@ def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, nam
     detail = "; ".join(f"{name(p.views[0])}-{name(p.views[1])} (general epipolar geometry: {p.n_general} of "
                        f"{p.n_matches} matches, pure translation: {round(p.explained * p.n_general)} of them)"
                        for p in flagged[:6]) + ("; ..." if len(flagged) > 6 else "")
+    views = ", ".join(name(v) + (f" ({test.angles_deg[v]:.2f} deg)" if test.angles_deg else "")
+                      for v in test.rotated_views)
+    turned = ("" if not test.angles_deg else
+              f" (estimated rotation from the session's median orientation; the session tolerance is "
+              f"{test.tolerance_deg:g} deg)")
+    seen = f", seen in the pairs {detail}" if detail else ""
     raise RotatedViewsError(
         f"the views are not related by pure translations: the camera rotated at view(s) "
-        f"{', '.join(name(v) for v in test.rotated_views)}, seen in the pairs {detail}. The pure-translation "
+        f"{views}{turned}{seen}. The pure-translation "
         "tracker needs one camera orientation per session. If the robot turned the wrist between groups of "
         "views, give the flange orientations (a session per orientation): "
         "transcalib.images.track(images, T=T, rotations=R), or the poses file's orientation columns; "
