@@ -13,6 +13,8 @@ from transcalib.estimate.robot_error import perturb_poses, sample_errors
 from transcalib.geometry.camera import pad_dist
 from transcalib.geometry.rotation import rotvec_to_matrix
 
+from test_sandwich import _jacobian as central_jacobian
+
 
 # ---------------------------------------------------------------------------- model and Jacobians
 
@@ -235,12 +237,7 @@ def test_covariance_marginalises_the_robot_error_against_a_dense_oracle():
 
     r_px = residuals(theta0)[: seen.sum() * 2] * sigma_px  # the fitted errors reproduce the fit's residuals
     assert np.abs(r_px + cal.residuals_px[seen].ravel()).max() < 1e-6
-    J = np.empty((len(residuals(theta0)), len(theta0)))
-    for k in range(len(theta0)):
-        h = 1e-6 * max(1.0, abs(theta0[k]))
-        d = np.zeros_like(theta0)
-        d[k] = h
-        J[:, k] = (residuals(theta0 + d) - residuals(theta0 - d)) / (2 * h)
+    J = central_jacobian(residuals, theta0)
     cov = np.linalg.inv(J.T @ J)[:10, :10]
     cov[4:7, :] *= np.degrees(1.0)
     cov[:, 4:7] *= np.degrees(1.0)
