@@ -186,3 +186,23 @@ def test_heteroscedastic_noise_switches_fx_to_the_sandwich():
 def test_uncertainty_option_validated():
     with pytest.raises(InputError, match="uncertainty"):
         RefineOptions(uncertainty="sandwich")
+
+
+@pytest.mark.parametrize("rule, which", [("model", "std_model"), ("robust", "std_robust")])
+def test_cli_uncertainty_option_chooses_the_reported_std(tmp_path, rule, which):
+    """``--uncertainty`` reaches the refinement: calibration.json's std is the chosen one."""
+    import json
+    from pathlib import Path
+
+    from transcalib.cli.main import main
+
+    paper = Path(__file__).resolve().parents[1] / "examples" / "paper"
+    out = tmp_path / "out"
+    code = main(["calibrate", "--tracks", str(paper / "tracks.csv"), "--poses", str(paper / "poses.csv"),
+                 "--out", str(out), "--formats", "json", "--quiet", "--uncertainty", rule])
+    assert code in (0, 1)
+    d = json.loads((out / "calibration.json").read_text())
+    unc = d["estimates"]["uncertainty"]
+    assert d["options"]["refinement"]["uncertainty"] == rule
+    assert set(unc["reported"].values()) == {"model" if rule == "model" else "robust"}
+    assert d["std"]["fx"] == pytest.approx(unc[which]["fx"], rel=1e-9)

@@ -111,6 +111,11 @@ def _model(g) -> None:
                         "robot_error_misfit warning; docs/uncertainty.md)")
     g.add_argument("--no-robot-error", action="store_true",
                    help="take the robot's poses as exact (the model before issue 22)")
+    g.add_argument("--uncertainty", choices=("auto", "model", "robust", "max"), default=None,
+                   help="which std to report: 'auto' (default) per parameter the sandwich (cluster-robust) std "
+                        "where it is significantly larger than the model-based one, 'model', 'robust' (the "
+                        "sandwich), or 'max' (the larger); both are written to calibration.json "
+                        "(docs/uncertainty.md §7)")
 
 
 def _robust(g) -> None:
@@ -215,7 +220,7 @@ def build_options(args, size=None):
     given = {"distortion": args.distortion, "robot_sigma_pos": args.robot_sigma,
              "robot_sigma_deg": args.robot_sigma_deg,
              "robot_error": False if args.no_robot_error else True if args.robot_error else None,
-             "loss": args.loss,
+             "loss": args.loss, "uncertainty": args.uncertainty,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
@@ -235,7 +240,7 @@ def _check_refinement_options(args, fixed: dict) -> None:
         given = [opt for opt, value in (("--distortion", args.distortion), ("--robot-sigma", args.robot_sigma),
                                         ("--robot-sigma-deg", args.robot_sigma_deg),
                                         ("--robot-error", args.robot_error),
-                                        ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
+                                        ("--uncertainty", args.uncertainty), ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
                                         ("--estimate-skew", args.estimate_skew),
                                         ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]
         if given:
