@@ -55,6 +55,7 @@ class _Problem:
     t_sigma: np.ndarray  # (V,) robot precision, 0 where exact
     opts: RefineOptions
     robot_given: dict  # robot error component -> known sigma (rad, unit), None: estimated; absent: off
+    robot_start: "_RobotStart | None" = None  # the start's robot error, to continue from (refits)
 
 
 def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, options: RefineOptions | None = None,
@@ -161,8 +162,9 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
         raise DegenerateError(f"too few observations: {2 * n_obs} residuals for {lay.n_global_no_T + 3 * len(used_idx)} "
                               f"unknowns ({len(used_idx)} points, {lay.n_global_no_T} camera parameters). Track more "
                               "points, use more views, or a simpler distortion model.")
-    return _Problem(uv, T, seen, used_idx, int(np.sum(usable & ~in_front)), lay, start, t_sigma, opts,
-                    _robot_given(opts))
+    given = _robot_given(opts)
+    return _Problem(uv, T, seen, used_idx, int(np.sum(usable & ~in_front)), lay, start, t_sigma, opts, given,
+                    _RobotStart.of(initial, given, n_views))
 
 
 def with_robot_scales(opts: RefineOptions, calibration) -> RefineOptions:
@@ -337,6 +339,13 @@ def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: s
 # ----------------------------------------------------------------------------------------
 
 
+#: Convergence tolerance of the robust loss's fit (``tol`` of :func:`levenberg_marquardt`).
+#: That fit only sorts the observations into inliers for the least-squares polish, which
+#: converges to the user's ``tol``; its IRLS steps converge linearly (by 3-7 % a step with
+#: a third of the tracks outliers), so the user's 1e-6 took the full 100 iterations.
+ROBUST_TOL = 1e-2
+
+
 class _Fitter:
     """Runs LM on a subset of observations; handles the robot-noise (``sigma_T``) mode.
 
@@ -350,6 +359,7 @@ class _Fitter:
         self.pb, self.progress, self.near_solution = pb, progress, near_solution
         self.system = self.residuals = None
         self.iterations = 0
+        self.warm = pb.robot_start  # robot error to continue from (a refit; the robust loss's polish)
         self.set_scale(pb.opts.loss_scale_px or 1.0)
 
     def set_scale(self, sigma: float) -> None:
@@ -375,7 +385,8 @@ class _Fitter:
             self.system = sol.linearisation
             self.residuals = None if sol.linearisation is None else problem.residuals(sol.state)
         else:
-            sol = levenberg_marquardt(problem, state, o.max_iterations, o.tol, self.progress)
+            tol = o.tol if loss == "linear" else max(o.tol, ROBUST_TOL)
+            sol = levenberg_marquardt(problem, state, o.max_iterations, tol, self.progress)
         self.iterations += sol.iterations
         return sol.state, sol.cost, sol.reason
 
@@ -429,7 +440,10 @@ class _Fitter:
         the pixel noise; a component whose fitted scale the score at zero does not support
         (:func:`.variance_components.scale_consistent` below ``GATE_ALPHA``: it absorbed a
         model misfit) is left out again. Near the solution (scales given by the fit of a
-        subset) one round."""
+        subset) one round. A refit of nearly the same tracks (:class:`_RobotStart`: other
+        inliers, a richer lens, the robust loss's polish on the inliers) runs the rounds
+        from the scales and errors found before and tests only the components not tested
+        before."""
         pb, n_views = self.pb, len(self.pb.T)
         given, p_values, sig = pb.robot_given, {c: np.nan for c in COMPONENTS}, {}
         consistent = {}  # component -> p-value of its fitted scale against its score (scale_consistent)
@@ -438,12 +452,21 @@ class _Fitter:
         plain, sigma_px = None, pb.opts.sigma_px
         self.rounds = 0
         sig.update({c: float(v) for c, v in given.items() if v is not None})
-        out = None
-        if sig or self.near_solution:
-            out = self._rounds(state, idx, mask, sig, dof, sigma_px) if sig else None
-        else:
+        tried, out, warm = set(sig), None, None if self.near_solution else self.warm
+        if warm is not None and warm.sigma:  # a refit: on from the scales found before
+            try:
+                out = self._rounds(replace(state, E=warm.E), idx, mask, {**sig, **warm.sigma}, dof, sigma_px)
+                sig = dict(self.robot.sigma)
+            except DegenerateError:  # they no longer fit these tracks: select afresh
+                warm = None
+        if warm is not None:
+            tried |= set(warm.p_values)
+            p_values.update(warm.p_values)
+            consistent.update(warm.consistency)
+        if out is None and sig:
+            out = self._rounds(state, idx, mask, sig, dof, sigma_px)
+        elif out is None and not self.near_solution:
             out = plain = self._plain(state, idx, mask, "linear")
-        tried = set(sig)
         while not self.near_solution:  # forward selection: the most significant component next
             state, sigma_px = out[0], out[4] or pb.opts.sigma_px
             if sigma_px is None:
@@ -475,6 +498,9 @@ class _Fitter:
                 if consistent[c] < GATE_ALPHA:  # absorbed a misfit: back to the model without it
                     out, self.lay, self.robot = before
                     sig = {} if self.robot is None else dict(self.robot.sigma)
+        tested = [c for c in tried if given.get(c, 0.0) is None]
+        self.warm = _RobotStart({c: sig[c] for c in sig if c in tested}, None if out is None else out[0].E,
+                                {c: p_values[c] for c in tested}, {c: consistent.get(c, np.nan) for c in tested})
         if out is None or not sig:
             self.lay = pb.lay
             self.robot = _RobotFit({}, {}, p_values, given, None, consistent)
@@ -545,6 +571,39 @@ class _Fitter:
         test = {c: lay.robot_columns(c).ravel() for c in comps}
         others = np.setdiff1d(np.arange(lay.size), np.concatenate(list(test.values())))
         return {c: score_test(red.S, red.rhs, t, others, sigma_px) for c, t in test.items()}
+
+
+@dataclass(frozen=True)
+class _RobotStart:
+    """The robot error a previous fit of nearly the same tracks (a refit's start, the
+    robust loss's polish before) found: the scales it estimated (rad, unit), each view's
+    errors ``E (V, 6)`` (None without scales), and the p-values of every component it
+    tested (score test, scale check). A refit continues the variance-component rounds
+    from there and does not test those components again."""
+
+    sigma: dict
+    E: np.ndarray | None
+    p_values: dict
+    consistency: dict
+
+    @classmethod
+    def of(cls, initial, given: dict, n_views: int) -> "_RobotStart | None":
+        """From ``initial``'s :class:`RobotError` (None if it has none for these views)."""
+        re = getattr(initial, "robot_error", None)
+        if re is None or re.rot_deg.shape[0] != n_views:
+            return None
+        tested = [k for k, (c, src) in enumerate(zip(COMPONENTS, re.source))
+                  if src in ("estimated", "not detected", "misfit") and c in given and given[c] is None]
+        if not tested:
+            return None
+        scales = (np.radians(re.sigma_rot_deg), re.sigma_pos)
+        sigma = {COMPONENTS[k]: float(scales[k]) for k in tested if re.source[k] == "estimated"}
+        E = np.hstack([np.radians(re.rot_deg), re.pos])
+        for k, c in enumerate(COMPONENTS):
+            if c not in sigma:
+                E[:, 3 * k: 3 * k + 3] = 0.0
+        return cls(sigma, E if sigma else None, {COMPONENTS[k]: float(re.p_values[k]) for k in tested},
+                   {COMPONENTS[k]: float(re.consistency_p[k]) for k in tested})
 
 
 @dataclass(frozen=True)
