@@ -53,6 +53,50 @@ def test_evaluation_equals_crlb_with_robot_noise_distortion_margin(extra):
     assert np.isnan(scene.uv[..., 0]).any()  # some observations leave the image: only visible ones count
 
 
+@pytest.mark.parametrize("robot_noise", [0.0, 0.4])
+def test_orientation_error_prediction_equals_the_marginal_information(robot_noise):
+    """With each view's orientation (and position) error the prediction eliminates them as
+    nuisance parameters with priors; the oracle integrates them out instead: per view the
+    observations' covariance ``sigma^2 I + J_e diag(s_rot^2 I, s_pos^2 I) J_e^T`` and the
+    Fisher information ``sum_i J_i^T Sigma_i^-1 J_i`` over the camera and the points, with
+    central differences of :func:`transcalib.geometry.camera.project` (Gaussian
+    marginalisation: the two agree exactly)."""
+    from transcalib.geometry.camera import project
+    from transcalib.geometry.rotation import rotvec_to_matrix
+
+    options = PlanOptions(image_size=(640, 480), focal_px=600.0, distance=500.0, depth_range=200.0, n_points=12,
+                          noise_px=0.5, robot_noise=robot_noise, robot_sigma_deg=0.08)
+    X = scene_points(options, np.zeros(3), 3)
+    T = np.random.default_rng(4).uniform(-60, 60, (6, 3))
+    seen = visible(options, X, T)
+    predicted = predict(options, X, T).std
+    K, R0, n = options.K, options.R, len(X)
+
+    def views(theta, i, e):
+        """The visible pixels of view i: theta = (fx, fy, cx, cy, w, X), e = (delta, eps)."""
+        Kt = np.array([[theta[0], 0, theta[2]], [0, theta[1], theta[3]], [0, 0, 1]])
+        R = rotvec_to_matrix(theta[4:7]) @ R0 @ rotvec_to_matrix(-e[:3])
+        uv = project(Kt, R, theta[7:].reshape(n, 3), (T[i] + e[3:])[None])[0]
+        return uv[seen[i]].ravel()
+
+    def jac(f, x, h):
+        return np.stack([(f(x + h * d) - f(x - h * d)) / (2 * h) for d in np.eye(len(x))], axis=1)
+
+    theta0 = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], np.zeros(3), X.ravel()])
+    s_e = np.r_[np.full(3, np.radians(0.08)), np.full(3, robot_noise)]
+    info = np.zeros((len(theta0), len(theta0)))
+    for i in range(len(T)):
+        J = jac(lambda th: views(th, i, np.zeros(6)), theta0, 1e-6)
+        Je = jac(lambda e: views(theta0, i, e), np.zeros(6), 1e-7)
+        Sigma = options.noise_px**2 * np.eye(len(J)) + (Je * s_e**2) @ Je.T
+        info += J.T @ np.linalg.solve(Sigma, J)
+    std = np.sqrt(np.diag(np.linalg.inv(info)))
+    assert seen.sum(axis=0).min() >= 2
+    for k, (name, unit) in enumerate([("fx", 1), ("fy", 1), ("cx", 1), ("cy", 1)] +
+                                     [(a, np.degrees(1)) for a in ("rx", "ry", "rz")]):
+        assert predicted[name] == pytest.approx(unit * std[k], rel=1e-5), name
+
+
 def test_pool_score_equals_batched_prediction(planned):
     X = _points(planned)
     design = Pool.of(planned.options, X, planned.T)

@@ -27,6 +27,7 @@ HELP = "plan robot translations with the accuracy predicted, or --evaluate given
 _OPTION_OF = {"image_size": "--image-size", "focal_px": "--focal-px", "distance": "--distance",
               "depth_range": "--depth-range", "n_points": "--points", "noise_px": "--noise-px",
               "view_direction": "--view-direction", "robot_noise": "--robot-sigma",
+              "robot_sigma_deg": "--robot-sigma-deg",
               "distortion": "--distortion", "dist": "--dist-coeffs", "criterion": "--criterion",
               "min_visible": "--min-visible", "margin_px": "--margin-px", "n_views": "--views", "box": "--box",
               "min_separation": "--min-separation"}
@@ -81,6 +82,9 @@ def _camera(m) -> None:
     m.add_argument("--robot-sigma", "--robot-noise", dest="robot_noise", type=nonnegative_float, default=0.0,
                    metavar="SIGMA", help="robot pose error: per-axis std of each view's position error, robot "
                                          "units (default 0)")
+    m.add_argument("--robot-sigma-deg", type=nonnegative_float, default=0.0, metavar="DEG",
+                   help="robot pose error: per-axis std of each view's orientation error, degrees (default 0); "
+                        "with it every view's pose error enters the prediction as calibrate estimates it")
     m.add_argument("--distortion", default="none", choices=["none", "radial1", "radial2", "opencv5"],
                    help="distortion model to be estimated (default none)")
     m.add_argument("--dist-coeffs", type=numbers, default=(), metavar="K1,K2,...",
@@ -98,7 +102,8 @@ def _options(args):
 
     return PlanOptions(image_size=args.image_size, focal_px=args.focal_px, distance=args.distance,
                        depth_range=args.depth_range, n_points=args.points, noise_px=args.noise_px,
-                       view_direction=args.view_direction, robot_noise=args.robot_noise, distortion=args.distortion,
+                       view_direction=args.view_direction, robot_noise=args.robot_noise,
+                       robot_sigma_deg=args.robot_sigma_deg, distortion=args.distortion,
                        dist=tuple(args.dist_coeffs), criterion=args.criterion, min_visible=args.min_visible,
                        margin_px=args.margin_px, min_separation=args.min_separation)
 

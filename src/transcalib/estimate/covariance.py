@@ -175,7 +175,9 @@ def scene_information(scene, *, distortion: str | None = None, estimate_skew: bo
                       square_pixels: bool = False, estimate_view_rotations=False):
     """The reduced Fisher information (unit pixel noise) at the ground truth of a simulated
     scene, for the observation pattern of ``scene.uv``: the problem :func:`crlb` bounds
-    (its parameters; the robot-noise priors of ``scene.robot_noise``).
+    (its parameters; the robot-noise priors of ``scene.robot_noise``; with
+    ``scene.robot_sigma_deg`` every view's pose error instead, rotation and position, as
+    nuisance parameters with their priors: :mod:`transcalib.estimate.robot_error`).
 
     Returns
     -------
@@ -192,7 +194,8 @@ def scene_information(scene, *, distortion: str | None = None, estimate_skew: bo
     n_views = scene.uv.shape[0]
     seen = np.isfinite(scene.uv[..., 0])
     used_idx = np.flatnonzero(seen.sum(axis=0) >= 2)
-    robot = scene.robot_noise > 0
+    s_rot = np.radians(getattr(scene, "robot_sigma_deg", 0.0))
+    robot = scene.robot_noise > 0 and s_rot == 0  # position noise alone: the translation priors
     sigma_T = (0.0,) + (scene.robot_noise,) * (n_views - 1) if robot else None  # view 0: exact
     lay = Layout.from_options(RefineOptions(distortion=distortion, fix=dict(fix or {}), estimate_skew=estimate_skew,
                                             square_pixels=square_pixels, sigma_T=sigma_T,
@@ -201,7 +204,12 @@ def scene_information(scene, *, distortion: str | None = None, estimate_skew: bo
     state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]]), pad_dist(scene.dist), scene.R.copy(),
                   np.tile(np.eye(3), (n_views, 1, 1)), scene.T_true.copy(), scene.X[used_idx].copy())
     tw = np.where(robot & (np.arange(n_views) > 0), scene.noise_px / max(scene.robot_noise, 1e-300), 0.0)
-    data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw)
+    robot_weight = (0.0, 0.0)
+    if s_rot > 0:  # every view's pose error, rotation (and position): the robot error's priors
+        lay = replace(lay, robot=("rot", "pos") if scene.robot_noise > 0 else ("rot",))
+        state = replace(state, E=np.zeros((n_views, 6)))
+        robot_weight = (scene.noise_px / s_rot, scene.noise_px / scene.robot_noise if scene.robot_noise > 0 else 0.0)
+    data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw, robot_weight)
     red = reduced_information(state, lay, data)
     ok = red.det > UNDETERMINED_POINT_DET
     if not ok.all():  # rays (nearly) parallel: such a point determines nothing

@@ -52,6 +52,10 @@ class PlanOptions:
         Robot precision: standard deviation of each measured translation coordinate (robot
         units); 0 = exact. Views ``i >= 1`` are then noisy measurements (as
         :func:`transcalib.simulate.observe` draws them and :func:`transcalib.crlb` bounds them).
+    robot_sigma_deg : float
+        Per-axis std of each view's orientation error (degrees); 0 = exact. Above 0 every
+        view's pose error (this rotation and a position error of std ``robot_noise``) is in
+        the prediction as the calibration estimates it (:mod:`transcalib.estimate.robot_error`).
     distortion : {"none", "radial1", "radial2", "opencv5"}
         Distortion model the calibration will estimate (its coefficients get a prediction).
     dist : tuple of float
@@ -76,6 +80,7 @@ class PlanOptions:
     noise_px: float = 0.5
     view_direction: object = "-z"
     robot_noise: float = 0.0
+    robot_sigma_deg: float = 0.0
     distortion: str = "none"
     dist: tuple = ()
     criterion: str = "focal"
@@ -95,6 +100,7 @@ class PlanOptions:
         _positive("distance", self.distance)
         _positive("noise_px", self.noise_px)
         _nonneg("robot_noise", self.robot_noise)
+        _nonneg("robot_sigma_deg", self.robot_sigma_deg)
         _nonneg("margin_px", self.margin_px)
         if self.min_separation is not None:
             _nonneg("min_separation", self.min_separation)
@@ -229,8 +235,9 @@ def design_scene(options: PlanOptions, X: np.ndarray, T, rng=None) -> Scene:
     """A :class:`~transcalib.simulate.Scene` of the model for translations ``T`` (n_views, 3).
 
     Observations outside the image (:func:`visible`) are NaN, as
-    :func:`transcalib.simulate.observe` marks them; ``rng`` draws the pixel and robot noise
-    of ``options`` (None: exact observations, noise levels still recorded for the CRLB).
+    :func:`transcalib.simulate.observe` marks them; ``rng`` draws the pixel and position
+    noise of ``options`` (None: exact observations, noise levels still recorded for the
+    CRLB; the orientation error ``robot_sigma_deg`` is recorded, not drawn).
     """
     T = np.asarray(T, dtype=float)
     uv_true = project(options.K, options.R, X, T, options.dist)
@@ -245,7 +252,8 @@ def design_scene(options: PlanOptions, X: np.ndarray, T, rng=None) -> Scene:
     uv[~seen] = np.nan
     return Scene(K=options.K, R=options.R, dist=np.asarray(options.dist, float), T_true=T, X=X, T=T_meas, uv=uv,
                  uv_true=uv_true, image_size=options.image_size, noise_px=float(options.noise_px),
-                 robot_noise=float(options.robot_noise), unit="units", meta={"preset": "plan"})
+                 robot_noise=float(options.robot_noise), unit="units", meta={"preset": "plan"},
+                 robot_sigma_deg=float(options.robot_sigma_deg))
 
 
 def _positive(name, value):

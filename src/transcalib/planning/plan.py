@@ -119,7 +119,7 @@ class Plan:
                         "depth_range": o.depth_range, "n_points": o.n_points, "noise_px": o.noise_px,
                         "view_direction": o.view_direction if isinstance(o.view_direction, str)
                         else list(np.asarray(o.view_direction, float)), "robot_noise": o.robot_noise,
-                        "distortion": o.distortion, "dist": list(o.dist), "min_visible": o.min_visible,
+                        "robot_sigma_deg": o.robot_sigma_deg, "distortion": o.distortion, "dist": list(o.dist), "min_visible": o.min_visible,
                         "margin_px": o.margin_px},
         }
 
@@ -138,7 +138,9 @@ def _check_T(T) -> np.ndarray:
 
 
 def _std_dict(p, b=None) -> dict:
-    return {k: float(v if b is None else v[b]) for k, v in p.std.items() if not k.startswith("T")}
+    """The camera's predicted std, without the views' own nuisance parameters (the
+    translations' priors ``T<i>_*``, the pose errors ``robot<i>_*``)."""
+    return {k: float(v if b is None else v[b]) for k, v in p.std.items() if not k.startswith(("T", "robot"))}
 
 
 def _warnings(options: PlanOptions, X, T, p, box) -> list:

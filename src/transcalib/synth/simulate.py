@@ -41,6 +41,9 @@ class Scene:
     image_size : (width, height)
     noise_px, robot_noise : float
         Standard deviations used (pixels per coordinate; units per coordinate).
+    robot_sigma_deg : float
+        Per-axis std of each view's orientation error (degrees) that the bound
+        (:func:`transcalib.crlb`'s ``scene_information``) models; 0: exact orientations.
     unit : str
         Length unit of ``T`` and ``X``.
     """
@@ -57,6 +60,7 @@ class Scene:
     noise_px: float = 0.0
     robot_noise: float = 0.0
     unit: str = "mm"
+    robot_sigma_deg: float = 0.0
     meta: dict = field(default_factory=dict)
 
     @property
