@@ -228,7 +228,7 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
     sigma, inl = calibration.sigma_px, np.asarray(calibration.inliers, bool)
     multi = seen.sum(axis=0) >= 3
     fraction = np.array([inl[seen[v] & multi].mean() if (seen[v] & multi).any() else 1.0 for v in range(n)])
-    for v in np.flatnonzero(fraction < 0.5 * min(1.0, 2 * np.median(fraction))):
+    for v in np.flatnonzero(fraction < 0.5 * min(1.0, np.median(fraction))):
         others = np.delete(np.arange(n), v)
         tracks = seen[v] & (seen[others].sum(axis=0) >= 2)
         if tracks.sum() < min_points:
