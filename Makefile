@@ -44,7 +44,7 @@ demo: $(STAMP)
 
 test: $(STAMP) chromium
 	$(BIN)/python -m pip freeze --exclude-editable | grep -iE '^(numpy|scipy|opencv-python-headless)=='
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 test-latest:
 	rm -f .venv-latest/.installed
