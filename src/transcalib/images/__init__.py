@@ -10,12 +10,20 @@ is the only package that needs OpenCV's image functions.
 
 from __future__ import annotations
 
-from .dispatch import track
-from .epipoles import epipole_ransac
-from .frames import GroupInfo, LinkInfo, PairInfo, TrackInfo, Tracks, load_images
-from .rotation import RotatedViewsError
-from .sessions import track_sessions
-from .target import track_squares
+import importlib
+
+# loaded on first use (PEP 562): importing a light module such as :mod:`.frames` or
+# :mod:`.detect` does not import the SciPy-based stages (:func:`.dispatch.track` loads
+# them on a second thread while it decodes the images)
+_LAZY = {"track": ".dispatch", "epipole_ransac": ".epipoles", "GroupInfo": ".frames", "LinkInfo": ".frames",
+         "PairInfo": ".frames", "TrackInfo": ".frames", "Tracks": ".frames", "load_images": ".frames",
+         "RotatedViewsError": ".rotation", "track_sessions": ".sessions", "track_squares": ".target"}
 
 __all__ = ["Tracks", "TrackInfo", "PairInfo", "GroupInfo", "LinkInfo", "track", "track_squares", "load_images",
            "epipole_ransac", "RotatedViewsError", "track_sessions"]
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'transcalib.images' has no attribute {name!r}")
+    return getattr(importlib.import_module(_LAZY[name], __name__), name)

@@ -15,6 +15,8 @@ that is only a board of dark squares) runs the target mode (:mod:`.target`).
 
 from __future__ import annotations
 
+import importlib
+import threading
 import time
 from dataclasses import replace
 
@@ -22,18 +24,15 @@ import numpy as np
 
 from ..errors import DegenerateError, InputError
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
-from .checks import keep_tracks
 from .detect import DetectOptions, detect_all
 from .frames import GroupInfo, PairInfo, TrackInfo, Tracks, load_images, progress_fn
-from .link import link_groups
-from .multiview import GeneralOptions, track_general
-from .propagate import PropagateOptions
-from .refine import RefineOptions
-from .rotation import RotatedViewsError
-from .session import SessionOptions, track_session
-from .target import track_squares
 
 __all__ = ["track"]
+
+#: The stages that import SciPy (half a second on the project's machine): imported where
+#: they are used, by :func:`_load_stages` on a second thread while the main thread decodes
+#: the images and detects the features (OpenCV releases the GIL meanwhile).
+_STAGES = ("session", "link", "multiview")
 
 #: With fewer feature tracks seen in 3+ views, ``track(method="auto")`` tries the target mode.
 AUTO_MIN_LONG_TRACKS = 30
@@ -153,6 +152,7 @@ def track(
     if target is not None:
         if target != "squares":
             raise InputError(f"track: target must be None or 'squares', got {target!r}")
+        from .target import track_squares
         return track_squares(images, progress=progress)
     if method not in ("auto", "sift", "corners"):
         raise InputError(f"track: method must be 'auto', 'sift' or 'corners', got {method!r}")
@@ -161,11 +161,10 @@ def track(
     n_images = len(images) if hasattr(images, "__len__") and not isinstance(images, str) else None
     T = _check_T(T, n_images)
     groups, labels = _groups(rotations, sessions, n_images, session_tolerance_deg)
-    opts = SessionOptions(ratio=ratio, threshold_px=threshold_px, final_threshold_px=final_threshold_px,
-                          smooth_px=smooth_px, refine=refine, session_tolerance_deg=session_tolerance_deg,
-                          propagate=PropagateOptions(threshold_px=threshold_px,
-                                                     max_seeds=2000 if max_tracks is None else int(1.3 * max_tracks)),
-                          refinement=RefineOptions(window_radius=window_radius, min_ncc=min_ncc))
+    _load_stages()
+    opts = dict(ratio=ratio, threshold_px=threshold_px, final_threshold_px=final_threshold_px, smooth_px=smooth_px,
+                refine=refine, session_tolerance_deg=session_tolerance_deg, window_radius=window_radius,
+                min_ncc=min_ncc, max_seeds=2000 if max_tracks is None else int(1.3 * max_tracks))
     detect = DetectOptions(max_features=max_features, max_corners=max_corners, corner_quality=corner_quality)
     run = dict(T=T, rotations=rotations, groups=groups, labels=labels, method=method, opts=opts, detect=detect, min_views=min_views,
                min_tracks=min_tracks, max_tracks=max_tracks, progress=progress, rng=rng)
@@ -173,12 +172,14 @@ def track(
         return _track_features(images, **run)
     try:  # auto: features; a scene that is only a board of dark squares -> the target mode
         tracks, failure = _track_features(images, **run), None
-    except RotatedViewsError:
-        raise  # the target mode would track the corners, but the views are not pure translations
     except DegenerateError as exc:
+        from .rotation import RotatedViewsError
+        if isinstance(exc, RotatedViewsError):
+            raise  # the target mode would track the corners, but the views are not pure translations
         tracks, failure = None, exc
     n_features = 0 if tracks is None else _n_long(tracks.uv)
     if n_features < AUTO_MIN_LONG_TRACKS:
+        from .target import track_squares
         try:
             squares = track_squares(images, progress=progress)
         except DegenerateError:
@@ -190,9 +191,38 @@ def track(
     return tracks
 
 
+def _load_stages() -> threading.Thread:
+    """Import :data:`_STAGES` on a daemon thread (a failed import is left for the main
+    thread's own import to report)."""
+    def work():
+        for name in _STAGES:
+            try:
+                importlib.import_module(f".{name}", __package__)
+            except Exception:  # noqa: BLE001 - reported where the stage is imported
+                return
+
+    thread = threading.Thread(target=work, name="tracker stages", daemon=True)
+    thread.start()
+    return thread
+
+
+def _session_options(*, ratio, threshold_px, final_threshold_px, smooth_px, refine, session_tolerance_deg,
+                     window_radius, min_ncc, max_seeds):
+    """The :class:`~.session.SessionOptions` of :func:`track`'s arguments."""
+    from .propagate import PropagateOptions
+    from .refine import RefineOptions
+    from .session import SessionOptions
+
+    return SessionOptions(ratio=ratio, threshold_px=threshold_px, final_threshold_px=final_threshold_px,
+                          smooth_px=smooth_px, refine=refine, session_tolerance_deg=session_tolerance_deg,
+                          propagate=PropagateOptions(threshold_px=threshold_px, max_seeds=max_seeds),
+                          refinement=RefineOptions(window_radius=window_radius, min_ncc=min_ncc))
+
+
 def _track_features(images, *, T, rotations, groups, labels, method, opts, detect, min_views, min_tracks, max_tracks, progress,
                     rng) -> Tracks:
-    """Feature tracking of every group, then the links between groups."""
+    """Feature tracking of every group, then the links between groups (``opts``: the
+    arguments of :func:`_session_options`, built once the images are detected)."""
     rng = np.random.default_rng(rng)
     report = progress_fn(progress)
     t0 = time.perf_counter()
@@ -200,8 +230,8 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     if groups is None:
         groups, labels = [list(range(len(grey)))], ["0"]
     if max(len(g) for g in groups) < 2:  # every view at its own orientation: general motion
-        return _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, min_tracks, max_tracks, report,
-                              {"load": time.perf_counter() - t0})
+        return _track_general(grey, rgb, names, groups, labels, _session_options(**opts), detect, min_views,
+                              min_tracks, max_tracks, report, {"load": time.perf_counter() - t0})
     times = {"load": time.perf_counter() - t0}
     t0 = time.perf_counter()
     if method == "sift":
@@ -210,6 +240,10 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     if method == "sift":
         feats = [replace(f, corners=f.keypoints) for f in feats]
     times["detect"] = time.perf_counter() - t0
+    from .checks import keep_tracks
+    from .link import link_groups
+    from .session import track_session
+    opts = _session_options(**opts)
     shape = grey[0].shape[:2]
     per, epis, derots, info_pairs, counts, n_static, flags, rot = [], [], [], [], {}, 0, ([], [], []), []
     for g, views in enumerate(groups):
@@ -253,6 +287,7 @@ def _track_general(grey, rgb, names, groups, labels, opts, detect, min_views, mi
                    times) -> Tracks:
     """Every view at its own orientation: SIFT keypoints matched in every pair, joined into
     tracks and aligned by affine LK (:func:`.multiview.track_general`)."""
+    from .multiview import GeneralOptions, track_general
     t0 = time.perf_counter()
     feats = detect_all(grey, replace(detect, max_corners=0), report)
     times["detect"] = time.perf_counter() - t0
