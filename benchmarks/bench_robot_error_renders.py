@@ -20,9 +20,12 @@ empirical std (RMS error about zero, the truth), ``cover`` = share of trials wit
 trials a ratio is itself uncertain by about ``1 / sqrt(2 N)`` (N = 30: 13 %) and a
 coverage by ``sqrt(0.95 * 0.05 / N)`` (N = 30: 4 points).
 
-Run ``nice python benchmarks/bench_robot_error_renders.py --trials N`` (default 20; about
-15 s a trial on one core); writes ``benchmarks/results/robot_error_renders.md`` after
-every case.
+Run ``nice python benchmarks/bench_robot_error_renders.py --trials N --jobs J`` (default 20
+trials per case, 1 process; 20-45 s a trial on one core). Each finished trial is appended
+to ``benchmarks/results/robot_error_renders.jsonl`` and a run continues from the trials
+found there (the same seeds), so the Monte Carlo grows over several runs; the table,
+``benchmarks/results/robot_error_renders.md``, is rewritten from every trial recorded
+after each round of trials.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -44,6 +48,7 @@ from transcalib.io import write_poses_csv
 from transcalib.synth.robot import robot_scene
 
 OUT = Path(__file__).resolve().parent / "results" / "robot_error_renders.md"
+TRIALS = OUT.with_suffix(".jsonl")  # one finished trial per line: the Monte Carlo so far
 JPEG_QUALITY = 90
 #: (sigma_rot deg, sigma_pos mm)
 CASES = ((0.0, 0.0), (0.1, 1.0), (0.2, 2.0))
@@ -112,7 +117,8 @@ def _summary(rows: list, key: str):
 
 def table(results: dict, trials: int, elapsed: float) -> str:
     lines = ["# Robot pose error on renders, through the CLI (issue 22)", "",
-             f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}` ({elapsed:.0f} s). "
+             f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}`: the trials recorded in "
+             f"robot_error_renders.jsonl over one or more runs (the last {elapsed:.0f} s). "
              "Eye-in-hand renders of `robot_scene` (640 x 480, realistic camera effects, JPEG 90) at the true "
              "flange poses, `poses.csv` with the reported ones; `transcalib calibrate --images --poses --json` with "
              "default options (the robot error's scales estimated). ratio = RMS reported std / RMS error against "
@@ -141,22 +147,63 @@ def table(results: dict, trials: int, elapsed: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _case_trial(case: tuple) -> dict:
+    """One trial of ``(layout, sigma_rot, sigma_pos, seed)`` as a JSON-able record."""
+    layout, sr, sp, seed = case
+    row = trial(layout, sr, sp, seed)
+    plain = {k: (list(map(_plain, v)) if isinstance(v, tuple) else _plain(v)) for k, v in row.items()}
+    return {"layout": layout, "sigma_rot": sr, "sigma_pos": sp, "seed": seed, "row": plain}
+
+
+def _plain(v):
+    return v if isinstance(v, (str, list)) else float(v)
+
+
+def _recorded(path: Path) -> list:
+    """The trials recorded so far (none without the file)."""
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--trials", type=int, default=20)
+    p.add_argument("--trials", type=int, default=20, help="trials per case, those recorded included")
+    p.add_argument("--jobs", type=int, default=1)
     p.add_argument("--out", type=Path, default=OUT)
     a = p.parse_args(argv)
-    results, t0 = {}, time.perf_counter()
-    for k in range(a.trials):  # trials interleaved over the cases: a run cut short stays balanced
-        for layout in LAYOUTS:
-            for g, (sr, sp) in enumerate(CASES):
-                row = trial(layout, sr, sp, FIRST_SEED + 1000 * g + k)
-                results.setdefault((layout, sr, sp), []).append(row)
-        text = table(results, k + 1, time.perf_counter() - t0)
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(text)
-        print(f"trial {k + 1}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    sys.stdout.write(text)
+    log = a.out.with_suffix(".jsonl")
+    done = {(r["layout"], r["sigma_rot"], r["sigma_pos"], r["seed"]) for r in _recorded(log)}
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.jobs) as pool:
+        for k in range(a.trials):  # trials interleaved over the cases: a run cut short stays balanced
+            todo = [(layout, sr, sp, FIRST_SEED + 1000 * g + k) for layout in LAYOUTS for g, (sr, sp) in enumerate(CASES)]
+            todo = [c for c in todo if c not in done]
+            if not todo:
+                continue
+            with log.open("a") as f:
+                for record in pool.map(_case_trial, todo):
+                    f.write(json.dumps(record) + "\n")
+                    f.flush()
+            _write_table(log, a.out, time.perf_counter() - t0)
+            print(f"trial {k + 1}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    if log.exists():  # (also: --trials 0 rewrites the table of what is recorded)
+        sys.stdout.write(_write_table(log, a.out, time.perf_counter() - t0))
+
+
+def _write_table(log: Path, out: Path, elapsed: float) -> str:
+    """The table of every trial recorded in ``log``, written to ``out``."""
+    results = {}
+    for r in _recorded(log):
+        results.setdefault((r["layout"], r["sigma_rot"], r["sigma_pos"]), []).append(_row_of(r["row"]))
+    text = table(results, min(len(v) for v in results.values()), elapsed)
+    out.write_text(text)
+    return text
+
+
+def _row_of(plain: dict) -> dict:
+    """A recorded row with its pairs as tuples again (what :func:`table` reads)."""
+    return {k: (tuple(v) if isinstance(v, list) and k != "codes" else v) for k, v in plain.items()}
 
 
 if __name__ == "__main__":
