@@ -231,14 +231,24 @@ def _single_view(rng, centre, distance_mm: float, R_X, t_X, tilt_deg: float):
 
 
 def with_robot_error(scene: SessionScene, sigma_rot_deg: float, sigma_pos: float, rng=None):
-    """The scene as a robot with pose errors reports it: the images stay those of the true
-    poses, the recorded poses become ``R_i exp(-[delta_i]x)``, ``T_i - eps_i`` (so the true
-    pose is the reported one times the error, :mod:`transcalib.estimate.robot_error`), with
-    ``delta_i`` (rad) of per-axis std ``sigma_rot_deg`` degrees and ``eps_i`` of per-axis
-    std ``sigma_pos`` (mm), independent per view. Eye-to-hand the error is the flange's
-    (the recorded robot poses). Returns ``(scene, errors (n_views, 6))``."""
+    """The scene taken by a robot with pose errors: the recorded poses stay the scene's (what
+    the robot reports), the images become those of the true poses ``R_i exp([delta_i]x)``,
+    ``T_i + eps_i`` (the reported pose times the error, :mod:`transcalib.estimate.robot_error`;
+    the scene's pixel noise kept; points it does not see, or that leave the image, unseen), with ``delta_i`` (rad) of per-axis std ``sigma_rot_deg`` degrees and ``eps_i``
+    of per-axis std ``sigma_pos`` (mm), independent per view. Eye-to-hand the error is the
+    flange's (the recorded robot poses). Inside one orientation the images so turn with the
+    errors while the recorded orientations agree, as on a real robot. Returns ``(scene,
+    errors (n_views, 6))``."""
     from ..estimate.robot_error import perturb_poses, sample_errors
 
     errors = sample_errors(len(scene.T), sigma_rot_deg, sigma_pos, rng)
-    R_rep = np.einsum("vab,vbc->vac", scene.R, rotvec_to_matrix(-errors[:, :3]))
-    return replace(scene, R=R_rep, T=scene.T - errors[:, 3:]), errors
+    R_true, T_true = perturb_poses(scene.R, scene.T, errors)
+    true = replace(scene, R=R_true, T=T_true)
+    Rc, C = true.camera_rotations(), true.camera_centres()
+    uv_true = np.stack([project(scene.K, Rc[i], scene.X, C[i:i + 1], scene.dist)[0] for i in range(len(C))])
+    uv = uv_true + np.nan_to_num(scene.uv - scene.uv_true)
+    w, h = scene.image_size
+    depth = np.einsum("vb,vnb->vn", Rc[:, 2], scene.X[None] - C[:, None])
+    outside = (uv_true[..., 0] < 0) | (uv_true[..., 0] > w - 1) | (uv_true[..., 1] < 0) | (uv_true[..., 1] > h - 1)
+    uv[outside | (depth <= 0) | np.isnan(scene.uv[..., 0])] = np.nan
+    return replace(scene, uv=uv, uv_true=uv_true), errors
