@@ -206,3 +206,20 @@ def test_cli_uncertainty_option_chooses_the_reported_std(tmp_path, rule, which):
     assert d["options"]["refinement"]["uncertainty"] == rule
     assert set(unc["reported"].values()) == {"model" if rule == "model" else "robust"}
     assert d["std"]["fx"] == pytest.approx(unc[which]["fx"], rel=1e-9)
+
+
+def test_summary_without_a_sandwich_says_why_and_prints_no_nan(tmp_path, capsys):
+    """The paper's 24 tracks with ``--robot-sigma 0.1`` (make demo's first step): too few
+    points for the cluster-robust check, so every std is the model's; the summary says so
+    instead of printing NaN ratios."""
+    from pathlib import Path
+
+    from transcalib.cli.main import main
+
+    paper = Path(__file__).resolve().parents[1] / "examples" / "paper"
+    code = main(["calibrate", "--tracks", str(paper / "tracks.csv"), "--poses", str(paper / "poses.csv"),
+                 "--robot-sigma", "0.1", "--out", str(tmp_path / "out"), "--formats", "json"])
+    out = capsys.readouterr().out
+    assert code in (0, 1)
+    line = next(ln for ln in out.splitlines() if ln.startswith("Uncertainty:"))
+    assert "model-based (too few points" in line and "nan" not in out.lower()
