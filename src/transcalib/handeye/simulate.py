@@ -234,11 +234,12 @@ def with_robot_error(scene: SessionScene, sigma_rot_deg: float, sigma_pos: float
     """The scene taken by a robot with pose errors: the recorded poses stay the scene's (what
     the robot reports), the images become those of the true poses ``R_i exp([delta_i]x)``,
     ``T_i + eps_i`` (the reported pose times the error, :mod:`transcalib.estimate.robot_error`;
-    the scene's pixel noise kept; points it does not see, or that leave the image, unseen), with ``delta_i`` (rad) of per-axis std ``sigma_rot_deg`` degrees and ``eps_i``
-    of per-axis std ``sigma_pos`` (mm), independent per view. Eye-to-hand the error is the
-    flange's (the recorded robot poses). Inside one orientation the images so turn with the
-    errors while the recorded orientations agree, as on a real robot. Returns ``(scene,
-    errors (n_views, 6))``."""
+    the scene's pixel noise kept; points it does not see, or that leave the image, unseen),
+    with ``delta_i`` (rad) of per-axis std ``sigma_rot_deg`` degrees and ``eps_i`` of per-axis
+    std ``sigma_pos`` (mm), independent per view. Eye-to-hand the error is the flange's (the
+    recorded robot poses). Inside one orientation the images so turn with the errors while
+    the recorded orientations agree, as on a real robot. Returns ``(scene, errors (n_views,
+    6))``."""
     from ..estimate.robot_error import perturb_poses, sample_errors
 
     errors = sample_errors(len(scene.T), sigma_rot_deg, sigma_pos, rng)
