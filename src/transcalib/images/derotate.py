@@ -279,7 +279,11 @@ def _lm(p: np.ndarray, n: int, d: _Data, opts: RotationOptions):
             step = -np.linalg.solve(N + lam * np.diag(np.diag(N) + 1e-12 * np.trace(N)), g)
             q = p + step
             q[:9] /= np.linalg.norm(q[:9])
-            rq = residuals(*_unpack(q, n), d)
+            try:
+                rq = residuals(*_unpack(q, n), d)
+            except np.linalg.LinAlgError:  # the step made A singular: rejected, as a worse cost
+                lam *= 10
+                continue
             if cost(rq, q, sigma) < c0:
                 p, r, lam, improved = q, rq, max(lam / 10, 1e-9), True
                 break
