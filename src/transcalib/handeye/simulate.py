@@ -191,14 +191,9 @@ def session_scene(rng=None, *, n_sessions: int = 3, views_per_session: int = 6, 
         R.append(Rs[None])
         sess.append(len(rotations) + j)
     T, R, sess = np.concatenate(T), np.concatenate(R), np.array(sess)
-    Rc = np.transpose(R @ R_X, (0, 2, 1))
-    C = T + R @ t_X
-    uv_true = np.stack([project(K, Rc[i], X, C[i:i + 1], dist)[0] for i in range(len(T))])
+    uv_true, unseen = _observe(K, np.transpose(R @ R_X, (0, 2, 1)), T + R @ t_X, X, dist, image_size)
     uv = uv_true + rng.normal(0.0, noise_px, uv_true.shape) if noise_px > 0 else uv_true.copy()
-    w, h = image_size
-    depth = np.einsum("vb,vnb->vn", Rc[:, 2], X[None] - C[:, None])
-    outside = (uv_true[..., 0] < 0) | (uv_true[..., 0] > w - 1) | (uv_true[..., 1] < 0) | (uv_true[..., 1] > h - 1)
-    uv[outside | (depth <= 0)] = np.nan
+    uv[unseen] = np.nan
     scene = SessionScene(uv, uv_true, T, R, sess, K, R_X, t_X, np.asarray(dist, float), X, float(noise_px),
                          tuple(image_size))
     return scene.eye_to_hand() if setup == "eye-to-hand" else scene
@@ -245,11 +240,18 @@ def with_robot_error(scene: SessionScene, sigma_rot_deg: float, sigma_pos: float
     errors = sample_errors(len(scene.T), sigma_rot_deg, sigma_pos, rng)
     R_true, T_true = perturb_poses(scene.R, scene.T, errors)
     true = replace(scene, R=R_true, T=T_true)
-    Rc, C = true.camera_rotations(), true.camera_centres()
-    uv_true = np.stack([project(scene.K, Rc[i], scene.X, C[i:i + 1], scene.dist)[0] for i in range(len(C))])
+    uv_true, unseen = _observe(scene.K, true.camera_rotations(), true.camera_centres(), scene.X, scene.dist,
+                               scene.image_size)
     uv = uv_true + np.nan_to_num(scene.uv - scene.uv_true)
-    w, h = scene.image_size
-    depth = np.einsum("vb,vnb->vn", Rc[:, 2], scene.X[None] - C[:, None])
-    outside = (uv_true[..., 0] < 0) | (uv_true[..., 0] > w - 1) | (uv_true[..., 1] < 0) | (uv_true[..., 1] > h - 1)
-    uv[outside | (depth <= 0) | np.isnan(scene.uv[..., 0])] = np.nan
+    uv[unseen | np.isnan(scene.uv[..., 0])] = np.nan
     return replace(scene, uv=uv, uv_true=uv_true), errors
+
+
+def _observe(K, Rc, C, X, dist, image_size):
+    """Exact pixels ``(V, n, 2)`` of the points ``X`` in cameras ``Rc (V, 3, 3)`` at
+    centres ``C (V, 3)``, and ``(V, n)`` bool: outside the image or behind the camera."""
+    uv_true = np.stack([project(K, Rc[i], X, C[i:i + 1], dist)[0] for i in range(len(C))])
+    w, h = image_size
+    depth = np.einsum("vb,vnb->vn", Rc[:, 2], X[None] - C[:, None])
+    outside = (uv_true[..., 0] < 0) | (uv_true[..., 0] > w - 1) | (uv_true[..., 1] < 0) | (uv_true[..., 1] > h - 1)
+    return uv_true, outside | (depth <= 0)

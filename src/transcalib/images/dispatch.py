@@ -191,7 +191,7 @@ def track(
     return tracks
 
 
-def _load_stages() -> threading.Thread:
+def _load_stages() -> None:
     """Import :data:`_STAGES` on a daemon thread (a failed import is left for the main
     thread's own import to report)."""
     def work():
@@ -201,9 +201,7 @@ def _load_stages() -> threading.Thread:
             except Exception:  # noqa: BLE001 - reported where the stage is imported
                 return
 
-    thread = threading.Thread(target=work, name="tracker stages", daemon=True)
-    thread.start()
-    return thread
+    threading.Thread(target=work, name="tracker stages", daemon=True).start()
 
 
 def _session_options(*, ratio, threshold_px, final_threshold_px, smooth_px, refine, session_tolerance_deg,
