@@ -39,7 +39,7 @@ from ..estimate.covariance import linearise, profile_step
 from ..estimate.distributions import chi2_sf, f_sf
 from ..estimate.refine import refine
 from ..types import Calibration
-from .common import fmt_vec
+from .common import camera_poses, fmt_vec
 from .rotation import _refinement
 
 __all__ = ["pose_test", "check_pose_outliers", "check_repeated_poses", "check_unit", "truth_mismatch",
@@ -223,8 +223,8 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
     if calibration.inliers is None or not calibration.sigma_px:
         return out
     seen = np.isfinite(uv[..., 0])
-    R_cam, C = calibration.camera_poses() if calibration.flange_rotations is not None else (
-        np.broadcast_to(calibration.R, (n, 3, 3)), np.asarray(T, float))
+    R_cam, C = camera_poses(calibration, T)
+    R_cam = np.broadcast_to(R_cam, (n, 3, 3))
     sigma, inl = calibration.sigma_px, np.asarray(calibration.inliers, bool)
     multi = seen.sum(axis=0) >= 3
     fraction = np.array([inl[seen[v] & multi].mean() if (seen[v] & multi).any() else 1.0 for v in range(n)])

@@ -34,7 +34,7 @@ from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
 from .robot_error import COMPONENTS
 from .solvers import gauss_newton, levenberg_marquardt
-from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, redundancy, scale_consistent, score_test
+from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, JointScore, redundancy, score_test
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "with_robot_scales"]
 
@@ -437,16 +437,16 @@ class _Fitter:
         """:meth:`__call__` with the robot pose error: the fit without it, the score test
         of each component whose scale is not given, then rounds of fit and
         variance-component update (:mod:`.variance_components`) of the scales found and
-        the pixel noise; a component whose fitted scale the score at zero does not support
-        (:func:`.variance_components.scale_consistent` below ``GATE_ALPHA``: it absorbed a
-        model misfit) is left out again. Near the solution (scales given by the fit of a
+        the pixel noise; then the fitted scales are checked against the scores at zero
+        (:meth:`_drop_misfits`). Near the solution (scales given by the fit of a
         subset) one round. A refit of nearly the same tracks (:class:`_RobotStart`: other
         inliers, a richer lens, the robust loss's polish on the inliers) runs the rounds
         from the scales and errors found before and tests only the components not tested
         before."""
         pb, n_views = self.pb, len(self.pb.T)
         given, p_values, sig = pb.robot_given, {c: np.nan for c in COMPONENTS}, {}
-        consistent = {}  # component -> p-value of its fitted scale against its score (scale_consistent)
+        consistent = {}  # component -> p-value of its fitted scale against its score (JointScore)
+        zero = None  # (scores, fit, layout, robot fit) where the first components were tested
         state = replace(state, E=None)
         dof = pb.lay.residual_dof(int(mask[:, idx].sum()), len(idx))
         plain, sigma_px = None, pb.opts.sigma_px
@@ -473,9 +473,10 @@ class _Fitter:
                 sigma_px = np.sqrt(max(sum_sq(state, self.lay, out[3]), 0.0) / max(dof, 1))
             if sigma_px <= SIGMA_FLOOR_PX:  # exact data: no robot error to find
                 break
-            tests = self._gate(state, idx, mask, sigma_px, tried)
+            tests, joint = self._gate(state, idx, mask, sigma_px, tried)
             if not tests:
                 break
+            zero = zero or (joint, out, self.lay, self.robot)
             p_values.update({c: t.p_value for c, t in tests.items()})
             c = min(tests, key=lambda k: tests[k].p_value)
             if not (tests[c].p_value < GATE_ALPHA and tests[c].sigma2 > 0):
@@ -493,11 +494,8 @@ class _Fitter:
                 consistent[c] = 0.0
                 out, self.lay, self.robot = before
                 sig = {} if self.robot is None else dict(self.robot.sigma)
-            elif c in sig:
-                consistent[c] = scale_consistent(tests[c], sig[c] ** 2, self.robot.sigma_px)
-                if consistent[c] < GATE_ALPHA:  # absorbed a misfit: back to the model without it
-                    out, self.lay, self.robot = before
-                    sig = {} if self.robot is None else dict(self.robot.sigma)
+        if zero is not None and sig:
+            out, sig = self._drop_misfits(out, sig, zero, consistent, idx, mask, dof)
         tested = [c for c in tried if given.get(c, 0.0) is None]
         self.warm = _RobotStart({c: sig[c] for c in sig if c in tested}, None if out is None else out[0].E,
                                 {c: p_values[c] for c in tested}, {c: consistent.get(c, np.nan) for c in tested})
@@ -508,6 +506,32 @@ class _Fitter:
                 replace(state, E=None), idx, mask, "linear")
         self.robot = replace(self.robot, p_values=p_values, consistency=consistent)
         return out
+
+    def _drop_misfits(self, out, sig, zero, consistent, idx, mask, dof):
+        """The fitted scales ``sig`` checked against the scores where they were tested
+        (``zero``: :class:`.variance_components.JointScore`, that fit, its layout and robot
+        fit): while a component's p-value is below ``GATE_ALPHA`` the worst is left out
+        (a misfit) and the others fitted again from there. Records the p-values in
+        ``consistent``; returns ``(out, sig)``."""
+        joint, zero_out, zero_lay, zero_robot = zero
+        while sig:
+            p = joint.consistency({c: v**2 for c, v in sig.items()}, self.robot.sigma_px)
+            consistent.update(p)
+            worst = min(p, key=p.get, default=None)
+            if worst is None or p[worst] >= GATE_ALPHA:
+                break
+            sig = {c: v for c, v in sig.items() if c != worst}
+            out, self.lay, self.robot = zero_out, zero_lay, zero_robot
+            if not set(sig) & set(joint.blocks):  # only those given remain: the fit they were tested at
+                sig = {} if zero_robot is None else dict(zero_robot.sigma)
+            else:
+                try:
+                    out = self._rounds(zero_out[0], idx, mask, sig, dof, zero_out[4])
+                    sig = dict(self.robot.sigma)
+                except DegenerateError:
+                    consistent.update({c: 0.0 for c in sig})
+                    out, self.lay, self.robot, sig = zero_out, zero_lay, zero_robot, {}
+        return out, sig
 
     def _rounds(self, state, idx, mask, sig, dof, sigma_px):
         """Fit and variance-component updates until the scales settle (:meth:`_with_robot`)."""
@@ -555,14 +579,15 @@ class _Fitter:
             self.system = self.residuals = None
         return state, cost(state, lay, data, "linear", self.c), reason, data, sigma_px
 
-    def _gate(self, state, idx, mask, sigma_px, tried) -> dict:
+    def _gate(self, state, idx, mask, sigma_px, tried) -> tuple:
         """Score tests at zero (:func:`.variance_components.score_test`) of the components
         to estimate not yet ``tried``, at the fit ``state`` with the components of
-        ``self.robot`` (their priors in the profiled parameters)."""
+        ``self.robot`` (their priors in the profiled parameters), and their joint score
+        (:class:`.variance_components.JointScore`)."""
         pb = self.pb
         comps = tuple(c for c in COMPONENTS if c in pb.robot_given and pb.robot_given[c] is None and c not in tried)
         if not comps:
-            return {}
+            return {}, None
         sig = {} if self.robot is None else self.robot.sigma
         lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig or c in comps))
         data = build_data(pb.uv, mask, idx, pb.T, np.zeros(len(pb.T)), _robot_weights(sigma_px, sig))
@@ -570,7 +595,8 @@ class _Fitter:
         red = reduced_information(replace(state, E=E), lay, data)
         test = {c: lay.robot_columns(c).ravel() for c in comps}
         others = np.setdiff1d(np.arange(lay.size), np.concatenate(list(test.values())))
-        return {c: score_test(red.S, red.rhs, t, others, sigma_px) for c, t in test.items()}
+        return ({c: score_test(red.S, red.rhs, t, others, sigma_px) for c, t in test.items()},
+                JointScore.of(red.S, red.rhs, test, others))
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..check.common import camera_poses
 from ..estimate.layout import FlangeModel, complement
 from ..estimate.noise import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
 from ..estimate.refine import climb_distortion, fit_refine, with_robot_scales
@@ -34,10 +35,11 @@ def masked(uv: np.ndarray, inliers) -> np.ndarray:
 
 
 def _cameras(cal: Calibration):
-    """``(A, centres)`` for :func:`triangulate`: ``K R`` shared by every view without flange
-    orientations, else per view."""
-    R_cam, C = cal.camera_poses()
-    return (cal.K @ cal.R if cal.flange_rotations is None else cal.K @ R_cam), C
+    """``(A, centres)`` for :func:`triangulate`: ``K R_cam``, one for every view or one per
+    view (:func:`~transcalib.check.common.camera_poses`: with flange orientations or the
+    views' estimated pose errors)."""
+    R_cam, C = camera_poses(cal, cal.T)
+    return cal.K @ R_cam, C
 
 
 def triangulated(uv: np.ndarray, cal: Calibration) -> np.ndarray:
@@ -148,8 +150,7 @@ def track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
     (n_points,); inf for tracks that cannot be triangulated or fall behind the camera.
     Evaluated ``TRACK_BLOCK`` tracks at a time (small temporaries)."""
     out = np.empty(uv.shape[1])
-    R_cam, C = cal.camera_poses()
-    R_cam = cal.R if cal.flange_rotations is None else R_cam
+    R_cam, C = camera_poses(cal, cal.T)
     for lo in range(0, uv.shape[1], TRACK_BLOCK):
         b = slice(lo, lo + TRACK_BLOCK)
         xc = camera_frame(R_cam, np.nan_to_num(X[b]), C)

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..check.common import camera_poses
 from ..check.prediction import prediction_variance
 from ..check.rotation import _refinement
 from ..errors import Diagnostic, InputError
@@ -314,7 +315,7 @@ def _expected_sq(cal: Calibration, motion, shift, moved, seen, sigma_obs: float)
     calibration's problem rebuilt from its saved observations (its predictions plus
     residuals), linearised at its solution, and each new view appended as a view of the
     same model (module docstring; :func:`transcalib.check.prediction.prediction_variance`)."""
-    R_cam, C = _camera(cal)
+    R_cam, C = camera_poses(cal, cal.T)
     uv_cal = project(cal.K, R_cam, np.nan_to_num(cal.X), C, cal.dist) + cal.residuals_px
     lin = linearise(uv_cal, np.asarray(cal.T, float), cal, _refinement(cal), polish=0)
     red = reduced_information(lin.state, lin.layout, lin.data)
@@ -333,12 +334,6 @@ def _expected_sq(cal: Calibration, motion, shift, moved, seen, sigma_obs: float)
             var = prediction_variance(red, Sinv, lin.layout.view_columns(n_cal + i), Jg, JX, pts)
             out[i, idx[pts]] = 2.0 * sigma_obs**2 + cal.sigma_px**2 * var
     return out
-
-
-def _camera(cal: Calibration):
-    """``(R_cam, C)`` of the calibration's views, as :func:`project` takes them."""
-    R_cam, C = cal.camera_poses()
-    return (cal.R if cal.flange_rotations is None else R_cam), C
 
 
 def _with_new_views(state: State, motion, shift, moved) -> State:

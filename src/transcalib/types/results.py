@@ -326,9 +326,9 @@ class RobotError:
         The errors act as eye-to-hand (eq. 2 of :mod:`transcalib.estimate.robot_error`:
         the flange carries the scene) rather than on the camera (eq. 1).
     consistency_p : (2,) float
-        Lower-tail p-values of each fitted scale against its score test
-        (:func:`transcalib.estimate.variance_components.scale_consistent`; NaN where not
-        fitted); below 1 %: ``"misfit"``.
+        Lower-tail p-values of each fitted scale against its score at zero, every fitted
+        component present (:class:`transcalib.estimate.variance_components.JointScore`;
+        NaN where not fitted); below 1 %: ``"misfit"``.
     """
 
     sigma_rot_deg: float
