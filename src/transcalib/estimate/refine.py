@@ -446,6 +446,7 @@ class _Fitter:
         pb, n_views = self.pb, len(self.pb.T)
         given, p_values, sig = pb.robot_given, {c: np.nan for c in COMPONENTS}, {}
         consistent = {}  # component -> p-value of its fitted scale against its score (JointScore)
+        scores = {}  # component -> its scale's moment estimate where first tested (rad, unit)
         zero = None  # (scores, fit, layout, robot fit) where the first components were tested
         state = replace(state, E=None)
         dof = pb.lay.residual_dof(int(mask[:, idx].sum()), len(idx))
@@ -463,6 +464,7 @@ class _Fitter:
             tried |= set(warm.p_values)
             p_values.update(warm.p_values)
             consistent.update(warm.consistency)
+            scores.update(warm.scores)
         if out is None and sig:
             out = self._rounds(state, idx, mask, sig, dof, sigma_px)
         elif out is None and not self.near_solution:
@@ -478,33 +480,38 @@ class _Fitter:
                 break
             zero = zero or (joint, out, self.lay, self.robot)
             p_values.update({c: t.p_value for c, t in tests.items()})
+            for k, t in tests.items():
+                scores.setdefault(k, float(np.sqrt(t.sigma2)))
             c = min(tests, key=lambda k: tests[k].p_value)
             if not (tests[c].p_value < GATE_ALPHA and tests[c].sigma2 > 0):
                 break
             sig[c] = float(np.sqrt(tests[c].sigma2))
             tried.add(c)  # tested once: a component the rounds drop again is not tried twice
-            before = (out, self.lay, self.robot)
+            before, p_run = (out, self.lay, self.robot), {}
             try:
-                out = self._rounds(state, idx, mask, sig, dof, sigma_px)
+                out = self._rounds(state, idx, mask, sig, dof, sigma_px, None if zero is None else zero[0])
                 sig = dict(self.robot.sigma)
                 fitted = all(np.isfinite(v) for v in sig.values())
+            except _RunAway as run:  # the scales left the scores' evidence behind
+                fitted, p_run = False, run.p
             except DegenerateError:  # the rounds ran off to where the fit breaks down: a misfit too
                 fitted = False
             if not fitted:
-                consistent[c] = 0.0
+                consistent[c] = p_run.get(c, 0.0)
                 out, self.lay, self.robot = before
                 sig = {} if self.robot is None else dict(self.robot.sigma)
         if zero is not None and sig:
             out, sig = self._drop_misfits(out, sig, zero, consistent, idx, mask, dof)
         tested = [c for c in tried if given.get(c, 0.0) is None]
         self.warm = _RobotStart({c: sig[c] for c in sig if c in tested}, None if out is None else out[0].E,
-                                {c: p_values[c] for c in tested}, {c: consistent.get(c, np.nan) for c in tested})
+                                {c: p_values[c] for c in tested}, {c: consistent.get(c, np.nan) for c in tested},
+                                {c: scores[c] for c in tested if c in scores})
         if out is None or not sig:
             self.lay = pb.lay
-            self.robot = _RobotFit({}, {}, p_values, given, None, consistent)
+            self.robot = _RobotFit({}, {}, p_values, given, None, consistent, scores)
             return out if out is not None and plain is not None and out is plain else self._plain(
                 replace(state, E=None), idx, mask, "linear")
-        self.robot = replace(self.robot, p_values=p_values, consistency=consistent)
+        self.robot = replace(self.robot, p_values=p_values, consistency=consistent, scores=scores)
         return out
 
     def _drop_misfits(self, out, sig, zero, consistent, idx, mask, dof):
@@ -526,15 +533,17 @@ class _Fitter:
                 sig = {} if zero_robot is None else dict(zero_robot.sigma)
             else:
                 try:
-                    out = self._rounds(zero_out[0], idx, mask, sig, dof, zero_out[4])
+                    out = self._rounds(zero_out[0], idx, mask, sig, dof, zero_out[4], joint)
                     sig = dict(self.robot.sigma)
-                except DegenerateError:
-                    consistent.update({c: 0.0 for c in sig})
+                except DegenerateError as exc:  # (a _RunAway too)
+                    consistent.update({c: getattr(exc, "p", {}).get(c, 0.0) for c in sig})
                     out, self.lay, self.robot, sig = zero_out, zero_lay, zero_robot, {}
         return out, sig
 
-    def _rounds(self, state, idx, mask, sig, dof, sigma_px):
-        """Fit and variance-component updates until the scales settle (:meth:`_with_robot`)."""
+    def _rounds(self, state, idx, mask, sig, dof, sigma_px, joint: JointScore | None = None):
+        """Fit and variance-component updates until the scales settle (:meth:`_with_robot`).
+        With the scores ``joint``, raises :class:`_RunAway` as soon as a growing scale
+        fails their check at ``RUNAWAY_ALPHA`` (it would only fail worse further on)."""
         pb, n_views, given = self.pb, len(self.pb.T), self.pb.robot_given
         start = dict(sig)
         lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig))
@@ -554,6 +563,7 @@ class _Fitter:
             sse = sum_sq(state, lay, data)
             new_px = pb.opts.sigma_px or float(np.sqrt(sse / max(dof - sum(r.values()), 0.5 * dof, 1)))
             done = all(abs(new[c] - sig[c]) <= RTOL * sig[c] for c in sig) and abs(new_px - sigma_px) <= RTOL * sigma_px
+            _check_growth(joint, sig, new, new_px)
             if not done:
                 new = _extrapolated(history, new, given)
             sig, sigma_px = new, new_px
@@ -604,13 +614,14 @@ class _RobotStart:
     """The robot error a previous fit of nearly the same tracks (a refit's start, the
     robust loss's polish before) found: the scales it estimated (rad, unit), each view's
     errors ``E (V, 6)`` (None without scales), and the p-values of every component it
-    tested (score test, scale check). A refit continues the variance-component rounds
-    from there and does not test those components again."""
+    tested (score test, scale check) with the score's scale estimates. A refit continues
+    the variance-component rounds from there and does not test those components again."""
 
     sigma: dict
     E: np.ndarray | None
     p_values: dict
     consistency: dict
+    scores: dict
 
     @classmethod
     def of(cls, initial, given: dict, n_views: int) -> "_RobotStart | None":
@@ -623,21 +634,24 @@ class _RobotStart:
         if not tested:
             return None
         scales = (np.radians(re.sigma_rot_deg), re.sigma_pos)
+        scales_of_score = (np.radians(re.score_scales[0]), re.score_scales[1])
         sigma = {COMPONENTS[k]: float(scales[k]) for k in tested if re.source[k] == "estimated"}
         E = np.hstack([np.radians(re.rot_deg), re.pos])
         for k, c in enumerate(COMPONENTS):
             if c not in sigma:
                 E[:, 3 * k: 3 * k + 3] = 0.0
         return cls(sigma, E if sigma else None, {COMPONENTS[k]: float(re.p_values[k]) for k in tested},
-                   {COMPONENTS[k]: float(re.consistency_p[k]) for k in tested})
+                   {COMPONENTS[k]: float(re.consistency_p[k]) for k in tested},
+                   {COMPONENTS[k]: float(scales_of_score[k]) for k in tested if np.isfinite(scales_of_score[k])})
 
 
 @dataclass(frozen=True)
 class _RobotFit:
     """Scales of the robot error components found (``sigma``: rad / unit), their
-    redundancies, the score tests' p-values, what was given, the pixel noise, and the
+    redundancies, the score tests' p-values, what was given, the pixel noise, the
     p-values of the fitted scales against their scores (``consistency``; a component
-    below ``GATE_ALPHA`` there was left out as a misfit)."""
+    below ``GATE_ALPHA`` there was left out as a misfit) and the scores' scale estimates
+    (``scores``, rad / unit)."""
 
     sigma: dict
     r: dict
@@ -645,12 +659,40 @@ class _RobotFit:
     given: dict
     sigma_px: float | None
     consistency: dict = field(default_factory=dict)
+    scores: dict = field(default_factory=dict)
 
 
 #: A robot error component estimated while fitting is dropped again when its scale falls
 #: below this fraction of its start while its redundancy falls below ``DROP_REDUNDANCY``.
 DROP_FRACTION = 0.05
 DROP_REDUNDANCY = 1.0
+
+
+#: The variance-component rounds stop early once a growing scale's check against the
+#: scores (:class:`.variance_components.JointScore`) falls below this: far below the
+#: ``GATE_ALPHA`` of the verdict, which they would then only fail by more. (Such rounds
+#: crawl: the fit runs along a valley where per-view errors trade with the camera, up to
+#: 100 Levenberg-Marquardt steps a round.)
+RUNAWAY_ALPHA = GATE_ALPHA / 100
+
+
+class _RunAway(DegenerateError):
+    """The variance-component rounds ran away from the scores' evidence: ``p`` the checks'
+    p-values (component -> p)."""
+
+    def __init__(self, p: dict):
+        super().__init__(f"robot error scales far above the score tests' evidence (p = {p})")
+        self.p = p
+
+
+def _check_growth(joint: JointScore | None, sig: dict, new: dict, sigma_px: float) -> None:
+    """Raise :class:`_RunAway` when a scale grew from ``sig`` to ``new`` and its check
+    against ``joint`` (None: no check) is below ``RUNAWAY_ALPHA``."""
+    if joint is None or not any(new[c] > sig[c] for c in new if c in joint.blocks):
+        return
+    p = joint.consistency({c: v**2 for c, v in new.items()}, sigma_px)
+    if any(p.get(c, 1.0) < RUNAWAY_ALPHA and new[c] > sig[c] for c in new):
+        raise _RunAway(p)
 
 
 def _robot_weights(sigma_px: float, sig: dict) -> np.ndarray:
@@ -930,9 +972,10 @@ def _robot_error(pb: _Problem, fit: _Fit, cov: np.ndarray) -> RobotError | None:
     p = np.array([np.nan, np.nan]) if rf is None else np.array([rf.p_values[c] for c in COMPONENTS])
     r = np.zeros(2) if rf is None else np.array([rf.r.get(c, 0.0) for c in COMPONENTS])
     pc = np.array([np.nan if rf is None else rf.consistency.get(c, np.nan) for c in COMPONENTS])
+    score = np.array([np.nan if rf is None else rf.scores.get(c, np.nan) for c in COMPONENTS])
     return RobotError(float(np.degrees(sigma[0])), float(sigma[1]), float(np.degrees(sd[0])), float(sd[1]),
                       tuple(source), np.degrees(E[:, :3]), E[:, 3:].copy(), std[:, :3], std[:, 3:], r, p,
-                      bool(lay.robot_inverted), pc)
+                      bool(lay.robot_inverted), pc, np.array([np.degrees(score[0]), score[1]]))
 
 
 def _view_rotations(lay, state, cov, n_views) -> ViewRotations | None:

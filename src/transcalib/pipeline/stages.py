@@ -91,14 +91,15 @@ def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOption
 
 def _as_estimated(full: Calibration, subset: Calibration) -> Calibration:
     """``full``'s robot error (fitted with the scales of ``subset`` given) reported as the
-    subset estimated them: sources, the scales' std, redundancies and p-values (score
-    tests and scale checks)."""
+    subset estimated them: sources, the scales' std, redundancies, p-values (score tests
+    and scale checks) and the scores' scales."""
     a, b = full.robot_error, subset.robot_error
     if a is None or b is None:
         return full
     return replace(full, robot_error=replace(a, source=b.source, sigma_rot_std_deg=b.sigma_rot_std_deg,
                                              sigma_pos_std=b.sigma_pos_std, redundancy=b.redundancy,
-                                             p_values=b.p_values, consistency_p=b.consistency_p))
+                                             p_values=b.p_values, consistency_p=b.consistency_p,
+                                             score_scales=b.score_scales))
 
 
 def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress, flange: FlangeModel | None = None):
@@ -113,13 +114,15 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     selection = cal.stats.distortion_selection
     k = np.isfinite(uv[..., 0]).sum(axis=0)
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
-        X_all = triangulated(uv, cal)
-        again = inlier_rule(track_sse(uv, cal, X_all), k, rule_sigma(cal, opts), opts.ransac.false_rejection)
+        judge = _judge(masked(uv, inliers), T, cal, chosen)
+        X_all = triangulated(uv, judge)
+        again = inlier_rule(track_sse(uv, judge, X_all), k, rule_sigma(judge, opts), opts.ransac.false_rejection)
         # a few borderline tracks trading places change nothing: refit only for more
         if np.sum(again != inliers) <= max(2, REJUDGE_FRACTION * inliers.sum()) or again.sum() < 2:
             break
         inliers = again
-        start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan))
+        start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan),  # a misfit verdict is made again
+                        robot_error=cal.robot_error if judge is cal else None)
         cal = fit_refine(masked(uv, inliers), T, start, chosen)
         stages.append("reclassify+refine")
     if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
@@ -130,6 +133,23 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
         cal = untruncated(cal, k[inliers], opts.ransac.false_rejection)
     return cal, inliers, stages
+
+
+def _judge(uv, T, cal: Calibration, opts) -> Calibration:
+    """The fit the tracks are judged by: ``cal``, or where it left a robot error component
+    out as a misfit, ``cal`` refitted with the scales given, a misfit's at the score's
+    moment estimate (the data's first-order evidence, ``RobotError.score_scales``). Wrong
+    links in a few views can make the variance-component rounds run away; the exact-pose
+    fit then judges with a pixel noise that the robot's error inflated and keeps them
+    (renders, session + single views at 0.1 deg / 1 mm: 0.5 px against 0.04 px)."""
+    re = cal.robot_error
+    if re is None or "misfit" not in re.source:
+        return cal
+    fitted = np.array([re.sigma_rot_deg, re.sigma_pos])
+    scales = np.where(np.array(re.source) == "misfit", re.score_scales, fitted)
+    if not np.all(np.isfinite(scales)):
+        return cal
+    return fit_refine(uv, T, cal, replace(opts, robot_sigma_deg=float(scales[0]), robot_sigma_pos=float(scales[1])))
 
 
 def untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:

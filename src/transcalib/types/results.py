@@ -329,6 +329,11 @@ class RobotError:
         Lower-tail p-values of each fitted scale against its score at zero, every fitted
         component present (:class:`transcalib.estimate.variance_components.JointScore`;
         NaN where not fitted); below 1 %: ``"misfit"``.
+    score_scales : (2,) float
+        ``(sigma_rot_deg, sigma_pos)`` as the score tests at zero estimated them (their
+        moment estimates, each component alone: the data's first-order evidence; NaN
+        where not tested). Where a component is a misfit, the tracks are judged with
+        these scales (:func:`transcalib.pipeline.stages.refine_and_rejudge`).
     """
 
     sigma_rot_deg: float
@@ -344,9 +349,11 @@ class RobotError:
     p_values: np.ndarray
     scene_side: bool = False
     consistency_p: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    score_scales: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
 
     def __post_init__(self):
-        _freeze(self, arrays=("rot_deg", "pos", "rot_std_deg", "pos_std", "redundancy", "p_values", "consistency_p"),
+        _freeze(self, arrays=("rot_deg", "pos", "rot_std_deg", "pos_std", "redundancy", "p_values", "consistency_p",
+                              "score_scales"),
                 sequences=("source",))
 
     def __eq__(self, other) -> bool:
