@@ -113,6 +113,9 @@ def trial(args):
         if re is not None:
             row["sigma_rot"] = (re.sigma_rot_deg, re.sigma_rot_std_deg)
             row["sigma_pos"] = (re.sigma_pos, re.sigma_pos_std)
+            row["misfit"] = ("misfit" in re.source, 0.0)
+            row["check_p"] = (float(np.nanmin(re.consistency_p)) if np.isfinite(re.consistency_p).any() else np.nan,
+                              0.0)
         row["sigma_px"] = (cal.sigma_px, 0.0)
         out[name] = row
     return out
@@ -156,12 +159,14 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
              "estimated). ratio = RMS reported std / empirical std; cover = share of trials with |error| < 1.96 "
              "reported std (nominal 95 %). Targets: ratio 0.8-1.2, cover 90-98 %. sigma est: the median estimated scale "
              "± the median reported std of it, (on): the share of trials where the component was estimated (the "
-             "score test at 1 % found it).\n"]
+             "score test at 1 % found it). misfit: share of trials with a component left out as a misfit; check p: median "
+             "p-value of the fitted scales' check against the score tests (the smallest component's) and its share "
+             "below 1 %.\n"]
     for layout in LAYOUTS:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
         lines.append(f"\n## {layout}\n")
         head = "| sigma_rot deg | sigma_pos mm | fails | " + " | ".join(f"{k} ratio / cover" for k in keys) + \
-               " | sigma_rot est (med ± std) (on) | sigma_pos est (med ± std) (on) | sigma_px |"
+               " | sigma_rot est (med ± std) (on) | sigma_pos est (med ± std) (on) | sigma_px | misfit | check p |"
         lines += [head, "|" + "---|" * (head.count("|") - 1)]
         today_lines = []
         for (sr, sp), chunk in zip(GRID, _chunks(results, jobs_list, layout)):
@@ -177,7 +182,8 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
             px = np.median([r["sigma_px"][0] for r in ok])
             lines.append(f"| {sr} | {sp} | {fails} | " + " | ".join(cells) +
                          f" | {med['sigma_rot'][0]:.4f} ± {med['sigma_rot'][1]:.4f} ({on['sigma_rot']:.0f} %) | "
-                         f"{med['sigma_pos'][0]:.3f} ± {med['sigma_pos'][1]:.3f} ({on['sigma_pos']:.0f} %) | {px:.3f} |")
+                         f"{med['sigma_pos'][0]:.3f} ± {med['sigma_pos'][1]:.3f} ({on['sigma_pos']:.0f} %) | {px:.3f} | "
+                         f"{_check_cells(ok)} |")
             if sr == 0 and sp == 0:
                 today = [r["today"] for r in chunk if "failed" not in r.get("today", {"failed": 1})]
                 st = _summary(today, ["fx", "cx"])
@@ -189,6 +195,16 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
                                    f"switched on in {100 * detected:.1f} % of the trials (score test at 1 % each).")
         lines += [""] + today_lines
     return "\n".join(lines) + "\n"
+
+
+def _check_cells(rows) -> str:
+    """The misfit verdicts: share of trials with a component left out as a misfit | median
+    p-value of the scales' check against the scores (smallest of the fitted components)
+    and its share below 1 %."""
+    p = np.array([r["check_p"][0] for r in rows])
+    p = p[np.isfinite(p)]
+    low = f"{np.median(p):.2f}, {100 * np.mean(p < 0.01):.1f} % < 1 %" if len(p) else "-"
+    return f"{100 * np.mean([r['misfit'][0] for r in rows]):.1f} % | {low}"
 
 
 def _chunks(results, jobs_list, layout):

@@ -71,8 +71,9 @@ def check_robot_error(calibration, unit: str = "units") -> list:
 
 def _misfit(re) -> list:
     """``robot_error_misfit`` for the components left out as a model misfit, else []."""
-    names = [f"{what} (score p = {p:.2g}, fitted scale p = {c:.2g})"
-             for what, src, p, c in zip(("rotation", "position"), re.source, re.p_values, re.consistency_p)
+    names = [f"{what} (score p = {p:.2g}, its scale about {score:.2g} {unit}; fitted scale p = {c:.2g})"
+             for what, src, p, c, score, unit in zip(("rotation", "position"), re.source, re.p_values,
+                                                     re.consistency_p, re.score_scales, ("deg", "units"))
              if src == "misfit"]
     if not names:
         return []

@@ -172,7 +172,8 @@ def _robot_error_json(re) -> dict | None:
     return {"sigma_rot_deg": re.sigma_rot_deg, "sigma_rot_std_deg": re.sigma_rot_std_deg, "sigma_pos": re.sigma_pos,
             "sigma_pos_std": re.sigma_pos_std, "source": {"rot": re.source[0], "pos": re.source[1]},
             "p_values": {"rot": re.p_values[0], "pos": re.p_values[1]},
-            "consistency_p": {"rot": re.consistency_p[0], "pos": re.consistency_p[1]}, "view_rot_deg": re.rot_deg,
+            "consistency_p": {"rot": re.consistency_p[0], "pos": re.consistency_p[1]},
+            "score_scales": {"rot_deg": re.score_scales[0], "pos": re.score_scales[1]}, "view_rot_deg": re.rot_deg,
             "view_pos": re.pos, "view_rot_std_deg": re.rot_std_deg, "view_pos_std": re.pos_std}
 
 
