@@ -279,6 +279,9 @@ def _all_views(state, lay, data, loss, c, obs_weight):
     return translation_block.normal_equations(state, lay, uv, seen, weight, loss, c, loss_weights)
 
 
+_AXES3 = np.arange(3)
+
+
 def _view_by_view(state, lay, data, loss, c, obs_weight):
     """:func:`normal_equations` without priors, one view at a time (any layout)."""
     p, n = lay.size, data.n_points
@@ -301,9 +304,11 @@ def _view_by_view(state, lay, data, loss, c, obs_weight):
             for b in range(a, 3):
                 V[a, b, at] += JXw[a, 0] * JX[b, 0] + JXw[a, 1] * JX[b, 1]
             bX[a, at] += JXw[a, 0] * r[0] + JXw[a, 1] * r[1]
-        for la, ga in enumerate(cols):
-            for d in range(3):
-                W[ga, d, at] += Jw[la, 0] * JX[d, 0] + Jw[la, 1] * JX[d, 1]
+        block = np.einsum("lkn,dkn->ldn", Jw, JX)  # (q, 3, m): d pred / d cols against d pred / d X
+        if len(pts) == n:
+            W[cols] += block
+        else:
+            W[cols[:, None, None], _AXES3[None, :, None], pts[None, None, :]] += block
     for a in range(3):
         for b in range(a):
             V[a, b] = V[b, a]
