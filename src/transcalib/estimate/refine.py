@@ -14,7 +14,7 @@ covariance are those of the inliers. The covariance is ``sigma^2 S^-1``
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -33,6 +33,8 @@ from .layout import FlangeModel, Layout, State, complement, dist_indices, robot_
 from .noise import LOSS_SCALE, OBS_QUANTILE, SIGMA_FLOOR_PX, mad_sigma
 from .observations import build_data
 from .robot_error import COMPONENTS
+from .robot_scales import (DROP_FRACTION, DROP_REDUNDANCY, RobotFit, RobotStart, RunAway, check_growth,
+                           component_sigma, extrapolated, robot_weights)
 from .solvers import gauss_newton, levenberg_marquardt
 from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, JointScore, redundancy, score_test
 
@@ -55,7 +57,7 @@ class _Problem:
     t_sigma: np.ndarray  # (V,) robot precision, 0 where exact
     opts: RefineOptions
     robot_given: dict  # robot error component -> known sigma (rad, unit), None: estimated; absent: off
-    robot_start: "_RobotStart | None" = None  # the start's robot error, to continue from (refits)
+    robot_start: "RobotStart | None" = None  # the start's robot error, to continue from (refits)
 
 
 def refine(uv, T, initial, *, distortion: str | None = None, sigma_T=None, options: RefineOptions | None = None,
@@ -164,7 +166,7 @@ def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = N
                               "points, use more views, or a simpler distortion model.")
     given = _robot_given(opts)
     return _Problem(uv, T, seen, used_idx, int(np.sum(usable & ~in_front)), lay, start, t_sigma, opts, given,
-                    _RobotStart.of(initial, given, n_views))
+                    RobotStart.of(initial, given, n_views))
 
 
 def with_robot_scales(opts: RefineOptions, calibration) -> RefineOptions:
@@ -398,7 +400,7 @@ class _Fitter:
         """Fit the points ``idx`` on the observations ``mask``: ``(state, cost, reason,
         data, pixel sigma used for the priors or None)``; the layout fitted is
         ``self.lay`` (with the robot error components found), ``self.robot`` the robot
-        error's scales (:class:`_RobotFit`)."""
+        error's scales (:class:`RobotFit`)."""
         self.lay, self.robot = self.pb.lay, None
         if self.pb.robot_given and loss == "linear":
             return self._with_robot(state, idx, mask)
@@ -439,11 +441,11 @@ class _Fitter:
         variance-component update (:mod:`.variance_components`) of the scales found and
         the pixel noise; then the fitted scales are checked against the scores at zero
         (:meth:`_drop_misfits`). Near the solution (scales given by the fit of a
-        subset) one round. A refit of nearly the same tracks (:class:`_RobotStart`: other
+        subset) one round. A refit of nearly the same tracks (:class:`RobotStart`: other
         inliers, a richer lens, the robust loss's polish on the inliers) runs the rounds
         from the scales and errors found before and tests only the components not tested
         before."""
-        pb, n_views = self.pb, len(self.pb.T)
+        pb = self.pb
         given, p_values, sig = pb.robot_given, {c: np.nan for c in COMPONENTS}, {}
         consistent = {}  # component -> p-value of its fitted scale against its score (JointScore)
         scores = {}  # component -> its scale's moment estimate where first tested (rad, unit)
@@ -492,7 +494,7 @@ class _Fitter:
                 out = self._rounds(state, idx, mask, sig, dof, sigma_px, None if zero is None else zero[0])
                 sig = dict(self.robot.sigma)
                 fitted = all(np.isfinite(v) for v in sig.values())
-            except _RunAway as run:  # the scales left the scores' evidence behind
+            except RunAway as run:  # the scales left the scores' evidence behind
                 fitted, p_run = False, run.p
             except DegenerateError:  # the rounds ran off to where the fit breaks down: a misfit too
                 fitted = False
@@ -503,12 +505,12 @@ class _Fitter:
         if zero is not None and sig:
             out, sig = self._drop_misfits(out, sig, zero, consistent, idx, mask, dof)
         tested = [c for c in tried if given.get(c, 0.0) is None]
-        self.warm = _RobotStart({c: sig[c] for c in sig if c in tested}, None if out is None else out[0].E,
+        self.warm = RobotStart({c: sig[c] for c in sig if c in tested}, None if out is None else out[0].E,
                                 {c: p_values[c] for c in tested}, {c: consistent.get(c, np.nan) for c in tested},
                                 {c: scores[c] for c in tested if c in scores})
         if out is None or not sig:
             self.lay = pb.lay
-            self.robot = _RobotFit({}, {}, p_values, given, None, consistent, scores)
+            self.robot = RobotFit({}, {}, p_values, given, None, consistent, scores)
             return out if out is not None and plain is not None and out is plain else self._plain(
                 replace(state, E=None), idx, mask, "linear")
         self.robot = replace(self.robot, p_values=p_values, consistency=consistent, scores=scores)
@@ -535,14 +537,14 @@ class _Fitter:
                 try:
                     out = self._rounds(zero_out[0], idx, mask, sig, dof, zero_out[4], joint)
                     sig = dict(self.robot.sigma)
-                except DegenerateError as exc:  # (a _RunAway too)
+                except DegenerateError as exc:  # (a RunAway too)
                     consistent.update({c: getattr(exc, "p", {}).get(c, 0.0) for c in sig})
                     out, self.lay, self.robot, sig = zero_out, zero_lay, zero_robot, {}
         return out, sig
 
     def _rounds(self, state, idx, mask, sig, dof, sigma_px, joint: JointScore | None = None):
         """Fit and variance-component updates until the scales settle (:meth:`_with_robot`).
-        With the scores ``joint``, raises :class:`_RunAway` as soon as a growing scale
+        With the scores ``joint``, raises :class:`RunAway` as soon as a growing scale
         fails their check at ``RUNAWAY_ALPHA`` (it would only fail worse further on)."""
         pb, n_views, given = self.pb, len(self.pb.T), self.pb.robot_given
         start = dict(sig)
@@ -554,18 +556,18 @@ class _Fitter:
         history = {}
         for _ in range(MAX_ROUNDS):
             self.rounds += 1
-            w = _robot_weights(sigma_px, sig)
+            w = robot_weights(sigma_px, sig)
             data = build_data(pb.uv, mask, idx, pb.T, np.zeros(n_views), w)
             state, f, reason = self._lm(state, lay, data, "linear")
             Sinv = _inverse(reduced_information(state, lay, data).S)
             r = {c: redundancy(Sinv, lay.robot_columns(c), w[COMPONENTS.index(c)]) for c in lay.robot}
-            new = {c: (v if given.get(c) is not None else _component_sigma(state, c, r[c])) for c, v in sig.items()}
+            new = {c: (v if given.get(c) is not None else component_sigma(state, c, r[c])) for c, v in sig.items()}
             sse = sum_sq(state, lay, data)
             new_px = pb.opts.sigma_px or float(np.sqrt(sse / max(dof - sum(r.values()), 0.5 * dof, 1)))
             done = all(abs(new[c] - sig[c]) <= RTOL * sig[c] for c in sig) and abs(new_px - sigma_px) <= RTOL * sigma_px
-            _check_growth(joint, sig, new, new_px)
+            check_growth(joint, sig, new, new_px)
             if not done:
-                new = _extrapolated(history, new, given)
+                new = extrapolated(history, new, given)
             sig, sigma_px = new, new_px
             # the data show none after all: the scale collapses while its redundancy vanishes
             dropped = [c for c, v in sig.items() if given.get(c) is None and v <= DROP_FRACTION * start[c]
@@ -577,14 +579,14 @@ class _Fitter:
                     E[:, slice(0, 3) if c == "rot" else slice(3, 6)] = 0.0
                 state = replace(state, E=E)
                 if not sig:
-                    self.robot = _RobotFit({}, {}, {}, given, None)
+                    self.robot = RobotFit({}, {}, {}, given, None)
                     return self._plain(replace(state, E=None), idx, mask, "linear")
                 lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig))
                 continue
             if done or self.near_solution:
                 break
         self.lay = lay
-        self.robot = _RobotFit(sig, r, {}, given, sigma_px)
+        self.robot = RobotFit(sig, r, {}, given, sigma_px)
         if not self.near_solution:
             self.system = self.residuals = None
         return state, cost(state, lay, data, "linear", self.c), reason, data, sigma_px
@@ -600,130 +602,13 @@ class _Fitter:
             return {}, None
         sig = {} if self.robot is None else self.robot.sigma
         lay = replace(pb.lay, robot=tuple(c for c in COMPONENTS if c in sig or c in comps))
-        data = build_data(pb.uv, mask, idx, pb.T, np.zeros(len(pb.T)), _robot_weights(sigma_px, sig))
+        data = build_data(pb.uv, mask, idx, pb.T, np.zeros(len(pb.T)), robot_weights(sigma_px, sig))
         E = np.zeros((len(pb.T), 6)) if state.E is None else state.E
         red = reduced_information(replace(state, E=E), lay, data)
         test = {c: lay.robot_columns(c).ravel() for c in comps}
         others = np.setdiff1d(np.arange(lay.size), np.concatenate(list(test.values())))
         return ({c: score_test(red.S, red.rhs, t, others, sigma_px) for c, t in test.items()},
                 JointScore.of(red.S, red.rhs, test, others))
-
-
-@dataclass(frozen=True)
-class _RobotStart:
-    """The robot error a previous fit of nearly the same tracks (a refit's start, the
-    robust loss's polish before) found: the scales it estimated (rad, unit), each view's
-    errors ``E (V, 6)`` (None without scales), and the p-values of every component it
-    tested (score test, scale check) with the score's scale estimates. A refit continues
-    the variance-component rounds from there and does not test those components again."""
-
-    sigma: dict
-    E: np.ndarray | None
-    p_values: dict
-    consistency: dict
-    scores: dict
-
-    @classmethod
-    def of(cls, initial, given: dict, n_views: int) -> "_RobotStart | None":
-        """From ``initial``'s :class:`RobotError` (None if it has none for these views)."""
-        re = getattr(initial, "robot_error", None)
-        if re is None or re.rot_deg.shape[0] != n_views:
-            return None
-        tested = [k for k, (c, src) in enumerate(zip(COMPONENTS, re.source))
-                  if src in ("estimated", "not detected", "misfit") and c in given and given[c] is None]
-        if not tested:
-            return None
-        scales = (np.radians(re.sigma_rot_deg), re.sigma_pos)
-        scales_of_score = (np.radians(re.score_scales[0]), re.score_scales[1])
-        sigma = {COMPONENTS[k]: float(scales[k]) for k in tested if re.source[k] == "estimated"}
-        E = np.hstack([np.radians(re.rot_deg), re.pos])
-        for k, c in enumerate(COMPONENTS):
-            if c not in sigma:
-                E[:, 3 * k: 3 * k + 3] = 0.0
-        return cls(sigma, E if sigma else None, {COMPONENTS[k]: float(re.p_values[k]) for k in tested},
-                   {COMPONENTS[k]: float(re.consistency_p[k]) for k in tested},
-                   {COMPONENTS[k]: float(scales_of_score[k]) for k in tested if np.isfinite(scales_of_score[k])})
-
-
-@dataclass(frozen=True)
-class _RobotFit:
-    """Scales of the robot error components found (``sigma``: rad / unit), their
-    redundancies, the score tests' p-values, what was given, the pixel noise, the
-    p-values of the fitted scales against their scores (``consistency``; a component
-    below ``GATE_ALPHA`` there was left out as a misfit) and the scores' scale estimates
-    (``scores``, rad / unit)."""
-
-    sigma: dict
-    r: dict
-    p_values: dict
-    given: dict
-    sigma_px: float | None
-    consistency: dict = field(default_factory=dict)
-    scores: dict = field(default_factory=dict)
-
-
-#: A robot error component estimated while fitting is dropped again when its scale falls
-#: below this fraction of its start while its redundancy falls below ``DROP_REDUNDANCY``.
-DROP_FRACTION = 0.05
-DROP_REDUNDANCY = 1.0
-
-
-#: The variance-component rounds stop early once a growing scale's check against the
-#: scores (:class:`.variance_components.JointScore`) falls below this: far below the
-#: ``GATE_ALPHA`` of the verdict, which they would then only fail by more. (Such rounds
-#: crawl: the fit runs along a valley where per-view errors trade with the camera, up to
-#: 100 Levenberg-Marquardt steps a round.)
-RUNAWAY_ALPHA = GATE_ALPHA / 100
-
-
-class _RunAway(DegenerateError):
-    """The variance-component rounds ran away from the scores' evidence: ``p`` the checks'
-    p-values (component -> p)."""
-
-    def __init__(self, p: dict):
-        super().__init__(f"robot error scales far above the score tests' evidence (p = {p})")
-        self.p = p
-
-
-def _check_growth(joint: JointScore | None, sig: dict, new: dict, sigma_px: float) -> None:
-    """Raise :class:`_RunAway` when a scale grew from ``sig`` to ``new`` and its check
-    against ``joint`` (None: no check) is below ``RUNAWAY_ALPHA``."""
-    if joint is None or not any(new[c] > sig[c] for c in new if c in joint.blocks):
-        return
-    p = joint.consistency({c: v**2 for c, v in new.items()}, sigma_px)
-    if any(p.get(c, 1.0) < RUNAWAY_ALPHA and new[c] > sig[c] for c in new):
-        raise _RunAway(p)
-
-
-def _robot_weights(sigma_px: float, sig: dict) -> np.ndarray:
-    """Prior weights ``sigma_px / sigma_k`` of (rot, pos), 0 for a component left out."""
-    return np.array([sigma_px / sig[c] if c in sig else 0.0 for c in COMPONENTS])
-
-
-def _extrapolated(history: dict, new: dict, given: dict) -> dict:
-    """Aitken's extrapolation of the estimated scales' slow (linear) convergence: from
-    three successive values of ``log sigma`` moving the same way by a ratio ``q`` in
-    (0, 0.95), the limit ``x2 + (x2 - x1) q / (1 - q)`` (at most a factor 3 away); then
-    the history starts again. ``history`` (component -> log sigmas) is updated in place."""
-    out = dict(new)
-    for c, v in new.items():
-        if given.get(c) is not None or v <= 0:
-            continue
-        h = history.setdefault(c, [])
-        h.append(np.log(v))
-        if len(h) == 3:
-            d1, d2 = h[1] - h[0], h[2] - h[1]
-            q = d2 / d1 if d1 != 0 else 0.0
-            if 0 < q < 0.95:
-                out[c] = float(np.exp(h[2] + np.clip(d2 * q / (1 - q), -np.log(3), np.log(3))))
-            history[c] = []
-    return out
-
-
-def _component_sigma(state: State, comp: str, r: float) -> float:
-    """``sqrt(|e_k|^2 / r_k)`` of a component's estimated errors (0 without redundancy)."""
-    e = state.E[:, :3] if comp == "rot" else state.E[:, 3:]
-    return float(np.sqrt(np.sum(e * e) / r)) if r > 1e-9 else 0.0
 
 
 def _inverse(S: np.ndarray) -> np.ndarray:
@@ -745,7 +630,7 @@ class _Fit:
     sigma_T_mode: float | None  # pixel sigma of the priors (translations, robot errors)
     inliers: np.ndarray | None  # robust loss: inlier points
     lay: Layout | None = None  # the layout fitted last (with the robot error components found)
-    robot: "_RobotFit | None" = None
+    robot: "RobotFit | None" = None
 
 
 def _fit(pb: _Problem, fit: _Fitter) -> _Fit:
@@ -813,7 +698,7 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     lay, n_views, n_points = fit.lay, *pb.uv.shape[:2]
     cv = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T),
                     system=fitter.system)
-    Sinv, var_X, ok = cv.Sinv, cv.var_X, cv.ok
+    var_X, ok = cv.var_X, cv.ok
     dof_fit = lay.residual_dof(int(fit.mask[:, fit.idx].sum()), len(fit.idx))
     sigma = _sigma(pb, fit, fitter.cost, dof_fit)
     uncertainty, cov = _uncertainty(fit, lay, cv, sigma, pb.opts.uncertainty)
