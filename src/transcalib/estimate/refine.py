@@ -607,8 +607,8 @@ class _Fitter:
         red = reduced_information(replace(state, E=E), lay, data)
         test = {c: lay.robot_columns(c).ravel() for c in comps}
         others = np.setdiff1d(np.arange(lay.size), np.concatenate(list(test.values())))
-        return ({c: score_test(red.S, red.rhs, t, others, sigma_px) for c, t in test.items()},
-                JointScore.of(red.S, red.rhs, test, others))
+        joint = JointScore.of(red.S, red.rhs, test, others)  # one profiling for every component
+        return {c: score_test(*joint.block(c), sigma_px) for c in test}, joint
 
 
 def _inverse(S: np.ndarray) -> np.ndarray:

@@ -76,25 +76,20 @@ class ScoreTest:
     sigma2: float
 
 
-def score_test(S: np.ndarray, b: np.ndarray, test: np.ndarray, others: np.ndarray, sigma_px: float) -> ScoreTest:
-    """The score test (module docstring) of the parameters ``test`` (3 per view, by view)
-    at zero, profiling ``others``; also without the view of the largest excess.
+def score_test(g: np.ndarray, info: np.ndarray, sigma_px: float) -> ScoreTest:
+    """The score test (module docstring) of a component's parameters (3 per view, by view)
+    at zero; also without the view of the largest excess.
 
     Parameters
     ----------
-    S : (p, p) float
-        Reduced normal matrix (pixel units, points eliminated) with the test parameters at
-        zero and no prior on them.
-    b : (p,) float
-        Its right-hand side ``J^T r`` at the fit without the test parameters.
-    test, others : int arrays
-        Indices into ``S``.
+    g, info : (3 n_views,) float, (3 n_views, 3 n_views) float
+        Their profiled gradient and information at the fit without them (pixel units:
+        :func:`profiled_score`, or a block of :class:`JointScore`).
     sigma_px : float
         Pixel noise per coordinate.
     """
-    g, info = profiled_score(S, b, test, others)
     s2 = sigma_px**2
-    without = max((_without_view(g, info, s2, m) for m in range(len(test) // 3)), key=lambda t: t.p_value)
+    without = max((_without_view(g, info, s2, m) for m in range(len(g) // 3)), key=lambda t: t.p_value)
     return ScoreTest(max(_moments(g, info, s2).p_value, without.p_value), without.sigma2)
 
 
@@ -150,6 +145,11 @@ class JointScore:
         g, info = profiled_score(S, b, cols, others)
         starts = np.cumsum([0] + [len(t) for t in test.values()])
         return cls(g, info, {c: np.arange(starts[k], starts[k + 1]) for k, c in enumerate(test)})
+
+    def block(self, c: str) -> tuple[np.ndarray, np.ndarray]:
+        """Component ``c``'s own score: ``(g_c, I_cc)`` (the other components at zero)."""
+        b = self.blocks[c]
+        return self.g[b], self.info[np.ix_(b, b)]
 
     def consistency(self, sigma2: dict, sigma_px: float) -> dict:
         """Lower-tail p-value of each fitted component's ``q_c = |g_c|^2`` if the variances
