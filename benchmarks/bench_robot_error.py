@@ -160,8 +160,8 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
              "reported std (nominal 95 %). Targets: ratio 0.8-1.2, cover 90-98 %. sigma est: the median estimated scale "
              "± the median reported std of it, (on): the share of trials where the component was estimated (the "
              "score test at 1 % found it). misfit: share of trials with a component left out as a misfit; check p: median "
-             "p-value of the fitted scales' check against the score tests (the smallest component's) and its share "
-             "below 1 %.\n"]
+             "p-value of the fitted scales' check against the score tests (the smallest component's) and its shares "
+             "below 1 % and 0.1 % (the verdict's level).\n"]
     for layout in LAYOUTS:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
         lines.append(f"\n## {layout}\n")
@@ -200,10 +200,11 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
 def _check_cells(rows) -> str:
     """The misfit verdicts: share of trials with a component left out as a misfit | median
     p-value of the scales' check against the scores (smallest of the fitted components)
-    and its share below 1 %."""
+    and its shares below 1 % and 0.1 % (the verdict's level)."""
     p = np.array([r["check_p"][0] for r in rows])
     p = p[np.isfinite(p)]
-    low = f"{np.median(p):.2f}, {100 * np.mean(p < 0.01):.1f} % < 1 %" if len(p) else "-"
+    low = (f"{np.median(p):.2f}; {100 * np.mean(p < 0.01):.1f} / {100 * np.mean(p < 0.001):.1f} % below 1 / 0.1 %"
+           if len(p) else "-")
     return f"{100 * np.mean([r['misfit'][0] for r in rows]):.1f} % | {low}"
 
 

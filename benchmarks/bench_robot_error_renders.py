@@ -103,6 +103,8 @@ def _row(r, s: dict, he: dict, layout: str) -> dict:
             row[k] = (t[a] - r.t_X[a], t_std[a])
     re = s["robot_error"]
     row["robot"] = (re["sigma_rot_deg"], re["sigma_pos"], re["source"]["rot"], re["source"]["pos"])
+    checks = [v for v in re["consistency_p"].values() if v is not None and np.isfinite(v)]
+    row["check_p"] = min(checks) if checks else None  # the misfit check's lowest p-value
     row["dist_model"] = s["dist_model"]
     row["codes"] = [d["code"] for d in s["diagnostics"]]
     return row
@@ -124,11 +126,13 @@ def table(results: dict, trials: int, elapsed: float) -> str:
              "default options (the robot error's scales estimated). ratio = RMS reported std / RMS error against "
              f"the truth (its own uncertainty ~1/sqrt(2N) = {1 / np.sqrt(2 * trials):.0%} at N = {trials}); cover = "
              "share with |error| < 1.96 std (nominal 95 %; +-" f"{100 * np.sqrt(0.0475 / trials):.0f} points at N). "
-             "sigma est: median estimated scale (rot deg, pos mm) and how often each component was switched on.", ""]
+             "sigma est: median estimated scale (rot deg, pos mm) and how often each component was switched on. "
+             "misfit: share of trials with a component left out as a misfit; check p: the misfit check's lowest "
+             "p-value, its median and shares below 0.01 and 0.001 (the verdict's level).", ""]
     for layout in LAYOUTS:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
         head = ("| sigma_rot deg | sigma_pos mm | N | fails | " + " | ".join(f"{k} ratio / cover" for k in keys)
-                + " | sigma_rot est (on) | sigma_pos est (on) | lens |")
+                + " | sigma_rot est (on) | sigma_pos est (on) | misfit | check p | lens |")
         lines += [f"## {layout}", "", head, "|" + "---|" * (head.count("|") - 1)]
         for (sr, sp) in CASES:
             chunk = results.get((layout, sr, sp), [])
@@ -141,10 +145,21 @@ def table(results: dict, trials: int, elapsed: float) -> str:
             lens = ", ".join(f"{m} {sum(r['dist_model'] == m for r in ok)}" for m in sorted({r["dist_model"] for r in ok}))
             lines.append(f"| {sr} | {sp} | {len(chunk)} | {len(chunk) - len(ok)} | " + " | ".join(cells)
                          + f" | {np.median(rob[:, 0]):.3f} ({100 * on[0]:.0f} %) | {np.median(rob[:, 1]):.2f} "
-                           f"({100 * on[1]:.0f} %) | {lens} |")
+                           f"({100 * on[1]:.0f} %) | {_checks(ok)} | {lens} |")
         fails = [r["failed"] for c, rows in results.items() if c[0] == layout for r in rows if "failed" in r]
         lines += [""] + ([f"Failures: {'; '.join(sorted(set(fails)))}", ""] if fails else [])
     return "\n".join(lines) + "\n"
+
+
+def _checks(rows: list) -> str:
+    """The misfit check: share of trials with a component left out as a misfit | median
+    and shares below 1e-2 and 1e-3 (the verdict's level) of its lowest p-value (trials
+    recorded with it)."""
+    misfit = np.mean(["robot_error_misfit" in r["codes"] for r in rows])
+    p = np.array([r["check_p"] for r in rows if r.get("check_p") is not None])
+    low = (f"{np.median(p):.2f}; {100 * np.mean(p < 1e-2):.0f} / {100 * np.mean(p < 1e-3):.0f} % below 0.01 / "
+           f"0.001 (of {len(p)})" if len(p) else "-")
+    return f"{100 * misfit:.0f} % | {low}"
 
 
 def _case_trial(case: tuple) -> dict:
@@ -156,7 +171,7 @@ def _case_trial(case: tuple) -> dict:
 
 
 def _plain(v):
-    return v if isinstance(v, (str, list)) else float(v)
+    return v if v is None or isinstance(v, (str, list)) else float(v)
 
 
 def _recorded(path: Path) -> list:

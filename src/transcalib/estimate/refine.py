@@ -36,7 +36,7 @@ from .robot_error import COMPONENTS
 from .robot_scales import (DROP_FRACTION, DROP_REDUNDANCY, RobotFit, RobotStart, RunAway, check_growth,
                            component_sigma, extrapolated, robot_weights)
 from .solvers import gauss_newton, levenberg_marquardt
-from .variance_components import GATE_ALPHA, MAX_ROUNDS, RTOL, JointScore, redundancy, score_test
+from .variance_components import GATE_ALPHA, MAX_ROUNDS, MISFIT_ALPHA, RTOL, JointScore, redundancy, score_test
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "with_robot_scales"]
 
@@ -519,7 +519,7 @@ class _Fitter:
     def _drop_misfits(self, out, sig, zero, consistent, idx, mask, dof):
         """The fitted scales ``sig`` checked against the scores where they were tested
         (``zero``: :class:`.variance_components.JointScore`, that fit, its layout and robot
-        fit): while a component's p-value is below ``GATE_ALPHA`` the worst is left out
+        fit): while a component's p-value is below ``MISFIT_ALPHA`` the worst is left out
         (a misfit) and the others fitted again from there. Records the p-values in
         ``consistent``; returns ``(out, sig)``."""
         joint, zero_out, zero_lay, zero_robot = zero
@@ -527,7 +527,7 @@ class _Fitter:
             p = joint.consistency({c: v**2 for c, v in sig.items()}, self.robot.sigma_px)
             consistent.update(p)
             worst = min(p, key=p.get, default=None)
-            if worst is None or p[worst] >= GATE_ALPHA:
+            if worst is None or p[worst] >= MISFIT_ALPHA:
                 break
             sig = {c: v for c, v in sig.items() if c != worst}
             out, self.lay, self.robot = zero_out, zero_lay, zero_robot
@@ -849,7 +849,7 @@ def _robot_error(pb: _Problem, fit: _Fit, cov: np.ndarray) -> RobotError | None:
         s = rf.sigma.get(comp, 0.0) if rf is not None else 0.0
         r = rf.r.get(comp, 0.0) if rf is not None else 0.0
         given = pb.robot_given.get(comp, 0.0)
-        misfit = rf is not None and rf.consistency.get(comp, 1.0) < GATE_ALPHA
+        misfit = rf is not None and rf.consistency.get(comp, 1.0) < MISFIT_ALPHA
         source.append("off" if comp not in pb.robot_given else "given" if given is not None
                       else "estimated" if s > 0 else "misfit" if misfit else "not detected")
         sigma.append(s)

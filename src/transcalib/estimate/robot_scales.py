@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import DegenerateError
 from .layout import State
 from .robot_error import COMPONENTS
-from .variance_components import GATE_ALPHA, JointScore
+from .variance_components import MISFIT_ALPHA, JointScore
 
 __all__ = ["RobotStart", "RobotFit", "RunAway", "check_growth", "robot_weights", "extrapolated",
            "component_sigma", "DROP_FRACTION", "DROP_REDUNDANCY", "RUNAWAY_ALPHA"]
@@ -64,7 +64,7 @@ class RobotFit:
     """Scales of the robot error components found (``sigma``: rad / unit), their
     redundancies, the score tests' p-values, what was given, the pixel noise, the
     p-values of the fitted scales against their scores (``consistency``; a component
-    below ``GATE_ALPHA`` there was left out as a misfit) and the scores' scale estimates
+    below ``MISFIT_ALPHA`` there was left out as a misfit) and the scores' scale estimates
     (``scores``, rad / unit)."""
 
     sigma: dict
@@ -83,11 +83,11 @@ DROP_REDUNDANCY = 1.0
 
 
 #: The variance-component rounds stop early once a growing scale's check against the
-#: scores (:class:`.variance_components.JointScore`) falls below this: far below the
-#: ``GATE_ALPHA`` of the verdict, which they would then only fail by more. (Such rounds
+#: scores (:class:`.variance_components.JointScore`) falls below this: below the
+#: ``MISFIT_ALPHA`` of the verdict, which they would then only fail by more. (Such rounds
 #: crawl: the fit runs along a valley where per-view errors trade with the camera, up to
 #: 100 Levenberg-Marquardt steps a round.)
-RUNAWAY_ALPHA = GATE_ALPHA / 100
+RUNAWAY_ALPHA = MISFIT_ALPHA / 10
 
 
 class RunAway(DegenerateError):
