@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import render  # noqa: E402
-from _common import RESULTS, results_dir, k5, md_table, rigid_align  # noqa: E402
+from _common import results_dir, k5, md_table, rigid_align  # noqa: E402
 
 SIZE = (752, 582)
 

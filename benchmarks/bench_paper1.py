@@ -35,7 +35,7 @@ sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import render, simulate  # noqa: E402
 from transcalib.geometry.camera import project  # noqa: E402
-from _common import RESULTS, results_dir, k5, md_table, opencv_board, plane_fit, relabel  # noqa: E402
+from _common import results_dir, k5, md_table, opencv_board, plane_fit, relabel  # noqa: E402
 
 SIZE = (752, 582)
 ROBOT_SIGMA = 0.1  # mm, the paper's robot precision

@@ -152,7 +152,7 @@ def run(trials: int, jobs: int, seed0: int = 22000, write=None) -> str:
 
 
 def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
-    lines = [f"# Robot pose error: Monte Carlo (issue 22)\n",
+    lines = ["# Robot pose error: Monte Carlo (issue 22)\n",
              f"`python benchmarks/bench_robot_error.py --trials {trials}` ({elapsed:.0f} s, {jobs} processes). "
              f"{NOISE_PX} px pixel noise; per view a flange rotation error (per-axis std sigma_rot) and position "
              "error (per-axis std sigma_pos), fresh every trial; the refinement with robot_error=True (scales "

@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import transcalib  # noqa: E402
 from transcalib import simulate  # noqa: E402
-from _common import RESULTS, results_dir, md_table, plane_fit  # noqa: E402
+from _common import results_dir, md_table, plane_fit  # noqa: E402
 
 BASE = dict(n_points=50, n_views=4, noise_px=0.5, baseline=0.2)
 STUDIES = {

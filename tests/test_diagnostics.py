@@ -21,7 +21,7 @@ from transcalib.check import (
 from transcalib.estimate.linear import estimate_linear
 from transcalib.estimate.refine import refine
 from transcalib import calibrate
-from transcalib.types import Diagnostic, InputError, Poses, RefineOptions
+from transcalib.types import Diagnostic, Poses, RefineOptions
 
 
 def _codes(diags):

@@ -74,7 +74,7 @@ def test_default_robot_error_does_not_trade_with_the_focal_length(all_on):
 
 
 def test_overlay_and_highlight_tracks_removed(all_on):
-    r, rendered, tracks = all_on, all_on["rendered"], all_on["tracks_obj"]
+    rendered, tracks = all_on["rendered"], all_on["tracks_obj"]
     uv = tracks.uv
     seen = np.isfinite(uv[..., 0])
     ref = np.argmax(seen, axis=0)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from transcalib import simulate
-from transcalib.estimate.robust import RobustEstimate, estimate_robust, point_errors, solve_minimal
+from transcalib.estimate.minimal import solve_minimal
+from transcalib.estimate.robust import RobustEstimate, estimate_robust, point_errors
 from transcalib.types import DegenerateError, InputError, RansacOptions
 
 

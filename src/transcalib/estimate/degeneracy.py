@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DegenerateError, Diagnostic, InputError
+from ..errors import DegenerateError, Diagnostic
 from ..geometry.camera import project
 from ..geometry.rotation import rotvec_to_matrix
 from ..types import INTRINSIC_NAMES, RefineOptions

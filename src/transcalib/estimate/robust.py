@@ -31,7 +31,7 @@ from ..validate import SPAN_RTOL, as_uv_T, check_translations_span
 from ..geometry.rotation import rq_decompose
 from ..geometry.triangulate import triangulate
 from .linear import fit_linear
-from .minimal import forms, forms_sum, normalise, null_vectors, solve_minimal, to_pixels
+from .minimal import forms, forms_sum, normalise, null_vectors, to_pixels
 from .noise import inlier_rule, median_sigma, sigma_from_threshold, track_dof, truncated_sigma
 from .ransac import RansacResult, lo_ransac
 from .scoring import Scorer, point_errors

@@ -147,7 +147,7 @@ class Reduced:
     def point_variances(self, Sinv: np.ndarray) -> np.ndarray:
         """Diagonal of each point's covariance ``(n, 3)`` (unit noise) given ``S^-1``:
         ``diag(V_j^-1) + |L^T Y_j|^2`` column-wise, with ``S^-1 = L L^T``."""
-        p, n = self.Y.shape[0], self.Y.shape[2]
+        n = self.Y.shape[2]
         L = psd_factor(Sinv)
         out = np.empty((3, n))
         for a in range(3):

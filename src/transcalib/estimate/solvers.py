@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..errors import DegenerateError
-from ..types import ProgressEvent, report
+from ..types import report
 
 #: Initial damping, relative to the diagonal of the normal matrix.
 MU0 = 1e-5

@@ -30,7 +30,7 @@ from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from .checks import check_added, check_session, drop_static, n_observations
 from .derotate import Derotation, RotationOptions, estimate_rotations
 from .detect import Features, match_pair, n_threads
-from .epipoles import PairGeometry, fit_translations, verify_pairs
+from .epipoles import fit_translations, verify_pairs
 from .propagate import PropagateOptions, Pyramids, predict_missing, propagate
 from .refine import RefineOptions, SmoothedImages, refine_to_reference
 from .rotation import RotationTest, _explained, check_pure_translation, general_inliers
@@ -166,7 +166,7 @@ def track_session(grey: list, feats: list[Features], opts: SessionOptions, rng, 
         View names for messages.
     """
     timer = _Timer()
-    n, shape = len(grey), grey[0].shape[:2]
+    shape = grey[0].shape[:2]
     with timer("match"):
         xy = _matches(feats, opts.ratio, report)
     with timer("verify"):

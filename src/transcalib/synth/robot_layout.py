@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.camera import K_from_params, project
 from ..geometry.rotation import rotvec_to_matrix
-from ..handeye.simulate import DEFAULT_R_X, DEFAULT_T_X, look_rotation
+from ..handeye.simulate import look_rotation
 from .degrade import Degradations
 from .surfaces import box, plane
 from .textures import Noise

@@ -102,7 +102,7 @@ class RefineOptions:
         estimated from the data together with the pixel noise (variance components)
         when a score test at zero finds it (1 %), else it stays off (with a perfect
         robot the result is then the exact-pose model's); a fitted scale far above what
-        that score showed (lower 1 % tail: the per-view errors absorbed a model misfit) is
+        that score showed (lower 0.1 % tail: the per-view errors absorbed a model misfit) is
         left out again (``RobotError.source`` ``"misfit"``). With ``distortion="auto"``
         the lens is chosen first, with exact poses. The covariance includes the
         components kept. False: exact poses. ``sigma_T`` turns it off.
