@@ -36,7 +36,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from ..errors import DegenerateError
 from ..estimate.ransac import lo_ransac
@@ -198,6 +197,8 @@ def _intrinsics(f: float, centre: np.ndarray) -> np.ndarray:
 
 def _best_focal(F: np.ndarray, H: np.ndarray, flange: np.ndarray, centre: np.ndarray, extent: float) -> float:
     """The focal length (px) whose pair rotations agree best with the flange's."""
+    from scipy.optimize import minimize_scalar  # here: scipy.optimize costs every command 0.1 s to import
+
     def cost(log_f: float) -> float:
         R_E = _pair_motions(F, H, _intrinsics(np.exp(log_f), centre), flange)[0]
         return _rotation_misfit(R_E, flange, _procrustes(R_E, flange))
