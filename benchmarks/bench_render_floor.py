@@ -1,0 +1,173 @@
+"""Where the renders' perfect-robot floor comes from: the tracker's errors against the truth.
+
+    python benchmarks/bench_render_floor.py [--seeds N] [--jobs J] [--quick]
+
+On renders with a perfect robot the reported std of fx falls short of its scatter (one
+session: ratio 0.49, benchmarks/results/robot_error_renders.md), though the pixel noise is
+only 0.02-0.04 px. This study takes the one-session perfect-robot renders of
+``bench_robot_error_renders.py`` (``robot_scene`` eye-in-hand, 12 views of 3-D pure
+translation, JPEG 90), with the camera effects on (``default``: vignetting, exposure,
+sensor noise, a highlight, lens distortion) and off (``clean``: none of them, no lens
+distortion), tracks them in process (:func:`transcalib.images.track` with the
+translations) and compares every tracked observation with the exact projection of the
+3-D point its first observation shows (:meth:`RobotRendered.track_truth`):
+
+- ``err`` the tracker's error per coordinate (px, RMS) against ``sigma_px``, the
+  calibration's pixel noise: what the fit absorbs (errors shared by a track's
+  observations move its 3-D point) and what it leaves;
+- ``shift`` the RMS over views of each view's mean error (first observations left out),
+  against ``err / sqrt(n)`` (n: observations per view), what white errors would give: an
+  error shared by the points of a view does not average down with their number, so a
+  few thousandths of a pixel weigh on fx as much as the pixel noise of every point;
+- ``along`` the error along each observation's displacement from its first view, as a
+  fraction of that displacement (a tracker that falls short of the motion would scale
+  the parallax and with it fx), and ``radial`` each view's radial error at 300 px from
+  the principal point (a pattern that scales the image);
+- fx's error, its reported std and which std the calibration reported (``model`` or the
+  point-clustered sandwich ``robust``, docs/uncertainty.md §7) and z = error / std, for
+  the tracked positions and for the exact projections with white noise of the tracker's
+  RMS error (``exact+noise``: what the model's std promises).
+
+Writes ``benchmarks/results/render_floor.md`` (``--quick``: 2 seeds, a scratch folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import md_table, results_dir  # noqa: E402
+
+FIRST_SEED = 22500  # the seeds of bench_robot_error_renders.py's perfect-robot one-session case
+JPEG_QUALITY = 90
+VARIANTS = ("default", "clean")
+
+
+def trial(job: tuple) -> dict:
+    """One render of ``(variant, seed)``: the tracker's errors and two calibrations."""
+    from transcalib import Poses, calibrate
+    from transcalib.images import track
+    from transcalib.synth.robot import robot_scene
+
+    variant, seed = job
+    r = robot_scene("eye-in-hand", rng=seed, degrade=variant == "default", session_views=12, single_views=0)
+    grey = [cv2.imdecode(cv2.imencode(".jpg", im, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1], cv2.IMREAD_GRAYSCALE)
+            for im in r.images]
+    uv = track(grey, T=r.T).uv
+    X, junction = r.track_truth(uv)
+    keep = np.all(np.isfinite(X), axis=1) & ~junction  # a T-junction has no fixed 3-D point
+    uv, X = uv[:, keep], X[keep]
+    exact = r.project(X)
+    seen = np.isfinite(uv[..., 0])
+    err = np.where(seen[..., None], uv - exact, np.nan)
+    rms = float(np.sqrt(np.nanmean(err**2)))
+    out = {"variant": variant, "seed": seed, "err": rms, "n_obs": int(seen.sum()), **_shift(err, seen),
+           "along": _along(err, exact, seen), "radial": _radial(err, uv, seen, r.K)}
+    noisy = exact + np.random.default_rng(seed).normal(0.0, rms, exact.shape)
+    for name, u in (("tracked", uv), ("exact+noise", np.where(seen[..., None], noisy, np.nan))):
+        cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
+        e = cal.K[0, 0] - r.K[0, 0]
+        reported = cal.uncertainty.reported["fx"] if cal.uncertainty is not None else "model"
+        out[name] = {"fx_err": float(e), "fx_std": float(cal.std["fx"]), "sigma_px": float(cal.sigma_px),
+                     "reported": reported}
+    return out
+
+
+def _shift(err, seen) -> dict:
+    """RMS over views and coordinates of each view's mean error (first observations left
+    out: zero by construction), and what white errors of the same RMS would give."""
+    first = np.argmax(seen, axis=0)
+    means, counts = [], []
+    for v in range(err.shape[0]):
+        m = seen[v] & (first != v)
+        if m.sum() >= 10:
+            means.append(err[v, m].mean(axis=0))
+            counts.append(m.sum())
+    rms = float(np.sqrt(np.nanmean(err**2)))
+    return {"shift": float(np.sqrt(np.mean(np.square(means)))), "shift_white": rms / float(np.sqrt(np.mean(counts)))}
+
+
+def _along(err, exact, seen) -> float:
+    """Least-squares slope of the error along each observation's displacement from its
+    track's first view against that displacement (px per px)."""
+    first = np.argmax(seen, axis=0)
+    d = exact - exact[first, np.arange(exact.shape[1])][None]
+    dn = np.linalg.norm(d, axis=2)
+    m = seen & (dn > 1.0)
+    along = np.sum(err * d, axis=2)[m] / dn[m]
+    return float(np.sum(along * dn[m]) / np.sum(dn[m] ** 2))
+
+
+def _radial(err, uv, seen, K) -> float:
+    """Median over views of the radial error at 300 px from the principal point (px) of
+    a fit ``e_radial = k r`` per view (first observations left out: zero by construction)."""
+    first = np.argmax(seen, axis=0)
+    out = []
+    for v in range(uv.shape[0]):
+        m = seen[v] & (first != v)
+        if m.sum() < 10:
+            continue
+        d = uv[v, m] - K[:2, 2]
+        r = np.linalg.norm(d, axis=1)
+        radial = np.sum(err[v, m] * d / r[:, None], axis=1)
+        out.append(300.0 * np.sum(radial * r) / np.sum(r * r))
+    return float(np.median(out))
+
+
+def table(rows: list, elapsed: float, seeds: int) -> str:
+    head = ["variant", "seed", "err px", "shift px (white)", "along", "radial px @300", "sigma_px tracked", "fx err (tracked)",
+            "fx std (reported)", "z tracked", "fx err (exact+noise)", "z exact+noise"]
+    body = []
+    for r in rows:
+        t, x = r["tracked"], r["exact+noise"]
+        body.append([r["variant"], r["seed"], r["err"], f"{r['shift']:.4f} ({r['shift_white']:.4f})", r["along"], r["radial"], t["sigma_px"], t["fx_err"],
+                     f"{t['fx_std']:.4f} ({t['reported']})", t["fx_err"] / t["fx_std"], x["fx_err"],
+                     x["fx_err"] / x["fx_std"]])
+    summary = []
+    for v in VARIANTS:
+        mine = [r for r in rows if r["variant"] == v]
+        for name in ("tracked", "exact+noise"):
+            z = np.array([r[name]["fx_err"] / r[name]["fx_std"] for r in mine])
+            e = np.array([r[name]["fx_err"] for r in mine])
+            sd = np.array([r[name]["fx_std"] for r in mine])
+            shift = np.sqrt(np.mean([r["shift"] ** 2 for r in mine]))
+            summary.append(f"- {v}, {name}: fx std ratio {np.sqrt(np.mean(sd**2) / np.mean(e**2)):.2f}, RMS z "
+                           f"{np.sqrt(np.mean(z**2)):.2f}, mean error {e.mean():+.4f} px (N = {len(mine)})"
+                           + (f"; views' mean error {shift:.4f} px RMS" if name == "tracked" else ""))
+    return "\n".join([
+        "# The renders' perfect-robot floor: the tracker against the truth", "",
+        f"`python benchmarks/bench_render_floor.py --seeds {seeds}` ({elapsed:.0f} s). One-session perfect-robot "
+        "renders (12 views, JPEG 90; seeds of bench_robot_error_renders.py), tracked in process. err: the tracker's "
+        "RMS error per coordinate against the exact projection of the point its first observation shows; shift: "
+        "RMS of the views' mean errors (in brackets: what white errors of that RMS would give); along: "
+        "the error along the displacement from the first view per px of displacement; radial: median per-view "
+        "radial error at 300 px; z = fx error / reported std (tracked) and for the exact projections with white "
+        "noise of the tracker's RMS error (exact+noise). Ratio = RMS std / RMS error (1 when the std is right; "
+        "its own uncertainty ~1/sqrt(2N)).", "", md_table(head, body), "", *summary, ""])
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, default=10)
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--quick", action="store_true")
+    a = p.parse_args(argv)
+    seeds = 2 if a.quick else a.seeds
+    jobs = [(v, FIRST_SEED + k) for k in range(seeds) for v in VARIANTS]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.jobs) as pool:
+        rows = list(pool.map(trial, jobs))
+    text = table(rows, time.perf_counter() - t0, seeds)
+    (results_dir(a.quick) / "render_floor.md").write_text(text)
+    sys.stdout.write(text)
+
+
+if __name__ == "__main__":
+    main()
