@@ -44,9 +44,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import md_table, results_dir  # noqa: E402
+from bench_robot_error_renders import FIRST_SEED, JPEG_QUALITY  # noqa: E402  (its perfect-robot seeds)
 
-FIRST_SEED = 22500  # the seeds of bench_robot_error_renders.py's perfect-robot one-session case
-JPEG_QUALITY = 90
 VARIANTS = ("default", "clean")
 
 

@@ -40,9 +40,9 @@ information ``I``, has ``Cov(g) = sigma_px^2 I + I D I`` (``D`` the fitted varia
 parameter; the components overlap, one orientation's rotation and position errors
 strongly), so each component's ``q_c = |g_c|^2`` is a weighted chi-square with the
 eigenvalues of that covariance's block as weights; a ``q_c`` in its lower tail
-(``MISFIT_ALPHA``) means the fitted scales are not the data's first-order evidence but
-a distant solution where misfit is absorbed: the worst component is left out (``"misfit"``), the
-others fitted again and checked again. Checked one component at a time instead, a
+(``MISFIT_ALPHA``) means the fitted scales are not the data's first-order evidence but a
+distant solution where misfit is absorbed: the worst component is left out (``"misfit"``),
+the others fitted again and checked again. Checked one component at a time instead, a
 component fitted alone takes up its partner's share (rotation error as position error)
 and fails the check with both present in the data: on renders of one orientation with
 0.1 deg / 1 mm, 1 in 16 calibrations fell back to exact poses that way.
