@@ -279,9 +279,6 @@ def _all_views(state, lay, data, loss, c, obs_weight):
     return translation_block.normal_equations(state, lay, uv, seen, weight, loss, c, loss_weights)
 
 
-_AXES3 = np.arange(3)
-
-
 def _view_by_view(state, lay, data, loss, c, obs_weight):
     """:func:`normal_equations` without priors, one view at a time (any layout)."""
     p, n = lay.size, data.n_points
@@ -305,10 +302,12 @@ def _view_by_view(state, lay, data, loss, c, obs_weight):
                 V[a, b, at] += JXw[a, 0] * JX[b, 0] + JXw[a, 1] * JX[b, 1]
             bX[a, at] += JXw[a, 0] * r[0] + JXw[a, 1] * r[1]
         block = np.einsum("lkn,dkn->ldn", Jw, JX)  # (q, 3, m): d pred / d cols against d pred / d X
-        if len(pts) == n:
-            W[cols] += block
-        else:
-            W[cols[:, None, None], _AXES3[None, :, None], pts[None, None, :]] += block
+        row = lay.n_common
+        W[:row, :, at] += block[:row]
+        for starts, size in ((lay.i_vrot, 3), (lay.i_T, 3), (lay.i_robot, lay.n_robot)):  # the view's own columns
+            if i in starts:  # (view_columns' order) meet each point once: no sum
+                W[starts[i]: starts[i] + size, :, at] = block[row: row + size]
+                row += size
     for a in range(3):
         for b in range(a):
             V[a, b] = V[b, a]

@@ -346,6 +346,11 @@ def _distortion_score(uv, T, cal: Calibration, simpler: RefineOptions, richer: s
 #: converges to the user's ``tol``; its IRLS steps converge linearly (by 3-7 % a step with
 #: a third of the tracks outliers), so the user's 1e-6 took the full 100 iterations.
 ROBUST_TOL = 1e-2
+#: Convergence tolerance of the fits inside the robot error's rounds of variance-component
+#: updates but the last: each starts from the previous round's solution with slightly other
+#: weights, and its cost need only settle far below the scales' own tolerance
+#: (:data:`.variance_components.RTOL`); the last fit converges to the user's ``tol``.
+ROUND_TOL = 1e-2
 
 
 class _Fitter:
@@ -376,10 +381,11 @@ class _Fitter:
         else:
             self.thr = 3.0 * self.c if o.loss_scale_px is not None else OBS_QUANTILE * sigma
 
-    def _lm(self, state, lay, data, loss):
+    def _lm(self, state, lay, data, loss, tol: float | None = None):
         """Levenberg-Marquardt, or Gauss-Newton steps near the solution (then the last
         step's reduced system is kept for the covariance, ``self.system``, and the
-        residuals at the solution, ``self.residuals``)."""
+        residuals at the solution, ``self.residuals``); ``tol``: a looser tolerance than
+        the user's."""
         o = self.pb.opts
         problem = BundleProblem(lay, data, loss, self.c)
         if self.near_solution:
@@ -387,7 +393,7 @@ class _Fitter:
             self.system = sol.linearisation
             self.residuals = None if sol.linearisation is None else problem.residuals(sol.state)
         else:
-            tol = o.tol if loss == "linear" else max(o.tol, ROBUST_TOL)
+            tol = max(o.tol, tol or 0.0, 0.0 if loss == "linear" else ROBUST_TOL)
             sol = levenberg_marquardt(problem, state, o.max_iterations, tol, self.progress)
         self.iterations += sol.iterations
         return sol.state, sol.cost, sol.reason
@@ -558,7 +564,7 @@ class _Fitter:
             self.rounds += 1
             w = robot_weights(sigma_px, sig)
             data = build_data(pb.uv, mask, idx, pb.T, np.zeros(n_views), w)
-            state, f, reason = self._lm(state, lay, data, "linear")
+            state, f, reason = self._lm(state, lay, data, "linear", ROUND_TOL)
             Sinv = _inverse(reduced_information(state, lay, data).S)
             r = {c: redundancy(Sinv, lay.robot_columns(c), w[COMPONENTS.index(c)]) for c in lay.robot}
             new = {c: (v if given.get(c) is not None else component_sigma(state, c, r[c])) for c, v in sig.items()}
@@ -585,10 +591,11 @@ class _Fitter:
                 continue
             if done or self.near_solution:
                 break
+        if not self.near_solution:  # the last fit to the user's tol, at the weights the scales settled with
+            state, f, reason = self._lm(state, lay, data, "linear")
+            self.system = self.residuals = None
         self.lay = lay
         self.robot = RobotFit(sig, r, {}, given, sigma_px)
-        if not self.near_solution:
-            self.system = self.residuals = None
         return state, cost(state, lay, data, "linear", self.c), reason, data, sigma_px
 
     def _gate(self, state, idx, mask, sigma_px, tried) -> tuple:
