@@ -320,10 +320,9 @@ def profile_step(S: np.ndarray, b: np.ndarray, test: np.ndarray, nuisance: np.nd
 
 #: Points per block of :func:`sandwich` (its reduced rows are ``p x 2 n_views`` per point).
 SANDWICH_BLOCK = 2048
-#: Terms of the CR2 series at most, and its relative tolerance (it converges like
-#: ``h^t``, ``h`` a cluster's largest leverage).
-CR2_MAX_TERMS = 200
-CR2_RTOL = 1e-9
+#: A cluster's leverage (an eigenvalue of ``H_cc``) from which it alone determines some
+#: parameter combination: no CR2 correction, no sandwich.
+LEVERAGE_ONE = 1.0 - 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -343,15 +342,12 @@ class Sandwich:
         ``a_k = S^-1 e_k``. Its relative sampling std is ``sqrt(2 / dof)``.
     n_clusters : int
         Points that count plus views with priors.
-    terms : int
-        Terms the CR2 series took (the worst block).
     """
 
     cov: np.ndarray
     meat: np.ndarray
     dof: np.ndarray
     n_clusters: int
-    terms: int
 
 
 def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok=None) -> Sandwich:
@@ -370,14 +366,13 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
     (I - H) e`` the cluster's residuals have covariance ``sigma^2 (I - H_cc)``, so ``g_c``
     underestimates its spread by the cluster's leverage ``H_cc = R_c S^-1 R_c^T``. With
 
-        g*_c = R_c^T (I - H_cc)^(-1/2) r_c = sum_t b_t (S_c S^-1)^t g_c,
-        b_0 = 1, b_t = b_(t-1) (2t - 1) / (2t)            (the series of (1 - x)^(-1/2))
+        g*_c = R_c^T (I - H_cc)^(-1/2) r_c
 
     ``E[g*_c g*_c^T] = sigma^2 S_c`` exactly when the model holds, so ``E[M] = sigma^2 S``
     and ``E[cov] = sigma^2 S^-1``: the model's covariance (at a perfect model only the
-    sandwich's own sampling noise, ``dof``, separates the two). ``S_c x = R_c^T (R_c x)``
-    costs ``O(p n_obs)``: no ``p x p`` block per point, O(n) memory, points
-    :data:`SANDWICH_BLOCK` at a time.
+    sandwich's own sampling noise, ``dof``, separates the two). ``H_cc`` is small (two
+    rows per observation of the point): O(p^2 n_obs) time (BLAS), no ``p x p`` block per
+    point, O(n) memory, points :data:`SANDWICH_BLOCK` at a time.
 
     Parameters
     ----------
@@ -395,7 +390,7 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
     """
     p = lay.size
     M, q1, q2 = np.zeros((p, p)), np.zeros(p), np.zeros(p)
-    n_clusters, terms = 0, 0
+    n_clusters = 0
     blocks = [reduced_rows(state, lay, data, red.Y, lo, min(lo + SANDWICH_BLOCK, data.n_points), ok)
               for lo in range(0, data.n_points, SANDWICH_BLOCK)]
     sizes = [min(SANDWICH_BLOCK, data.n_points - lo) for lo in range(0, data.n_points, SANDWICH_BLOCK)]
@@ -404,16 +399,15 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
         blocks.append([prior])
         sizes.append(lay.n_views)
     for rows, nb in zip(blocks, sizes):
-        G = _cluster_sum(rows, nb, p, lambda R, r, pts: np.einsum("pkm,km->pm", R, r))
-        Gs, t = _cr2(G, rows, Sinv)
+        Gs = _cr2_scores(rows, nb, Sinv)
         M += Gs @ Gs.T
         q = _cluster_sum(rows, nb, p, lambda R, r, pts: np.sum(np.einsum("pkm,pq->qkm", R, Sinv) ** 2, axis=1))
         q1 += q.sum(axis=1)
         q2 += np.sum(q * q, axis=1)
-        n_clusters, terms = n_clusters + int(_has_rows(rows, nb).sum()), max(terms, t)
+        n_clusters += int(_has_rows(rows, nb).sum())
     M = 0.5 * (M + M.T)
     dof = q1**2 / np.where(q2 > 0, q2, np.inf)
-    return Sandwich(Sinv @ M @ Sinv, M, dof, n_clusters, terms)
+    return Sandwich(Sinv @ M @ Sinv, M, dof, n_clusters)
 
 
 def _cluster_sum(rows: list, n: int, p: int, term) -> np.ndarray:
@@ -433,22 +427,37 @@ def _has_rows(rows: list, n: int) -> np.ndarray:
     return out
 
 
-def _cr2(G: np.ndarray, rows: list, Sinv: np.ndarray):
-    """CR2-corrected scores ``g*_c = sum_t b_t (S_c S^-1)^t g_c`` of ``G (p, n)`` and the
-    number of terms (:func:`sandwich`). Raises if the series does not converge (a
-    cluster with leverage 1: it alone determines some parameter combination)."""
-    p, n = G.shape
-    out, term = G.copy(), G
-    scale = max(float(np.abs(G).max()), 1e-300)
-    for t in range(1, CR2_MAX_TERMS):
-        X = Sinv @ term
-        term = (2 * t - 1) / (2 * t) * _cluster_sum(
-            rows, n, p, lambda R, r, pts: np.einsum("pkm,km->pm", R, np.einsum("pkm,pm->km", R, X[:, pts])))
-        out += term
-        if np.abs(term).max() <= CR2_RTOL * scale:
-            return out, t
-    raise DegenerateError("the sandwich covariance is not defined: a point (or a view's priors) alone "
-                          "determines some parameter combination (leverage 1)")
+def _cr2_scores(rows: list, n: int, Sinv: np.ndarray) -> np.ndarray:
+    """CR2-corrected scores ``g*_c = R_c^T (I - H_cc)^(-1/2) r_c`` ``(p, n)`` of the ``n``
+    clusters of ``rows`` (:func:`sandwich`), with ``H_cc = R_c S^-1 R_c^T``.
+
+    Each cluster's rows are gathered from the groups (views) that hold them, the
+    clusters with the same number of rows together: one BLAS product ``R S^-1`` and a
+    batch of eigen-decompositions ``H_cc = Q diag(h) Q^T`` per row count. Raises if a
+    leverage ``h`` reaches :data:`LEVERAGE_ONE` (the cluster alone determines some
+    parameter combination).
+    """
+    p = Sinv.shape[0]
+    R = np.concatenate([Rg.reshape(p, -1) for Rg, _, _ in rows], axis=1)  # (p, K): every row of every group
+    r = np.concatenate([rg.reshape(-1) for _, rg, _ in rows])
+    cluster = np.concatenate([np.tile(pts, Rg.shape[1]) for Rg, _, pts in rows])
+    order = np.argsort(cluster, kind="stable")
+    counts = np.bincount(cluster, minlength=n)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.zeros((p, n))
+    for k in np.unique(counts[counts > 0]):
+        members = np.flatnonzero(counts == k)
+        at = order[first[members, None] + np.arange(k)]  # (m, k) columns of R
+        Rc = R.T[at]  # (m, k, p)
+        H = (Rc.reshape(-1, p) @ Sinv).reshape(Rc.shape) @ Rc.transpose(0, 2, 1)
+        h, Q = np.linalg.eigh(0.5 * (H + H.transpose(0, 2, 1)))
+        if h.max() >= LEVERAGE_ONE:
+            raise DegenerateError("the sandwich covariance is not defined: a point (or a view's priors) alone "
+                                  "determines some parameter combination (leverage 1)")
+        f = 1.0 / np.sqrt(1.0 - np.maximum(h, 0.0))
+        y = np.einsum("mkl,ml->mk", Q, f * np.einsum("mlk,ml->mk", Q, r[at]))  # (I - H)^(-1/2) r_c
+        out[:, members] = np.einsum("mkp,mk->pm", Rc, y)
+    return out
 
 
 def _prior_rows(state: State, lay: Layout, data):
