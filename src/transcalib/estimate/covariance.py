@@ -324,9 +324,9 @@ SANDWICH_BLOCK = 2048
 #: parameter combination: no CR2 correction, no sandwich.
 LEVERAGE_ONE = 1.0 - 1e-6
 #: Clusters whose total leverage ``tr H_cc`` is below this take ``(I - H_cc)^(-1/2)`` as
-#: the power series of ``(1 - x)^(-1/2)`` (at most ~30 terms to :data:`CR2_RTOL`; a few
-#: with many points), the others from an eigen-decomposition (numpy's, ~17 us per
-#: cluster: most of the time at 10^5 points).
+#: the power series of ``(1 - x)^(-1/2)`` (at most 34 terms to :data:`CR2_RTOL`; a few
+#: with many points), the others from an eigen-decomposition (numpy's batched one costs
+#: ~17 us per cluster: at 10^5 points it would take most of the sandwich's time).
 SERIES_LEVERAGE = 0.5
 #: Relative accuracy of that series.
 CR2_RTOL = 1e-10
