@@ -175,6 +175,23 @@ def test_robot_error_scales_and_per_view_errors_recovered(setup):
     assert np.sqrt(np.nanmean(np.sum(cal.residuals_px**2, axis=2))) < 1.1 * np.sqrt(2) * 0.5
 
 
+def test_loose_rounds_reach_the_fully_converged_solution(monkeypatch):
+    """The rounds of variance-component updates fit to ``ROUND_TOL`` and only the last to
+    the user's ``tol``: the scales, the camera and the covariance equal those of rounds
+    that each converge to ``tol`` (to far below their std)."""
+    from transcalib.estimate import refine as refine_module
+
+    _, _, loose = _sessions_fit(0.1, 1.0, 7)
+    monkeypatch.setattr(refine_module, "ROUND_TOL", 0.0)  # every round to the user's tol
+    _, _, tight = _sessions_fit(0.1, 1.0, 7)
+    a, b = loose.robot_error, tight.robot_error
+    assert abs(a.sigma_rot_deg / b.sigma_rot_deg - 1) < 1e-3 and abs(a.sigma_pos / b.sigma_pos - 1) < 1e-3
+    assert np.all(np.abs(loose.K - tight.K) < 1e-3 * tight.std["fx"])
+    assert np.all(np.abs(loose.hand_eye.t - tight.hand_eye.t) < 1e-3 * tight.hand_eye.t_std)
+    sd = np.sqrt(np.diag(tight.cov))
+    assert np.all(np.abs(loose.cov - tight.cov) < 1e-3 * np.outer(sd, sd))  # std and correlations
+
+
 def test_given_scales_are_kept_and_the_pixel_noise_estimated():
     sc, err, cal = _sessions_fit(0.1, 1.0, 9, RefineOptions(distortion="none", robot_sigma_deg=0.1,
                                                              robot_sigma_pos=1.0))
