@@ -31,7 +31,7 @@ __version__ = "0.1.0"
 
 #: public name -> (module, attribute); attribute None: the module itself
 _LAZY = {
-    "calibrate": (".pipeline", "calibrate"),
+    "calibrate": (".pipeline.run", "calibrate"),
     "estimate_linear": (".estimate.linear", "estimate_linear"),
     "estimate_robust": (".estimate.robust", "estimate_robust"),
     "RobustEstimate": (".estimate.robust", "RobustEstimate"),

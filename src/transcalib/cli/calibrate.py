@@ -476,7 +476,8 @@ def run(args) -> int:
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)  # (1): before importing the numerics
-    import_in_background("scipy.special", "pyarrow.csv", "pyarrow.compute")  # heavy imports, while we read / track
+    # heavy imports while we read / track (the pipeline's half second among them)
+    import_in_background("scipy.special", "transcalib.pipeline.run", "pyarrow.csv", "pyarrow.compute")
     note = replacing(plan["out"])
     if note:
         progress.log(note)
@@ -509,7 +510,7 @@ def _work(args, plan, folder, progress: Progress, t_start: float, worker) -> dic
     t_imports = time.perf_counter()
     progress.log(f"read {uv.shape[1]} points in {uv.shape[0]} views ({t_imports - t_read:.2f} s)")
     from ..io.export import ExportContext, export_calibration  # after the reading: see import_in_background
-    from ..pipeline import calibrate
+    from ..pipeline.run import calibrate
     from .handeye import write_hand_eye
     opts = plan["options"]
     memory = {"after_read": _peak_rss_gib()}

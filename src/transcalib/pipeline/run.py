@@ -1,0 +1,260 @@
+"""``calibrate()``: the one call users make, for every robot motion.
+
+    uv, poses ──motion (sessions by orientation; eye-to-hand poses inverted)──▶ Motion
+          ──explain what the motion determines (degeneracy first)──▶
+          ──start (robust TLS of one orientation, or of the sessions, single views joined)──▶
+          ──refine (ML bundle adjustment)──▶ every track judged again, refit
+          ──diagnose──▶ Calibration with warnings (and the hand-eye pose)
+
+With more than ``subset_points`` tracks the stages up to the re-judging run on a random
+subset of them; "all tracks" then judges every track with that camera and takes
+Gauss-Newton steps with all of them (:func:`.stages.extend_to_all_tracks`). Input is
+checked here once; the stages take checked arrays and options.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ..check import diagnose, skipped
+from ..check.prediction import LOO_MIN_VIEWS, leave_one_view_out
+from ..errors import DegenerateError, InputError
+from ..handeye.sessions import SESSION_TOLERANCE_DEG
+from ..types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions, report
+from ..types.options import check_fixed_distortion
+from ..validate import as_uv_T
+from .motion import Motion, motion_of
+from .result import with_motion
+from .stages import all_residuals, extend_to_all_tracks, from_linear, masked, refine_and_rejudge
+from .start import explain_motion, initial_estimate
+from .views_off import left_out_mask, orientation_off, rejudge_views
+
+__all__ = ["calibrate"]
+
+
+def calibrate(
+    uv,
+    poses,
+    *,
+    setup: str = "eye-in-hand",
+    session_tolerance_deg: float = SESSION_TOLERANCE_DEG,
+    refine: bool = True,
+    robust: bool | None = None,
+    distortion: str | None = None,
+    sigma_T=None,
+    fix=None,
+    square_pixels: bool | None = None,
+    ransac: RansacOptions | None = None,
+    refinement: RefineOptions | None = None,
+    check_rotation: bool = True,
+    image_size=None,
+    unit: str = "units",
+    subset_points: int | None = SUBSET_POINTS,
+    rng=None,
+    progress=None,
+) -> Calibration:
+    """Calibrate the camera and reconstruct the scene from tracks and known robot poses.
+
+    One model serves every motion (docs/hand-eye.md): a view has a flange pose ``(R_i,
+    T_i)`` in the robot base frame and the camera sits in the flange at ``(R_X, t_X)``,
+    ``x_ij ~ K (R_i R_X)^T (X_j - T_i - R_i t_X)``. One orientation (translations only)
+    is the paper's case; views whose orientations agree within ``session_tolerance_deg``
+    form a pure-translation session, every other view is a single view at its own
+    orientation; any mix. Eye-to-hand, the camera is fixed and the flange carries the
+    scene.
+
+    Parameters
+    ----------
+    uv : array_like (n_views, n_points, 2)
+        Pixel coordinates (centre of the top-left pixel is (0, 0)), NaN where unseen.
+    poses : transcalib.Poses or array_like (n_views, 3)
+        The flange poses of the views (:func:`transcalib.io.read_poses`, or
+        ``Poses.of(T, R)``), or the robot translations alone (one orientation; robot
+        frame: every output length is in its unit).
+    setup : {"eye-in-hand", "eye-to-hand"}
+        The camera on the flange (default), or fixed and watching the flange, which
+        carries the scene: the scene points are then in the flange frame and
+        ``hand_eye`` is the camera in the base frame.
+    session_tolerance_deg : float
+        Views whose flange orientations differ by less than this form one session.
+    refine : bool
+        Maximum-likelihood refinement after the linear estimate (default). ``False``
+        returns the paper's linear estimate, triangulated.
+    robust : bool or None
+        RANSAC over 2-point samples before the linear fit. ``None`` (default): on from
+        ``ROBUST_MIN_POINTS`` points.
+    distortion : {"auto", "none", "radial1", "radial2", "opencv5"}, optional
+        Lens distortion model of the refinement (default ``refinement.distortion``,
+        ``"auto"``: chosen from the data, see :class:`RefineOptions`).
+    sigma_T : float or (n_views,) float, optional
+        Robot translation precision (user units): translations become measurements.
+    fix : mapping, optional
+        Known parameters, e.g. ``{"cx": 320.0, "cy": 240.0, "skew": 0.0}``.
+    square_pixels : bool, optional
+        ``fx = fy``.
+    ransac : RansacOptions, optional
+        Options of the robust stage.
+    refinement : RefineOptions, optional
+        Options of the refinement; the keywords above override their fields.
+    check_rotation : bool
+        Test for views where the camera turned otherwise than the poses say (model
+        violation); needs ``refine``.
+    image_size : (width, height), optional
+        Recorded in the result's camera.
+    unit : str
+        Name of the length unit of the translations, used in messages.
+    subset_points : int or None
+        With more tracks, the iterative stages run on a random subset of this many and
+        Gauss-Newton steps with every track finish (:class:`CalibrateOptions`). None:
+        every stage uses every track.
+    rng : seed or Generator
+        Randomness of RANSAC.
+    progress : callable, optional
+        ``progress(event)`` with a :class:`~transcalib.types.ProgressEvent` after each
+        stage (and each step of the long ones).
+
+    Returns
+    -------
+    Calibration
+        With ``diagnostics``, ``inliers`` (robust runs), ``cov``/``std``/``X_std``
+        (refined runs), ``hand_eye`` (with orientations in the poses), ``options`` and
+        ``stats`` (stages, timings, the robust stage, the refinement).
+
+    Raises
+    ------
+    InputError, DegenerateError, MirroredError
+        See :func:`transcalib.estimate_linear`; ``InputError`` also for an option that
+        would have no effect (e.g. ``sigma_T`` with ``refine=False``).
+    """
+    motion = motion_of(poses, setup, session_tolerance_deg)
+    uv, _ = as_uv_T(uv, motion.T, **({} if motion.constant else {"min_views": 2}))
+    opts = _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement,
+                    check_rotation, unit, subset_points, setup, session_tolerance_deg)
+    t0 = time.perf_counter()
+    span = explain_motion(motion, opts)  # degeneracy first: raises naming what the motion cannot determine
+    subset = _fit_subset(uv, opts, rng)
+    start = initial_estimate(uv if subset is None else uv[:, subset], motion, opts, rng, progress,
+                             coplanar=span is not None, image_size=image_size)
+    cal, inliers, stages, timings, rotation_data = _fit(_without(uv, start.off_views), motion.T, subset, start, opts,
+                                                        progress)
+    if start.off_views and opts.refine:  # judged again with the refined lens: those that agree come back
+        off = rejudge_views(uv, motion, cal, start.off_views, rng)
+        if len(off) < len(start.off_views):
+            report(progress, "views re-admitted", views=len(start.off_views) - len(off))
+            start = replace(start, off_views=off)
+            cal, inliers, stages, more_timings, rotation_data = _fit(_without(uv, off), motion.T, subset, start, opts,
+                                                                     progress)
+            timings = {**more_timings, "start_s": timings["start_s"]}
+    left_out = left_out_mask(start.off_views, motion.n_views)
+    uv = _without(uv, start.off_views)
+    timings = {f"{start.stages[0]}_s": timings.pop("start_s") - t0, **timings}
+    result = replace(cal, camera=replace(cal.camera, image_size=image_size), inliers=inliers,
+                     residuals_px=all_residuals(uv, cal, inliers), options=opts, diagnostics=(),
+                     stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=start.ransac))
+    t2 = time.perf_counter()
+    found = [orientation_off(v, deg, motion.grouping.tolerance_deg) for v, deg in start.off_views] + diagnose(
+        uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
+        unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
+        views_left_out=left_out, view_ids=getattr(poses, "views", None), setup=setup)
+    if span is not None:  # the coplanar motion was understood: say what it allows instead
+        found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
+    if opts.check_rotation and not opts.refine:
+        found.append(skipped("rotation test (did the camera turn otherwise than the poses say?)",
+                             "it needs the refined calibration (refine=False, CLI --no-refine)"))
+    report(progress, "diagnostics", warnings=len(found))
+    t3 = time.perf_counter()
+    info = _prediction(rotation_data or (uv, result), motion, opts, getattr(poses, "views", None))
+    report(progress, "prediction", **({} if not info else {"rms_px": info["leave_one_view_out"]["rms_px"]}))
+    timings = {**result.stats.timings_s, "diagnostics_s": t3 - t2, "prediction_s": time.perf_counter() - t3}
+    result = replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings),
+                     info={**result.info, **info})
+    return with_motion(result, motion, start.notes)
+
+
+def _without(uv: np.ndarray, off_views) -> np.ndarray:
+    """``uv`` without the observations of the views ``off_views`` ((view, degrees), ...)."""
+    return np.where(left_out_mask(off_views, uv.shape[0])[:, None, None], np.nan, uv) if off_views else uv
+
+
+def _prediction(fit, motion: Motion, opts: CalibrateOptions, view_ids) -> dict:
+    """``{"leave_one_view_out": ...}`` (:func:`transcalib.check.prediction.leave_one_view_out`
+    on the fit ``(uv, calibration)``) for a refined calibration of at least
+    ``LOO_MIN_VIEWS`` views, else empty."""
+    if not opts.refine or motion.n_views < LOO_MIN_VIEWS:
+        return {}
+    try:
+        return {"leave_one_view_out": leave_one_view_out(fit[0], motion.T, fit[1], view_ids=view_ids)}
+    except DegenerateError:  # too few observations to refit without a view
+        return {}
+
+
+def _fit(uv, T, subset, start, opts: CalibrateOptions, progress):
+    """Refinement and re-judging on the fit's tracks, then every track (with a subset):
+    ``(cal, inliers, stages, timings, rotation data)``; ``timings["start_s"]`` the clock
+    at the start's end."""
+    uv_sub = uv if subset is None else uv[:, subset]
+    timings, stages, inliers = {"start_s": time.perf_counter()}, list(start.stages), start.inliers
+    if not opts.refine:
+        return (replace(from_linear(masked(uv, inliers), T, start.linear, start.flange), linear=start.linear),
+                inliers, stages, timings, None)
+    t1 = time.perf_counter()
+    cal, inliers, more = refine_and_rejudge(uv_sub, T, start.linear, inliers, opts, progress, start.flange)
+    stages += more
+    timings["refine_s"] = time.perf_counter() - t1
+    if subset is None:
+        return cal, inliers, stages, timings, None
+    t1 = time.perf_counter()
+    rotation_data = (masked(uv_sub, inliers), cal)  # the rotation test runs on the subset's fit
+    cal, inliers = extend_to_all_tracks(uv, T, cal, inliers, opts, progress)
+    stages.append("all tracks")
+    timings["all_tracks_s"] = time.perf_counter() - t1
+    return replace(cal, linear=_widened(start.linear, subset, uv.shape[1])), inliers, stages, timings, rotation_data
+
+
+def _fit_subset(uv: np.ndarray, opts: CalibrateOptions, rng) -> np.ndarray | None:
+    """Sorted indices of the tracks the iterative stages use (``opts.subset_points`` of
+    those seen in >= 2 views, drawn at random), or None when they use every track."""
+    m = opts.subset_points
+    if not opts.refine or m is None:
+        return None
+    tracked = np.flatnonzero(np.isfinite(uv[..., 0]).sum(axis=0) >= 2)
+    if len(tracked) <= m:
+        return None
+    return np.sort(np.random.default_rng(rng).choice(tracked, m, replace=False))
+
+
+def _widened(linear: LinearEstimate, subset: np.ndarray, n_points: int) -> LinearEstimate:
+    """The linear estimate of the tracks ``subset`` with its per-point arrays over all
+    ``n_points`` tracks (NaN / unused outside the subset)."""
+    def spread(a, fill, axis):
+        shape = list(np.shape(a))
+        shape[axis] = n_points
+        out = np.full(shape, fill, dtype=np.asarray(a).dtype)
+        out[(slice(None),) * axis + (subset,)] = a
+        return out
+
+    return replace(linear, X=spread(linear.X, np.nan, 0), depth=spread(linear.depth, np.nan, 1),
+                   used=spread(linear.used, False, 0),
+                   static=None if linear.static is None else spread(linear.static, False, 0))
+
+
+def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement, check_rotation,
+             unit, subset_points, setup, session_tolerance_deg) -> CalibrateOptions:
+    """The :class:`CalibrateOptions` of a call; keywords override ``refinement``'s fields."""
+    r = refinement if refinement is not None else RefineOptions()
+    overrides = {k: v for k, v in (("distortion", distortion), ("sigma_T", sigma_T), ("fix", fix),
+                                   ("square_pixels", square_pixels)) if v is not None}
+    if overrides:
+        r = replace(r, **overrides)
+    if not refine and r.distortion not in ("none", "auto"):
+        raise InputError(f"distortion={r.distortion!r} needs refine=True: the linear estimate has no distortion")
+    if refine:
+        check_fixed_distortion(r)
+    return CalibrateOptions(refine=bool(refine), robust=robust, ransac=ransac or RansacOptions(), refinement=r,
+                            check_rotation=bool(check_rotation), unit=str(unit), subset_points=subset_points,
+                            setup=setup, session_tolerance_deg=float(session_tolerance_deg))
+
+
