@@ -22,6 +22,13 @@ from transcalib.errors import InputError
 from transcalib.io.folders import MANIFEST, check_output_folder, output_folder, read_manifest
 
 
+def default_sigint() -> None:
+    """``preexec_fn`` of a command a test interrupts with Ctrl-C: SIGINT handled as a
+    terminal's user meets it, even when the tests themselves run with it ignored (a shell
+    starts a background job, ``make test &``, so)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def leftovers(out: Path) -> list[str]:
     """Temporary or set-aside folders of ``out`` still beside it."""
     return sorted(p.name for p in out.parent.glob(f".{out.name}.*"))
@@ -298,7 +305,8 @@ def test_ctrl_c_of_the_command_in_a_terminal(board, tmp_path):
     folder, no worker left."""
     out = tmp_path / "out"
     p = subprocess.Popen([sys.executable, "-m", "transcalib", *map(str, board), "--out", str(out), "--json"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=default_sigint)
     deadline = time.monotonic() + 120
     while not any(p.is_file() for t in tmp_path.glob(".out.tmp-*") for p in t.rglob("*")):
         assert time.monotonic() < deadline and p.poll() is None, "never started writing"

@@ -23,6 +23,8 @@ from transcalib.errors import DegenerateError, InputError
 from transcalib.geometry.camera import Camera, K_from_params, project_camera_frame
 from transcalib.io import write_poses_csv
 from transcalib.io.folders import MANIFEST, read_manifest
+
+from test_cli_folders import default_sigint
 from transcalib.cli.main import main
 from transcalib.synth import render
 from transcalib.synth.degrade import Degradations
@@ -630,7 +632,7 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
         before = (out / MANIFEST).read_bytes()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, "-m", "transcalib.cli", *map(str, _args(files, out, "--depths", "3000"))],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, preexec_fn=default_sigint)
     for line in p.stderr:  # wait until the sweep has started writing its progress
         if "dense: sweep" in line:
             break
