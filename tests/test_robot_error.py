@@ -267,6 +267,47 @@ def test_covariance_marginalises_the_robot_error_against_a_dense_oracle():
     assert np.allclose(np.sqrt(np.diag(reported)), np.sqrt(np.diag(cov)), rtol=1e-4)
 
 
+def test_a_point_with_parallel_rays_stays_out_of_the_information():
+    """A point on the line through two camera centres, seen only from them (its rays the
+    same line: the depth undetermined, its 3x3 block singular to rounding), inverted in
+    the elimination would put rounding noise at the scale of its information into ``S``:
+    on a render of 12 views this made ``S`` indefinite and a robot error component's
+    redundancy negative, and the rounds dropped a component with score p = 0. The
+    reduced information equals that of the same problem without the point (rebuilt
+    without it), is positive definite, and the priors' redundancies lie in [0, 3 V]."""
+    from transcalib.estimate.covariance import UNDETERMINED_POINT_DET, reduced_information
+    from transcalib.estimate.observations import build_data
+    from transcalib.estimate.variance_components import redundancy
+    from transcalib.geometry.camera import project
+
+    sc = simulate.random_scene(40, 6, noise_px=0.5, rng=5)
+    axis = sc.R[2]  # the optical axis in the world frame
+    T = sc.T_true.copy()
+    T[1] = T[0] - 150.0 * axis  # view 1 backs away from view 0 along the axis
+    X_line = T[0] + 1000.0 * axis  # on the line of both centres, in front of both
+    X = np.vstack([sc.X, X_line])
+    uv = project(sc.K, sc.R, X, T)
+    uv[2:, -1] = np.nan  # seen from views 0 and 1 only
+    w = (0.5 / np.radians(0.1), 0.5 / 1.0)
+    lay = replace(Layout.from_options(RefineOptions(distortion="none"), 6), robot=("rot", "pos"))
+
+    def information(n: int):
+        K = sc.K
+        state = State(np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0.0]), pad_dist(()), sc.R.copy(),
+                      np.tile(np.eye(3), (6, 1, 1)), T, X[:n].copy(), E=np.zeros((6, 6)))
+        return reduced_information(state, lay, build_data(uv[:, :n], np.isfinite(uv[:, :n, 0]), np.arange(n), T,
+                                                          np.zeros(6), w))
+
+    red, without = information(len(X)), information(len(X) - 1)
+    assert red.det[-1] <= UNDETERMINED_POINT_DET and (red.det[:-1] > UNDETERMINED_POINT_DET).all()
+    d = 1.0 / np.sqrt(np.diag(without.S))
+    assert np.abs((red.S - without.S) * d[:, None] * d[None, :]).max() < 1e-9
+    assert np.linalg.eigvalsh(red.S * d[:, None] * d[None, :]).min() > 0
+    Sinv = np.linalg.inv(red.S)
+    for k, c in enumerate(("rot", "pos")):
+        assert 0 <= redundancy(Sinv, lay.robot_columns(c), w[k]) <= 18
+
+
 def test_default_estimates_the_scales_from_the_data():
     """``RefineOptions()`` (robot_error=None) estimates the robot error when the data show
     it, and with a perfect robot keeps it off: through calibrate() (the lens chosen first,
@@ -322,6 +363,14 @@ def test_misfit_component_is_reported():
                     np.array([1e-5, 0.5]), consistency_p=np.array([2e-5, np.nan]))
     found = check_robot_error(SimpleNamespace(robot_error=re, flange_rotations=None))
     assert [d.code for d in found] == ["robot_error_misfit"] and "rotation" in str(found[0])
+    from transcalib.cli.summary import robot_error_lines
+    line = robot_error_lines(SimpleNamespace(robot_error=re), "mm")[0]
+    assert "rotation left out as a misfit (score p = 1e-05, fitted scale p = 2e-05)" in line
+    assert "position none (p = 0.50)" in line
+    collapsed = RobotError(0.0, 0.0, 0.0, 0.0, ("not detected", "not detected"), z, z, z, z, np.zeros(2),
+                           np.array([0.0, 0.3]))
+    assert robot_error_lines(SimpleNamespace(robot_error=collapsed), "mm")[0].endswith(
+        "rotation none (score p = 0, but the fitted scale fell to zero), position none (p = 0.30)")
     assert not re.active and RobotError(0.0, 0.0, 0.0, 0.0, ("off", "off"), z, z, z, z, np.zeros(2),
                                         np.zeros(2)).consistency_p.shape == (2,)
 

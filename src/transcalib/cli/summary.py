@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimate.variance_components import GATE_ALPHA
 from ..io.ids import truth_index
 
 __all__ = ["summary_text", "summary_json", "point_errors", "uncertainty_lines"]
@@ -107,8 +108,14 @@ def robot_error_lines(cal, unit: str) -> list:
         elif src == "given":
             parts.append(f"{what} {s:.3g} {u} (given)")
         else:
-            p = re.p_values[0 if what == "rotation" else 1]
-            parts.append(f"{what} none" + (f" (p = {p:.2f})" if np.isfinite(p) else f" ({src})"))
+            k = 0 if what == "rotation" else 1
+            p = re.p_values[k]
+            if src == "misfit":
+                parts.append(f"{what} left out as a misfit (score p = {p:.2g}, fitted scale p = {re.consistency_p[k]:.2g})")
+            elif np.isfinite(p) and p < GATE_ALPHA:  # found at zero, its scale fell back to zero in the fit
+                parts.append(f"{what} none (score p = {p:.2g}, but the fitted scale fell to zero)")
+            else:
+                parts.append(f"{what} none" + (f" (p = {p:.2f})" if np.isfinite(p) else f" ({src})"))
     lines = ["Robot pose error per view (std per axis): " + ", ".join(parts)]
     if re.active:
         rot, pos = np.linalg.norm(re.rot_deg, axis=1), np.linalg.norm(re.pos, axis=1)

@@ -43,9 +43,20 @@ def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=Non
     (p, p)`` is the information with the points eliminated.
 
     ``obs_weight``: per-view weights (default ones); ``ok`` (n,) bool: points that count
-    (the others are left out of ``S``).
+    (the others are left out of ``S``). Points whose 3x3 block is, to rounding, singular
+    (``det <= UNDETERMINED_POINT_DET``: their rays parallel) are left out too: their
+    elimination would put rounding noise at the scale of their information into ``S``,
+    enough to make it indefinite. ``det`` keeps their determinants, so that
+    ``det > UNDETERMINED_POINT_DET`` marks the points that count among ``ok``.
     """
-    return reduced_system(state, lay, data, "linear", 1.0, obs_weight, ok)
+    red = reduced_system(state, lay, data, "linear", 1.0, obs_weight, ok)
+    undetermined = red.det <= UNDETERMINED_POINT_DET
+    if ok is not None:
+        undetermined &= ok
+    if not undetermined.any():
+        return red
+    kept = reduced_system(state, lay, data, "linear", 1.0, obs_weight, ~undetermined if ok is None else ok & ~undetermined)
+    return replace(kept, det=np.where(undetermined, red.det, kept.det))
 
 
 def check_identifiable(S: np.ndarray, names: tuple, hint="", scale=None) -> tuple[np.ndarray, np.ndarray]:
@@ -101,13 +112,9 @@ def covariance(state: State, lay: Layout, data, obs_weight=None, hint: str = "",
     for pts, w in zip(data.pts, weights):
         n_w += np.bincount(pts, weights=w > 0, minlength=data.n_points).astype(int)
     ok = n_w >= 2
-    for _ in range(2):  # a second pass only if some points turn out undetermined
-        reuse = system is not None and obs_weight is None and ok.all()
-        red = system if reuse else reduced_information(state, lay, data, obs_weight, None if ok.all() else ok)
-        undetermined = ok & (red.det <= UNDETERMINED_POINT_DET)  # rays (nearly) parallel
-        if not undetermined.any():
-            break
-        ok &= ~undetermined
+    reuse = system is not None and obs_weight is None and ok.all() and (system.det > UNDETERMINED_POINT_DET).all()
+    red = system if reuse else reduced_information(state, lay, data, obs_weight, None if ok.all() else ok)
+    ok &= red.det > UNDETERMINED_POINT_DET  # rays (nearly) parallel: left out of S
     Sinv = _checked_inverse(red, lay, hint)
     var_X = red.point_variances(Sinv)
     var_X[~ok] = np.nan
@@ -211,9 +218,7 @@ def scene_information(scene, *, distortion: str | None = None, estimate_skew: bo
         robot_weight = (scene.noise_px / s_rot, scene.noise_px / scene.robot_noise if scene.robot_noise > 0 else 0.0)
     data = build_data(scene.uv_true, seen, used_idx, scene.T_true, tw, robot_weight)
     red = reduced_information(state, lay, data)
-    ok = red.det > UNDETERMINED_POINT_DET
-    if not ok.all():  # rays (nearly) parallel: such a point determines nothing
-        red = reduced_information(state, lay, data, ok=ok)
+    ok = red.det > UNDETERMINED_POINT_DET  # rays (nearly) parallel: such a point determines nothing
     used = np.zeros(scene.uv.shape[1], bool)
     used[used_idx[ok]] = True
     return red, lay, used

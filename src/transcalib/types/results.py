@@ -306,7 +306,8 @@ class RobotError:
         0 when given or off.
     source : tuple of str
         For ``(rot, pos)``: ``"estimated"``, ``"given"``, ``"not detected"`` (the score
-        test at zero did not find it, p-value in ``p_values``), ``"misfit"`` (the score
+        test at zero did not find it, p-value in ``p_values``; or found it, p-value below
+        1 %, and the fit's variance-component rounds brought its scale back to zero), ``"misfit"`` (the score
         test found it, but the fitted scale is far above what the score shows: the
         per-view errors absorbed a model misfit, p-value in ``consistency_p``; the poses
         are taken as exact for it) or ``"off"``.
