@@ -83,8 +83,8 @@ def signed_distance(e: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _lines(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Lines through ``x`` and ``y`` ``(n, 3)``, homogeneous, unit normal."""
-    L = np.cross(np.column_stack([x, np.ones(len(x))]), np.column_stack([y, np.ones(len(y))]))
-    n = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
+    L = np.column_stack([x[:, 1] - y[:, 1], y[:, 0] - x[:, 0], x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]])  # [x; 1] x [y; 1]
+    n = np.sqrt(L[:, :1] * L[:, :1] + L[:, 1:2] * L[:, 1:2])
     return L / np.where(n > 0, n, 1.0)
 
 
