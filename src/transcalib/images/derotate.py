@@ -30,6 +30,7 @@ the original pixel positions.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -171,7 +172,8 @@ class Lens:
 
     def undistort(self, x: np.ndarray) -> np.ndarray:
         d = np.asarray(x, float) - self.centre
-        return self.centre + d / (1.0 + self.lam * (d * d).sum(-1, keepdims=True) / self.s**2)
+        r2 = d[..., :1] * d[..., :1] + d[..., 1:2] * d[..., 1:2]
+        return self.centre + d / (1.0 + self.lam * r2 / self.s**2)
 
     def distort(self, xu: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`undistort`: the root ``r = 2 r_u / (1 + sqrt(1 - 4 lam r_u^2))``
@@ -205,6 +207,12 @@ class _Data:
     centre: tuple
     s: float
 
+    @cached_property
+    def still(self) -> np.ndarray:
+        """(N,) bool: matches moving less than :data:`~.epipoles.MOVING_PX` (no direction)."""
+        u, v = self.y[:, 0] - self.x[:, 0], self.y[:, 1] - self.x[:, 1]
+        return np.sqrt(u * u + v * v) < MOVING_PX
+
     def subset(self, idx: np.ndarray) -> "_Data":
         return _Data(self.x[idx], self.y[idx], self.vi[idx], self.vj[idx], self.t[idx], self.centre, self.s)
 
@@ -225,11 +233,12 @@ def residuals(A: np.ndarray, lam: float, omega: np.ndarray, d: _Data) -> np.ndar
     dirn = e[:, 2:3] * xd - e[:, :2]
     disp = yd - xd
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = (dirn[:, 0] * disp[:, 1] - dirn[:, 1] * disp[:, 0]) / np.linalg.norm(dirn, axis=1)
+        r = (dirn[:, 0] * disp[:, 1] - dirn[:, 1] * disp[:, 0]) / np.sqrt(dirn[:, 0] ** 2 + dirn[:, 1] ** 2)
     # back to image pixels: undistortion scales lengths near y by 1 / (1 + lam r^2), and a
     # large lam would otherwise shrink every residual (a degenerate fit)
-    r = r * (1.0 + lam * ((d.y - np.asarray(d.centre)) ** 2).sum(1) / d.s**2)
-    return np.where(np.linalg.norm(d.y - d.x, axis=1) < MOVING_PX, 0.0, np.nan_to_num(r, nan=1e6))
+    u, v = d.y[:, 0] - d.centre[0], d.y[:, 1] - d.centre[1]
+    r = r * (1.0 + lam * (u * u + v * v) / d.s**2)
+    return np.where(d.still, 0.0, np.nan_to_num(r, nan=1e6))
 
 
 def _unpack(p: np.ndarray, n: int):
