@@ -126,7 +126,9 @@ def match_pair(d1: np.ndarray, d2: np.ndarray, ratio: float) -> np.ndarray:
         return np.zeros((0, 2), int)
     a = np.ascontiguousarray(d1, np.float32)
     b = np.ascontiguousarray(d2, np.float32)
-    D = (a * a).sum(1)[:, None] + (b * b).sum(1)[None] - 2.0 * (a @ b.T)
+    D = a @ b.T
+    D *= 2.0  # |a|^2 + |b|^2 - 2 a.b with two n1 x n2 temporaries fewer (the same float32 values)
+    np.subtract(np.add.outer((a * a).sum(1), (b * b).sum(1)), D, out=D)
     np.maximum(D, 0.0, out=D)
     r2 = np.float32(ratio * ratio)
 
