@@ -111,7 +111,8 @@ def robot_error_lines(cal, unit: str) -> list:
             k = 0 if what == "rotation" else 1
             p = re.p_values[k]
             if src == "misfit":
-                parts.append(f"{what} left out as a misfit (score p = {p:.2g}, fitted scale p = {re.consistency_p[k]:.2g})")
+                parts.append(f"{what} left out as a misfit (score p = {p:.2g}, "
+                             f"fitted scale p = {re.consistency_p[k]:.2g})")
             elif np.isfinite(p) and p < GATE_ALPHA:  # found at zero, its scale fell back to zero in the fit
                 parts.append(f"{what} none (score p = {p:.2g}, but the fitted scale fell to zero)")
             else:

@@ -55,7 +55,8 @@ def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=Non
         undetermined &= ok
     if not undetermined.any():
         return red
-    kept = reduced_system(state, lay, data, "linear", 1.0, obs_weight, ~undetermined if ok is None else ok & ~undetermined)
+    counted = ~undetermined if ok is None else ok & ~undetermined
+    kept = reduced_system(state, lay, data, "linear", 1.0, obs_weight, counted)
     return replace(kept, det=np.where(undetermined, red.det, kept.det))
 
 

@@ -83,7 +83,8 @@ def signed_distance(e: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _lines(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Lines through ``x`` and ``y`` ``(n, 3)``, homogeneous, unit normal."""
-    L = np.column_stack([x[:, 1] - y[:, 1], y[:, 0] - x[:, 0], x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]])  # [x; 1] x [y; 1]
+    # [x; 1] x [y; 1], written out
+    L = np.column_stack([x[:, 1] - y[:, 1], y[:, 0] - x[:, 0], x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]])
     n = np.sqrt(L[:, :1] * L[:, :1] + L[:, 1:2] * L[:, 1:2])
     return L / np.where(n > 0, n, 1.0)
 

@@ -307,10 +307,10 @@ class RobotError:
     source : tuple of str
         For ``(rot, pos)``: ``"estimated"``, ``"given"``, ``"not detected"`` (the score
         test at zero did not find it, p-value in ``p_values``; or found it, p-value below
-        1 %, and the fit's variance-component rounds brought its scale back to zero), ``"misfit"`` (the score
-        test found it, but the fitted scale is far above what the score shows: the
-        per-view errors absorbed a model misfit, p-value in ``consistency_p``; the poses
-        are taken as exact for it) or ``"off"``.
+        1 %, and the fit's variance-component rounds brought its scale back to zero),
+        ``"misfit"`` (the score test found it, but the fitted scale is far above what the
+        score shows: the per-view errors absorbed a model misfit, p-value in
+        ``consistency_p``; the poses are taken as exact for it) or ``"off"``.
     rot_deg : (n_views, 3) float
         Each view's estimated rotation error ``delta_i`` (degrees, flange frame; one
         orientation: the camera's rotation error in the robot axes).
