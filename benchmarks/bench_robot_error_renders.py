@@ -107,6 +107,7 @@ def _row(r, s: dict, he: dict, layout: str) -> dict:
     row["check_p"] = min(checks) if checks else None  # the misfit check's lowest p-value
     row["dist_model"] = s["dist_model"]
     row["codes"] = [d["code"] for d in s["diagnostics"]]
+    row["stages"] = s["stages"]
     return row
 
 
@@ -127,7 +128,9 @@ def table(results: dict, trials: int, elapsed: float) -> str:
              f"the truth (its own uncertainty ~1/sqrt(2N) = {1 / np.sqrt(2 * trials):.0%} at N = {trials}); cover = "
              "share with |error| < 1.96 std (nominal 95 %; +-" f"{100 * np.sqrt(0.0475 / trials):.0f} points at N). "
              "sigma est: median estimated scale (rot deg, pos mm) and how often each component was switched on. "
-             "misfit: share of trials with a component left out as a misfit; check p: the misfit check's lowest "
+             "misfit: share of trials with a component left out as a misfit (in brackets: of the trials recorded "
+             "with their stages, the share where a misfit on the way had the tracks judged again at held scales); "
+             "check p: the misfit check's lowest "
              "p-value, its median and shares below 0.01 and 0.001 (the verdict's level).", ""]
     for layout in LAYOUTS:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
@@ -152,14 +155,18 @@ def table(results: dict, trials: int, elapsed: float) -> str:
 
 
 def _checks(rows: list) -> str:
-    """The misfit check: share of trials with a component left out as a misfit | median
-    and shares below 1e-2 and 1e-3 (the verdict's level) of its lowest p-value (trials
-    recorded with it)."""
+    """The misfit check: share of trials with a component left out as a misfit (and of
+    those recorded with their stages, the share whose tracks were judged again at held
+    scales after a misfit on the way) | median and shares below 1e-2 and 1e-3 (the
+    verdict's level) of its lowest p-value (trials recorded with it)."""
     misfit = np.mean(["robot_error_misfit" in r["codes"] for r in rows])
+    staged = [r["stages"] for r in rows if "stages" in r]
+    held = (f" ({100 * np.mean(['refine (scales estimated)' in s for s in staged]):.0f} % of {len(staged)} "
+            "judged again)" if staged else "")
     p = np.array([r["check_p"] for r in rows if r.get("check_p") is not None])
     low = (f"{np.median(p):.2f}; {100 * np.mean(p < 1e-2):.0f} / {100 * np.mean(p < 1e-3):.0f} % below 0.01 / "
            f"0.001 (of {len(p)})" if len(p) else "-")
-    return f"{100 * misfit:.0f} % | {low}"
+    return f"{100 * misfit:.0f} %{held} | {low}"
 
 
 def _case_trial(case: tuple) -> dict:

@@ -106,25 +106,36 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     """Refine on the inliers (with ``flange``: the views' flange rotations and the offset);
     then judge every track again with the refined camera (RANSAC judged them with the
     linear, distortion-free one: this matters under strong distortion) and refit while the
-    inlier set changes. Returns ``(cal, inliers, stages)``."""
+    inlier set changes. A fit that left a robot error component out as a misfit judges
+    the tracks at given scales (:func:`_misfit_scales`) with the lens chosen again; the
+    refits keep those scales until the inlier set settles (stages ``"reclassify+refine
+    (scales held)"``), and the scales are estimated again on the settled set (``"refine
+    (scales estimated)"``). Returns ``(cal, inliers, stages)``."""
     cal = fit_refine(masked(uv, inliers), T, linear, opts.refinement, flange=flange)
     report(progress, "refine", iterations=cal.stats.refine.iterations, rms_px=cal.rms_px, distortion=cal.dist_model)
     stages = ["refine"]
     chosen = replace(opts.refinement, distortion=cal.dist_model)  # refits keep the model chosen
     selection = cal.stats.distortion_selection
     k = np.isfinite(uv[..., 0]).sum(axis=0)
+    refit = chosen  # the refits' options: the scales of a misfit's judge given
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
-        judge = _judge(masked(uv, inliers), T, cal, chosen)
+        scales, judge = _misfit_scales(cal), cal
+        if scales is not None:  # the lens is chosen again too: a misfit's fit chose it
+            given = dict(robot_sigma_deg=scales[0], robot_sigma_pos=scales[1])
+            judge = fit_refine(masked(uv, inliers), T, cal, replace(opts.refinement, **given))
+            chosen = replace(chosen, distortion=judge.dist_model)
+            refit = replace(chosen, **given)
         X_all = triangulated(uv, judge)
         again = inlier_rule(track_sse(uv, judge, X_all), k, rule_sigma(judge, opts), opts.ransac.false_rejection)
         # a few borderline tracks trading places change nothing: refit only for more
         if np.sum(again != inliers) <= max(2, REJUDGE_FRACTION * inliers.sum()) or again.sum() < 2:
             break
         inliers = again
-        start = replace(cal, X=np.where(inliers[:, None], X_all, np.nan),  # a misfit verdict is made again
-                        robot_error=cal.robot_error if judge is cal else None)
-        cal = fit_refine(masked(uv, inliers), T, start, chosen)
-        stages.append("reclassify+refine")
+        cal = fit_refine(masked(uv, inliers), T, replace(judge, X=np.where(inliers[:, None], X_all, np.nan)), refit)
+        stages.append("reclassify+refine" if refit == chosen else "reclassify+refine (scales held)")
+    if refit != chosen:  # the scales estimated again, on the inliers the given ones settled
+        cal = fit_refine(masked(uv, inliers), T, replace(cal, robot_error=None), chosen)
+        stages.append("refine (scales estimated)")
     if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
         cal = climb_distortion(masked(uv, inliers), T, cal, opts.refinement)
         cal = replace(cal, stats=replace(cal.stats, distortion_selection=selection + cal.stats.distortion_selection))
@@ -135,21 +146,20 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     return cal, inliers, stages
 
 
-def _judge(uv, T, cal: Calibration, opts) -> Calibration:
-    """The fit the tracks are judged by: ``cal``, or where it left a robot error component
-    out as a misfit, ``cal`` refitted with the scales given, a misfit's at the score's
-    moment estimate (the data's first-order evidence, ``RobotError.score_scales``). Wrong
-    links in a few views can make the variance-component rounds run away; the exact-pose
-    fit then judges with a pixel noise that the robot's error inflated and keeps them
-    (renders, session + single views at 0.1 deg / 1 mm: 0.5 px against 0.04 px)."""
+def _misfit_scales(cal: Calibration) -> tuple | None:
+    """``(sigma_rot_deg, sigma_pos)`` to judge the tracks with where ``cal`` left a robot
+    error component out as a misfit: the fitted scales, a misfit's at the score's moment
+    estimate (the data's first-order evidence, ``RobotError.score_scales``); else None.
+    Wrong links in a few views make the variance-component rounds run away; the
+    exact-pose fit then judges with a pixel noise that the robot's error inflated and
+    keeps them (renders, session + single views at 0.1 deg / 1 mm: 0.5 px against
+    0.04 px; one session at 0.2 deg / 2 mm: fx 81 px off)."""
     re = cal.robot_error
     if re is None or "misfit" not in re.source:
-        return cal
+        return None
     fitted = np.array([re.sigma_rot_deg, re.sigma_pos])
     scales = np.where(np.array(re.source) == "misfit", re.score_scales, fitted)
-    if not np.all(np.isfinite(scales)):
-        return cal
-    return fit_refine(uv, T, cal, replace(opts, robot_sigma_deg=float(scales[0]), robot_sigma_pos=float(scales[1])))
+    return (float(scales[0]), float(scales[1])) if np.all(np.isfinite(scales)) else None
 
 
 def untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:

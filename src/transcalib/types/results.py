@@ -180,7 +180,8 @@ class CalibrationStats:
     ----------
     stages : tuple of str
         Stages run, in order (``"robust"`` or ``"linear"``, ``"refine"``,
-        ``"reclassify+refine"``, ``"all tracks"``).
+        ``"reclassify+refine"``, after a robot error misfit ``"reclassify+refine (scales
+        held)"`` and ``"refine (scales estimated)"``, ``"all tracks"``).
     timings_s : mapping of str to float
         Seconds per stage (``robust_s`` / ``linear_s``, ``refine_s``, ``all_tracks_s``,
         ``diagnostics_s``).
