@@ -7,7 +7,8 @@ the track's reference observation (Gaussian weights), the warp
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
 ``cv2.remap`` of a three-channel image). The affine part models the change of scale and
 foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
-the gain and offset exposure changes. An observation is dropped when it does not
+the gain and offset exposure changes. A step that reverses the previous one is halved
+(steps that ring about the optimum converge). An observation is dropped when it does not
 converge, correlates poorly with its template, moves too far, distorts the window
 implausibly, lies on too weak a texture, or is too near the border.
 """
@@ -122,6 +123,7 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
     active = np.ones(m, bool)
     last = np.full(m, np.inf)
     eye8 = np.eye(8, dtype=np.float32)
+    last_move = np.zeros((m, 2))
     for _ in range(iterations):
         ia = np.flatnonzero(active)
         if len(ia) == 0:
@@ -149,6 +151,10 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
         step = np.where(np.isfinite(step), step, np.inf)
         lim = np.minimum(1.0, 2.0 / np.maximum(step, 1e-12))  # at most 2 px per step
         delta = np.where(np.isfinite(delta), delta, 0.0) * lim[:, None]
+        # a step that reverses the last overshot (the cost is not the quadratic the
+        # gradients model there): halved, an oscillation converges instead of ringing
+        delta[np.sum(delta[:, :2] * last_move[ia], axis=1) < 0] *= 0.5
+        last_move[ia] = delta[:, :2]
         p[ia] += delta[:, :2]
         M[ia] += delta[:, 2:6].reshape(-1, 2, 2)
         a[ia] += delta[:, 6]
