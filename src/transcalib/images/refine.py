@@ -1,7 +1,7 @@
 """Refinement: every observation aligned to its track's reference view, to a few hundredths of a pixel.
 
-Lucas-Kanade with an affine warp and an affine brightness model, batched Gauss-Newton over all
-observations of a view pair at once (:func:`lk_affine`): the template is a window around
+Lucas-Kanade with an affine warp and an affine brightness model, batched Gauss-Newton over
+all observations of a view pair at once (:func:`lk_affine`): the template is a window around
 the track's reference observation (Gaussian weights), the warp
 ``x_tgt = p + M o`` for template offsets ``o``, photometric ``a I_tgt + b + c . o``; images are
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
@@ -10,8 +10,8 @@ foreshortening between the views (its start ``(1 + rho e3) I`` comes from the ep
 the gain and offset exposure changes, the ramp ``c`` a brightness gradient across the
 window that differs between the views (shading, vignetting: with gain and offset alone
 it pulled the alignment by a few thousandths of a pixel, alike over a view, which the
-calibration's std does not see; renders of a perfect robot: fx's std / RMS error 0.53,
-with the ramp 0.90). A step that reverses the previous one is halved
+calibration's std does not see; renders of a perfect robot: fx's std / RMS error 0.56,
+with the ramp 0.82, ``benchmarks/bench_render_floor.py``). A step that reverses the previous one is halved
 (steps that ring about the optimum converge). An observation is dropped when it does not
 converge, correlates poorly with its template, moves too far, distorts the window
 implausibly, lies on too weak a texture, or is too near the border.
@@ -193,6 +193,19 @@ def _wncc(I, T, w):
         return np.where(den > 0, num / den, 0.0)
 
 
+def _tasks(ref: np.ndarray, todo: np.ndarray) -> list:
+    """``(r, j, observations)``: the observations of view ``j`` whose reference is view
+    ``r``, at most :data:`TASK_SIZE` a task (the view pairs differ tenfold in size; even
+    tasks keep every core busy, and each observation is aligned on its own)."""
+    n, out = todo.shape[0], []
+    for r in range(n):
+        for j in range(n):
+            if j != r:
+                sel = np.flatnonzero((ref == r) & todo[j])
+                out += [(r, j, sel[k:k + TASK_SIZE]) for k in range(0, max(len(sel), 1), TASK_SIZE)]
+    return out
+
+
 def _start_warp(epi, r, j, p_ref, p0, M0):
     """Start of the affine part: given ``M0`` (m, 2, 2), or ``(1 + rho e3) I`` from the
     pair's epipole (the scale change of a fronto-parallel patch), or ``I``."""
@@ -241,10 +254,7 @@ def refine_to_reference(smoothed: SmoothedImages, uv: np.ndarray, ref: np.ndarra
     margin = opts.window_radius + 2
     inside = (uv[..., 0] >= margin) & (uv[..., 0] <= w - 1 - margin) & (uv[..., 1] >= margin) & \
         (uv[..., 1] <= h - 1 - margin)
-    # tasks of at most TASK_SIZE observations of one view pair: the pairs differ in size
-    # tenfold, even tasks keep every core busy (each observation is aligned on its own)
-    tasks = [(r, j, sel[k:k + TASK_SIZE]) for r in range(n) for j in range(n) if j != r
-             for sel in [np.flatnonzero((ref == r) & todo[j])] for k in range(0, max(len(sel), 1), TASK_SIZE)]
+    tasks = _tasks(ref, todo)
 
     def one(task):
         r, j, sel = task
