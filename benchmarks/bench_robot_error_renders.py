@@ -118,10 +118,10 @@ def _summary(rows: list, key: str):
     return float(np.sqrt(np.mean(sd**2)) / np.sqrt(np.mean(e**2))), float(np.mean(np.abs(e) < 1.96 * sd))
 
 
-def table(results: dict, trials: int, elapsed: float) -> str:
+def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.name) -> str:
     lines = ["# Robot pose error on renders, through the CLI (issue 22)", "",
              f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}`: the trials recorded in "
-             f"robot_error_renders.jsonl over one or more runs (the last {elapsed:.0f} s). "
+             f"{log_name} over one or more runs (the last {elapsed:.0f} s). "
              "Eye-in-hand renders of `robot_scene` (640 x 480, realistic camera effects, JPEG 90) at the true "
              "flange poses, `poses.csv` with the reported ones; `transcalib calibrate --images --poses --json` with "
              "default options (the robot error's scales estimated). ratio = RMS reported std / RMS error against "
@@ -218,7 +218,7 @@ def _write_table(log: Path, out: Path, elapsed: float) -> str:
     results = {}
     for r in _recorded(log):
         results.setdefault((r["layout"], r["sigma_rot"], r["sigma_pos"]), []).append(_row_of(r["row"]))
-    text = table(results, min(len(v) for v in results.values()), elapsed)
+    text = table(results, min(len(v) for v in results.values()), elapsed, log.name)
     out.write_text(text)
     return text
 
