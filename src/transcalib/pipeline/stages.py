@@ -117,10 +117,11 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     chosen = replace(opts.refinement, distortion=cal.dist_model)  # refits keep the model chosen
     selection = cal.stats.distortion_selection
     k = np.isfinite(uv[..., 0]).sum(axis=0)
-    refit = chosen  # the refits' options: the scales of a misfit's judge given
+    refit, verdict = chosen, None  # the refits' options (a misfit's judge's scales given); that fit's robot error
     for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
         scales, judge = _misfit_scales(cal), cal
         if scales is not None:  # the lens is chosen again too: a misfit's fit chose it
+            verdict = cal.robot_error
             given = dict(robot_sigma_deg=scales[0], robot_sigma_pos=scales[1])
             judge = fit_refine(masked(uv, inliers), T, cal, replace(opts.refinement, **given))
             chosen = replace(chosen, distortion=judge.dist_model)
@@ -134,7 +135,7 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
         cal = fit_refine(masked(uv, inliers), T, replace(judge, X=np.where(inliers[:, None], X_all, np.nan)), refit)
         stages.append("reclassify+refine" if refit == chosen else "reclassify+refine (scales held)")
     if refit != chosen:  # the scales estimated again, on the inliers the given ones settled
-        cal = fit_refine(masked(uv, inliers), T, replace(cal, robot_error=None), chosen)
+        cal = fit_refine(masked(uv, inliers), T, _held_as_start(cal, verdict), chosen)
         stages.append("refine (scales estimated)")
     if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
         cal = climb_distortion(masked(uv, inliers), T, cal, opts.refinement)
@@ -144,6 +145,22 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     if inliers is not None and opts.ransac.threshold_px is None and opts.refinement.sigma_px is None:
         cal = untruncated(cal, k[inliers], opts.ransac.false_rejection)
     return cal, inliers, stages
+
+
+def _held_as_start(cal: Calibration, verdict) -> Calibration:
+    """``cal`` (fitted at held scales) as the start of the fit that estimates them again:
+    its scales and per-view errors as estimated ones, so that the variance-component
+    rounds continue from there (:class:`~transcalib.estimate.robot_scales.RobotStart`)
+    rather than select afresh from the exact-pose fit, where they ran away before (on a
+    render with single views at 0.2 deg / 2 mm selecting afresh ended with cx 9 std off);
+    the score tests' p-values are those of the misfit's fit ``verdict``, the scales'
+    checks against them not made (NaN)."""
+    re = cal.robot_error
+    if re is None or verdict is None:
+        return replace(cal, robot_error=None)
+    return replace(cal, robot_error=replace(re, source=("estimated",) * len(re.source), p_values=verdict.p_values,
+                                            consistency_p=np.full(len(re.source), np.nan),
+                                            score_scales=verdict.score_scales))
 
 
 def _misfit_scales(cal: Calibration) -> tuple | None:
