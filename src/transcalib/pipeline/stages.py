@@ -109,8 +109,8 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     inlier set changes. A fit that left a robot error component out as a misfit judges
     the tracks at given scales (:func:`_misfit_scales`) with the lens chosen again; the
     refits keep those scales until the inlier set settles (stages ``"reclassify+refine
-    (scales held)"``), and the scales are estimated again on the settled set (``"refine
-    (scales estimated)"``). Returns ``(cal, inliers, stages)``."""
+    (scales held)"``), and the scales are estimated again from there on the settled set
+    (``"refine (scales estimated)"``, :func:`_held_as_start`). Returns ``(cal, inliers, stages)``."""
     cal = fit_refine(masked(uv, inliers), T, linear, opts.refinement, flange=flange)
     report(progress, "refine", iterations=cal.stats.refine.iterations, rms_px=cal.rms_px, distortion=cal.dist_model)
     stages = ["refine"]
