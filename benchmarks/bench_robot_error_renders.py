@@ -25,7 +25,11 @@ trials per case, 1 process; 20-45 s a trial on one core). Each finished trial is
 to ``benchmarks/results/robot_error_renders.jsonl`` and a run continues from the trials
 found there (the same seeds), so the Monte Carlo grows over several runs; the table,
 ``benchmarks/results/robot_error_renders.md``, is rewritten from every trial recorded
-after each round of trials.
+after each round of trials. ``--supersample 4`` renders 4 x 4 samples per pixel instead
+of 2 x 2 (the render twice as costly, a trial ~1.7 x), recorded in
+``robot_error_renders_ss4.jsonl`` / ``.md``: at 2 x 2 the renderer's texture blur steps
+along lines that move between views, which left the perfect-robot rows a floor
+(docs/uncertainty.md section 6).
 """
 
 from __future__ import annotations
@@ -57,20 +61,20 @@ LAYOUTS = {"one session": dict(session_views=12, single_views=0),
 FIRST_SEED = 22500
 
 
-def trial(layout: str, s_rot: float, s_pos: float, seed: int) -> dict:
+def trial(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2) -> dict:
     """Render, write, calibrate through the CLI: errors and reported std per parameter,
     the robot error found, or ``{"failed": why}``."""
-    out = calibrate_render(layout, s_rot, s_pos, seed)
+    out = calibrate_render(layout, s_rot, s_pos, seed, supersample)
     return out if isinstance(out, dict) else _row(*out, layout)
 
 
-def calibrate_render(layout: str, s_rot: float, s_pos: float, seed: int):
-    """Render, write, calibrate through the CLI: ``(robot scene, --json summary,
-    hand_eye.json)`` or ``{"failed": why}``."""
+def calibrate_render(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2):
+    """Render (``supersample`` x ``supersample`` samples per pixel), write, calibrate
+    through the CLI: ``(robot scene, --json summary, hand_eye.json)`` or ``{"failed": why}``."""
     opts = LAYOUTS[layout]
     n_views = opts["session_views"] + opts["single_views"]
     err = sample_errors(n_views, s_rot, s_pos, rng=seed + 7)
-    r = robot_scene("eye-in-hand", rng=seed, pose_error=err, **opts)
+    r = robot_scene("eye-in-hand", rng=seed, pose_error=err, supersample=supersample, **opts)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         names = [f"view{i:02d}.jpg" for i in range(n_views)]
@@ -122,7 +126,8 @@ def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.nam
     lines = ["# Robot pose error on renders, through the CLI (issue 22)", "",
              f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}`: the trials recorded in "
              f"{log_name} over one or more runs (the last {elapsed:.0f} s). "
-             "Eye-in-hand renders of `robot_scene` (640 x 480, realistic camera effects, JPEG 90) at the true "
+             "Eye-in-hand renders of `robot_scene` (640 x 480, realistic camera effects, JPEG 90; the samples per "
+             "pixel: see the file's name, ss4 = 4 x 4, else 2 x 2) at the true "
              "flange poses, `poses.csv` with the reported ones; `transcalib calibrate --images --poses --json` with "
              "default options (the robot error's scales estimated). ratio = RMS reported std / RMS error against "
              f"the truth (its own uncertainty ~1/sqrt(2N) = {1 / np.sqrt(2 * trials):.0%} at N = {trials}); cover = "
@@ -171,8 +176,8 @@ def _checks(rows: list) -> str:
 
 def _case_trial(case: tuple) -> dict:
     """One trial of ``(layout, sigma_rot, sigma_pos, seed)`` as a JSON-able record."""
-    layout, sr, sp, seed = case
-    row = trial(layout, sr, sp, seed)
+    layout, sr, sp, seed, supersample = case
+    row = trial(layout, sr, sp, seed, supersample)
     plain = {k: (list(map(_plain, v)) if isinstance(v, tuple) else _plain(v)) for k, v in row.items()}
     return {"layout": layout, "sigma_rot": sr, "sigma_pos": sp, "seed": seed, "row": plain}
 
@@ -192,15 +197,19 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--trials", type=int, default=20, help="trials per case, those recorded included")
     p.add_argument("--jobs", type=int, default=1)
-    p.add_argument("--out", type=Path, default=OUT)
+    p.add_argument("--out", type=Path, default=None, help=f"table (default {OUT.name}; with --supersample N "
+                   "other than 2, robot_error_renders_ssN.md)")
+    p.add_argument("--supersample", type=int, default=2, help="samples per pixel along each axis of the renders")
     a = p.parse_args(argv)
+    if a.out is None:
+        a.out = OUT if a.supersample == 2 else OUT.with_name(f"{OUT.stem}_ss{a.supersample}.md")
     log = a.out.with_suffix(".jsonl")
     done = {(r["layout"], r["sigma_rot"], r["sigma_pos"], r["seed"]) for r in _recorded(log)}
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs) as pool:
         for k in range(a.trials):  # trials interleaved over the cases: a run cut short stays balanced
             todo = [(layout, sr, sp, FIRST_SEED + 1000 * g + k) for layout in LAYOUTS for g, (sr, sp) in enumerate(CASES)]
-            todo = [c for c in todo if c not in done]
+            todo = [(*c, a.supersample) for c in todo if c not in done]
             if not todo:
                 continue
             with log.open("a") as f:
