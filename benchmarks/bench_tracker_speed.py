@@ -63,8 +63,10 @@ def run_cli(paths, folder: Path, src: str):
 
     As a user's Python runs it: with its bytecode cache (``PYTHONDONTWRITEBYTECODE``,
     set on some build machines, is dropped; without the cache every run compiles the
-    package's modules again, ~0.1 s of CPU), warmed by one untimed run (:func:`main`)."""
-    env = dict(os.environ, PYTHONPATH=src, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "2"))
+    package's modules again, ~0.1 s of CPU), warmed by one untimed run (:func:`main`);
+    the thread settings are the user's (a BLAS thread count such as ``OMP_NUM_THREADS``
+    in the environment is kept by the command, which otherwise runs BLAS on one thread)."""
+    env = dict(os.environ, PYTHONPATH=src)
     env.pop("PYTHONDONTWRITEBYTECODE", None)
     out = folder / f"out_{abs(hash(src)) % 1000}"
     t0, c0 = time.perf_counter(), _children_cpu()
