@@ -35,7 +35,7 @@ def local_median(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k:
 
 
 def local_linear(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k: int = 10,
-                 keep: float = 0.7) -> np.ndarray:
+                 keep: float = 0.7, gradient: bool = False):
     """Value at each query from a trimmed local linear fit ``v = a + b du + c dv`` to its
     ``k`` nearest seeds (itself excluded).
 
@@ -51,16 +51,22 @@ def local_linear(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k:
     k : int
     keep : float
 
+    gradient : bool
+        Also return the fit's gradient ``(b, c)`` per px (one value per seed only).
+
     Returns
     -------
     (q,) or (q, c) float
-        :func:`local_median` with fewer than 4 seeds.
+        :func:`local_median` with fewer than 4 seeds (its gradient 0).
+    (q, 2) float
+        With ``gradient``.
     """
     seeds_v = np.asarray(seeds_v, float)
     m = len(seeds_x)
     if m < 4 or len(query) == 0:
         if seeds_v.ndim == 1:
-            return local_median(seeds_x, seeds_v, query, k)
+            v = local_median(seeds_x, seeds_v, query, k)
+            return (v, np.zeros((len(query), 2))) if gradient else v
         return np.column_stack([local_median(seeds_x, v, query, k) for v in seeds_v.T]).reshape(len(query), -1)
     kk = min(k + 1, m)
     dd, nn = cKDTree(seeds_x).query(query, k=kk)
@@ -83,6 +89,8 @@ def local_linear(seeds_x: np.ndarray, seeds_v: np.ndarray, query: np.ndarray, k:
             cut = np.take_along_axis(np.sort(r, axis=1), rank[:, None], axis=1)
             w = w * (r <= cut)
         out[:, c] = a
+    if gradient:
+        return out[:, 0], np.column_stack([b, cc]) / scale
     return out[:, 0] if seeds_v.ndim == 1 else out
 
 
