@@ -68,18 +68,21 @@ def trial(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int =
     return out if isinstance(out, dict) else _row(*out, layout)
 
 
-def calibrate_render(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2):
-    """Render (``supersample`` x ``supersample`` samples per pixel), write, calibrate
-    through the CLI: ``(robot scene, --json summary, hand_eye.json)`` or ``{"failed": why}``."""
+def calibrate_render(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2, degrade=True,
+                     image_ext: str = "jpg"):
+    """Render (``supersample`` x ``supersample`` samples per pixel; ``degrade`` as
+    :func:`~transcalib.synth.robot.robot_scene` takes it), write (``image_ext`` ``jpg``
+    at :data:`JPEG_QUALITY` or ``png``), calibrate through the CLI: ``(robot scene,
+    --json summary, hand_eye.json)`` or ``{"failed": why}``."""
     opts = LAYOUTS[layout]
     n_views = opts["session_views"] + opts["single_views"]
     err = sample_errors(n_views, s_rot, s_pos, rng=seed + 7)
-    r = robot_scene("eye-in-hand", rng=seed, pose_error=err, supersample=supersample, **opts)
+    r = robot_scene("eye-in-hand", rng=seed, pose_error=err, supersample=supersample, degrade=degrade, **opts)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        names = [f"view{i:02d}.jpg" for i in range(n_views)]
+        names = [f"view{i:02d}.{image_ext}" for i in range(n_views)]
         for name, img in zip(names, r.images):
-            cv2.imwrite(str(folder / name), img, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+            cv2.imwrite(str(folder / name), img, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if image_ext == "jpg" else [])
         write_poses_csv(folder / "poses.csv", r.T, R=r.R, images=names)  # the reported poses
         out = folder / "out"
         run = subprocess.run([sys.executable, "-m", "transcalib", "calibrate", "--images",

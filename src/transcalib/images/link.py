@@ -12,8 +12,9 @@ where and how its window appears, and Lucas-Kanade against the window in ``a``
 resected camera and the local slope of the session's inverse depths give
 (:func:`_projective_row`: an affine window alone leaves the curvature of the surface's
 homography to its centre, a pull of 0.01-0.04 px alike over a view turned 15-45 deg,
-which moved the hand-eye translation by about 2 of its std on renders). A transfer is kept when it correlates with the
-template, converged, and lies on its epipolar line of ``F_ab``; and
+which moved the hand-eye translation by about 2 of its std on renders). A transfer is
+kept when it correlates with the template, converged, and lies on its epipolar line of
+``F_ab``; and
 
 - into a **session** B: when the point's observations in B's views agree with B's own
   pure-translation geometry (every pair on the epipolar lines of B's epipoles) and it is

@@ -3,7 +3,9 @@
 Lucas-Kanade with an affine warp and an affine brightness model, batched Gauss-Newton over
 all observations of a view pair at once (:func:`lk_affine`): the template is a window around
 the track's reference observation (Gaussian weights), the warp
-``x_tgt = p + M o`` for template offsets ``o``, photometric ``a I_tgt + b + c . o``; images are
+``x_tgt = p + M o`` for template offsets ``o`` (across orientations a homography
+``p + M o / (1 + g . o)`` with its projective row ``g`` given, :mod:`.link`),
+photometric ``a I_tgt + b + c . o``; images are
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
 ``cv2.remap`` of a three-channel image). The affine part models the change of scale and
 foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
