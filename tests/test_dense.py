@@ -664,4 +664,6 @@ def test_default_depth_limits_bracket_the_scene(scene):
     truth = scene.depth_map(0)
     near, far = m.depth_limits
     assert near <= np.nanpercentile(truth, 1) and far >= np.nanpercentile(truth, 99)
-    assert far < 3 * np.nanmax(truth)  # found, not every depth to infinity
+    # found, not pushed out by the border (measured 1.19 x the farthest depth; 1.79 when the
+    # windows that leave the image, matching the replicated edge at no motion, counted)
+    assert far < 1.5 * np.nanmax(truth)

@@ -282,8 +282,9 @@ def _disparity_rate(e: np.ndarray, canvas, size) -> float:
 def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> tuple[float, float]:
     """Inverse depths to search when no limits are given: a coarse sweep over every
     hypothesis that moves the image by up to ``COARSE_MAX_DISPARITY`` of its width (in
-    front of every source camera), then the 1st-99th percentile of what it finds,
-    widened by 5 % of that range and one and a half coarse steps on each side."""
+    front of every source camera), then the 1st-99th percentile of what it finds away
+    from the border, widened by 5 % of that range and one and a half coarse steps on
+    each side."""
     h, w = ref_n.shape
     s = COARSE_FACTOR
     rate = _disparity_rate(e, canvas, (w, h))
@@ -302,6 +303,11 @@ def _rho_range(ref_n, src, e, canvas, opts: DenseOptions, k: int, progress) -> t
     res = _run_sweep(inp, opts, progress, "dense: depth range")
     step = rho[1] - rho[0]
     ok = np.isfinite(res.index) & (res.c1 < 0.5) & (res.c1 < 0.7 * res.c2)
+    # not within a window of the border: there the windows leave the image, and the
+    # replicated edge (darkest under vignetting) matches at no motion: a cluster at
+    # rho ~ 0 that put the far limit at infinity
+    r = opts.window_px // 2 + 1
+    ok[:r], ok[-r:], ok[:, :r], ok[:, -r:] = False, False, False, False
     if ok.mean() < 0.01:
         raise DegenerateError("could not find the depth range of the scene (too little texture, or no overlap "
                               "between the views); give depth_limits (--depth-limits NEAR,FAR)")
