@@ -1,6 +1,6 @@
 """Single views' hand-eye translation: a lean of the estimator, or of the links?
 
-    python benchmarks/bench_link_lean.py [--seeds N] [--render-seeds N] [--jobs J] [--quick]
+    python benchmarks/bench_link_lean.py [--seeds N] [--render-seeds N] [--effects E,...] [--jobs J] [--quick]
 
 The robot preset's layout with single views (``robot_scene``: a 6-view session and 6
 views turned 15-45 deg, a perfect robot) in two ways:
@@ -13,8 +13,9 @@ views turned 15-45 deg, a perfect robot) in two ways:
 - **renders through the command** (2 x 2 samples per pixel, ``--render-seeds``
   layouts): ``clean`` (the lens and 1.2 grey levels of read noise) and ``full`` (every
   camera effect of the preset: vignetting, exposure, shot noise, JPEG 90, a highlight),
-  the same layouts; t_X's error (mm) and z per axis, and the paired difference
-  ``full - clean`` with its standard error.
+  the same layouts, and with ``--effects`` the clean renders plus one effect each;
+  t_X's error (mm) and z per axis, and each paired difference from ``clean`` with its
+  standard error.
 
 A lean present in the renders and absent from the exact tracks is the tracker's (its
 links), not the model's (docs/uncertainty.md section 6). Writes
@@ -56,13 +57,20 @@ def exact_trial(seed: int, sigma: float) -> dict:
             "fx": [float(cal.K[0, 0] - r.K[0, 0]), float(cal.std["fx"])]}
 
 
+#: ``--effects``: one camera effect of the preset added to the clean renders.
+EFFECTS = {"vignetting": dict(vignetting=0.25), "exposure": dict(exposure=0.15), "shot noise": dict(full_well_e=6000.0),
+           "jpeg": dict(jpeg_quality=90),
+           "highlight": dict(specular=0.5, specular_sigma_px=12.0, specular_drift_px=25.0)}
+
+
 def render_trial(seed: int, setting: str) -> dict:
-    """The same through ``transcalib calibrate --images`` on renders (``clean`` or ``full``)."""
+    """The same through ``transcalib calibrate --images`` on renders: ``clean`` (the lens
+    and read noise), ``full`` (every effect of the preset) or clean plus one of :data:`EFFECTS`."""
     from bench_robot_error_renders import calibrate_render
     from transcalib.synth.degrade import Degradations
 
-    degrade = True if setting == "full" else Degradations(vignetting=0.0, exposure=0.0, full_well_e=None,
-                                                           read_noise_dn=1.2, jpeg_quality=None, specular=0.0)
+    clean = dict(vignetting=0.0, exposure=0.0, full_well_e=None, read_noise_dn=1.2, jpeg_quality=None, specular=0.0)
+    degrade = True if setting == "full" else Degradations(**{**clean, **EFFECTS.get(setting, {})})
     out = calibrate_render("session + singles", 0.0, 0.0, seed, 2, degrade=degrade, image_ext="png")
     if isinstance(out, dict):
         return out
@@ -84,6 +92,8 @@ def main(argv=None) -> str:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=None, help="layouts per noise level (exact tracks; default 40)")
     ap.add_argument("--render-seeds", type=int, default=None, help="rendered layouts (default 8)")
+    ap.add_argument("--effects", default="", help=f"comma-separated, of {', '.join(EFFECTS)}: renders with one effect "
+                    "each, paired with the clean ones")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
@@ -94,17 +104,22 @@ def main(argv=None) -> str:
     with ProcessPoolExecutor(a.jobs) as pool:
         exact = {s: list(pool.map(exact_trial, seeds, [s] * len(seeds))) for s in NOISE_PX}
         rseeds = [FIRST_SEED + k for k in range(n_render)]
-        renders = {st: list(pool.map(render_trial, rseeds, [st] * len(rseeds))) for st in ("clean", "full")}
+        effects = [e.strip() for e in a.effects.split(",") if e.strip()]
+        unknown = [e for e in effects if e not in EFFECTS]
+        if unknown:
+            ap.error(f"--effects: unknown {', '.join(unknown)} (known: {', '.join(EFFECTS)})")
+        renders = {st: list(pool.map(render_trial, rseeds, [st] * len(rseeds))) for st in ("clean", "full", *effects)}
     head = ["case", "layouts", "failed", *[f"{ax} mean z / RMS z" for ax in AXES], "fx mean z / RMS z"]
     rows = [_z_row(f"exact tracks, {s} px", exact[s]) for s in NOISE_PX]
     rows += [_z_row(f"renders, {st}", renders[st]) for st in renders]
-    pairs = [(c, f) for c, f in zip(renders["clean"], renders["full"]) if "failed" not in c and "failed" not in f]
     mm = [["renders, mean t_X error (mm)", *[f"{np.mean([r['t_err'][k] for r in renders[st] if 'failed' not in r]):+.4f}"
                                               for k in range(3)], st] for st in renders]
-    if len(pairs) >= 2:
-        d = np.array([np.array(f["t_err"]) - np.array(c["t_err"]) for c, f in pairs])
-        se = d.std(0, ddof=1) / np.sqrt(len(d))
-        mm.append(["full - clean (paired)", *[f"{d[:, k].mean():+.4f} ± {se[k]:.4f}" for k in range(3)], len(d)])
+    for st in [k for k in renders if k != "clean"]:
+        pairs = [(c, f) for c, f in zip(renders["clean"], renders[st]) if "failed" not in c and "failed" not in f]
+        if len(pairs) >= 2:
+            d = np.array([np.array(f["t_err"]) - np.array(c["t_err"]) for c, f in pairs])
+            se = d.std(0, ddof=1) / np.sqrt(len(d))
+            mm.append([f"{st} - clean (paired)", *[f"{d[:, k].mean():+.4f} ± {se[k]:.4f}" for k in range(3)], len(d)])
     text = (f"# Single views' t_X: the estimator or the links\n\n`python benchmarks/bench_link_lean.py"
             f"{' --quick' if a.quick else ''}` ({time.perf_counter() - t0:.0f} s; seeds from {FIRST_SEED}; "
             "z = (estimate - truth) / reported std)\n\n" + md_table(head, rows) + "\n\n"
