@@ -328,17 +328,13 @@ def test_one_rotated_view_is_named():
         tracks.track(sc.images)
 
 
-def _band_limited(rng, n: int = 60):
-    """A smooth random texture as a function ``I(x, y)`` (float px in, grey levels out),
-    exact at any sub-pixel position: a sum of cosines below 0.35 cycles per px."""
-    f = rng.uniform(-0.35, 0.35, (n, 2))
-    amp = rng.normal(0, 1, n) * np.exp(-(f**2).sum(1) / (2 * 0.12**2))
-    phase = rng.uniform(0, 2 * np.pi, n)
+def _band_limited(rng):
+    """The oracle's texture (``benchmarks/bench_lk_oracle.py``): ``I(x, y)`` exact at any
+    sub-pixel position, a sum of cosines below 0.35 cycles per px."""
+    _tracker_scenes()  # puts benchmarks/ on the path
+    from bench_lk_oracle import band_limited
 
-    def texture(x, y):
-        arg = 2 * np.pi * (f[:, 0, None, None] * x[None] + f[:, 1, None, None] * y[None]) + phase[:, None, None]
-        return (128 + 25 * np.einsum("k,kij->ij", amp, np.cos(arg))).astype(np.float32)
-    return texture
+    return band_limited(rng)
 
 
 def _lk_errors(texture, warp, inverse, pts, M0, g=None, size=(400, 300)):

@@ -193,7 +193,7 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
 def _warp(p, M, g, ox, oy):
     """The window's samples ``x = p + M o / s``, ``s = 1 + g . o`` (affine when ``g`` is
     None) as float32 ``wx, wy (m, P)``, and ``1 / s`` (None when affine)."""
-    if g is None:
+    if g is None:  # summed as before the projective row came: the tracks stay bit for bit
         return ((p[:, :1] + M[:, 0, :1] * ox[None] + M[:, 0, 1:2] * oy[None]).astype(np.float32),
                 (p[:, 1:2] + M[:, 1, :1] * ox[None] + M[:, 1, 1:2] * oy[None]).astype(np.float32), None)
     qx = M[:, 0, :1] * ox[None] + M[:, 0, 1:2] * oy[None]
