@@ -521,7 +521,7 @@ def test_subset_points_reaches_the_fit(tmp_path):
                 "--subset-points", arg, "--formats", "json", "--json", "--quiet")
         assert r.returncode == 0, r.stderr
         assert load_calibration(out).options.subset_points == subset
-        assert json.loads(r.stdout)["stages"][-1] in (stage, "reclassify+refine")
+        assert json.loads(r.stdout)["stages"][-1].split(" (")[0] in (stage, "reclassify+refine")
 
 
 def test_the_command_keeps_freed_memory_on_glibc():

@@ -105,6 +105,22 @@ def test_rejudging_after_refinement_recovers_tracks_under_strong_distortion():
     assert abs(cal.K[0, 0] / scene.K[0, 0] - 1) < 1e-3
 
 
+def test_precise_tracks_under_distortion_are_all_taken_back():
+    """With tracks of 0.02 px under mild distortion RANSAC's distortion-free camera keeps
+    a central patch (39 of 1500 tracks here); the lens fitted there extrapolates badly
+    to the corners. The inliers grow round by round, and the lens is chosen again on
+    each much larger set: every good track comes back (before, three rounds with the
+    patch's lens ended at 1114 of 1500)."""
+    scene = simulate.random_scene(1500, 12, noise_px=0.02, dist=(-0.06, 0.02), rng=3)
+    events = []
+    cal = calibrate(scene.uv, scene.T, image_size=scene.image_size, rng=0, progress=events.append)
+    assert [e.info["inliers"] for e in events if e.stage == "robust"][0] < 100
+    assert "reclassify+refine (lens chosen again)" in cal.stats.stages
+    assert cal.inliers.sum() > 0.97 * len(cal.inliers)
+    assert cal.dist_model == "radial2"
+    assert abs(cal.K[0, 0] - scene.K[0, 0]) < 3 * cal.std["fx"]
+
+
 # --------------------------------------------------------------------------------------
 # Many tracks: the iterative stages on a subset, then one Gauss-Newton step with all
 # --------------------------------------------------------------------------------------

@@ -23,6 +23,13 @@ from ..types import INTRINSIC_NAMES, CalibrateOptions, Calibration, CalibrationS
 #: The refined camera's verdict refits only when it changes more than this fraction of
 #: the inliers (borderline tracks trading places at the false-rejection rate do not count).
 REJUDGE_FRACTION = 0.005
+#: Rounds of judging every track again and refitting, at most (they stop when the inliers settle).
+REJUDGE_ROUNDS = 6
+#: With ``distortion="auto"`` the lens is chosen again when a round's inliers outnumber the
+#: set it was chosen on by this factor: RANSAC's distortion-free model keeps a central patch
+#: of precise tracks, and coefficients chosen there (tangential, k3) extrapolate badly to
+#: the corners, where the judge then rejects good tracks.
+LENS_AGAIN_GROWTH = 1.25
 #: Tracks per block where every track is evaluated (small temporaries stay in cache).
 TRACK_BLOCK = 32768
 #: Gauss-Newton steps with every track after the fit of a subset (see extend_to_all_tracks).
@@ -118,7 +125,8 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     selection = cal.stats.distortion_selection
     k = np.isfinite(uv[..., 0]).sum(axis=0)
     refit, verdict = chosen, None  # the refits' options (a misfit's judge's scales given); that fit's robot error
-    for _ in range(3 if inliers is not None else 0):  # until the inlier set settles
+    lens_set = 0 if inliers is None else int(inliers.sum())  # the tracks the lens was chosen on
+    for _ in range(REJUDGE_ROUNDS if inliers is not None else 0):  # until the inlier set settles
         scales, judge = _misfit_scales(cal), cal
         if scales is not None:  # the lens is chosen again too: a misfit's fit chose it
             verdict = cal.robot_error
@@ -132,7 +140,14 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
         if np.sum(again != inliers) <= max(2, REJUDGE_FRACTION * inliers.sum()) or again.sum() < 2:
             break
         inliers = again
-        cal = fit_refine(masked(uv, inliers), T, replace(judge, X=np.where(inliers[:, None], X_all, np.nan)), refit)
+        start = replace(judge, X=np.where(inliers[:, None], X_all, np.nan))
+        if opts.refinement.distortion == "auto" and refit == chosen and again.sum() > LENS_AGAIN_GROWTH * lens_set:
+            cal = fit_refine(masked(uv, inliers), T, start, opts.refinement)  # the lens chosen again
+            chosen = refit = replace(chosen, distortion=cal.dist_model)
+            selection, lens_set = cal.stats.distortion_selection, int(again.sum())
+            stages.append("reclassify+refine (lens chosen again)")
+            continue
+        cal = fit_refine(masked(uv, inliers), T, start, refit)
         stages.append("reclassify+refine" if refit == chosen else "reclassify+refine (scales held)")
     if refit != chosen:  # the scales estimated again, on the inliers the given ones settled
         cal = fit_refine(masked(uv, inliers), T, _held_as_start(cal, verdict), chosen)

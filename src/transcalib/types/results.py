@@ -180,8 +180,10 @@ class CalibrationStats:
     ----------
     stages : tuple of str
         Stages run, in order (``"robust"`` or ``"linear"``, ``"refine"``,
-        ``"reclassify+refine"``, after a robot error misfit ``"reclassify+refine (scales
-        held)"`` and ``"refine (scales estimated)"``, ``"all tracks"``).
+        ``"reclassify+refine"``, ``"reclassify+refine (lens chosen again)"`` (the
+        inliers grew well beyond the set the lens was chosen on), after a robot error
+        misfit ``"reclassify+refine (scales held)"`` and ``"refine (scales
+        estimated)"``, ``"all tracks"``).
     timings_s : mapping of str to float
         Seconds per stage (``robust_s`` / ``linear_s``, ``refine_s``, ``all_tracks_s``,
         ``diagnostics_s``).
