@@ -113,11 +113,14 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     """Refine on the inliers (with ``flange``: the views' flange rotations and the offset);
     then judge every track again with the refined camera (RANSAC judged them with the
     linear, distortion-free one: this matters under strong distortion) and refit while the
-    inlier set changes. A fit that left a robot error component out as a misfit judges
-    the tracks at given scales (:func:`_misfit_scales`) with the lens chosen again; the
-    refits keep those scales until the inlier set settles (stages ``"reclassify+refine
-    (scales held)"``), and the scales are estimated again from there on the settled set
-    (``"refine (scales estimated)"``, :func:`_held_as_start`). Returns ``(cal, inliers, stages)``."""
+    inlier set changes; with ``distortion="auto"`` a set grown beyond
+    :data:`LENS_AGAIN_GROWTH` times the one the lens was chosen on has it chosen again
+    (the final climb then tries more coefficients at the fit with the robot error). A fit
+    that left a robot error component out as a misfit judges the tracks at given scales
+    (:func:`_misfit_scales`) with the lens chosen again; the refits keep those scales until
+    the inlier set settles (stages ``"reclassify+refine (scales held)"``), and the scales
+    are estimated again from there on the settled set (``"refine (scales estimated)"``,
+    :func:`_held_as_start`). Returns ``(cal, inliers, stages)``."""
     cal = fit_refine(masked(uv, inliers), T, linear, opts.refinement, flange=flange)
     report(progress, "refine", iterations=cal.stats.refine.iterations, rms_px=cal.rms_px, distortion=cal.dist_model)
     stages = ["refine"]
