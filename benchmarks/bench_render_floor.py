@@ -1,16 +1,18 @@
 """Where the renders' perfect-robot floor comes from: the tracker's errors against the truth.
 
-    python benchmarks/bench_render_floor.py [--seeds N] [--jobs J] [--quick]
+    python benchmarks/bench_render_floor.py [--seeds N] [--supersample S] [--variants V,...] [--jobs J] [--quick]
 
 On renders with a perfect robot the reported std of fx falls short of its scatter (one
 session: ratio 0.49, benchmarks/results/robot_error_renders.md), though the pixel noise is
 only 0.02-0.04 px. This study takes the one-session perfect-robot renders of
 ``bench_robot_error_renders.py`` (``robot_scene`` eye-in-hand, 12 views of 3-D pure
-translation, JPEG 90), with the camera effects on (``default``: vignetting, exposure,
-sensor noise, a highlight, lens distortion) and off (``clean``: none of them, no lens
-distortion), tracks them in process (:func:`transcalib.images.track` with the
-translations) and compares every tracked observation with the exact projection of the
-3-D point its first observation shows (:meth:`RobotRendered.track_truth`):
+translation, JPEG 90 files, ``--supersample`` samples per pixel as the Monte Carlo's
+``--supersample``), with the camera effects on (``default``: vignetting, exposure,
+sensor noise, a highlight, lens distortion), off (``clean``: none of them, no lens
+distortion) or all off but the lens and read noise (``lens+noise``), tracks the files as
+the command does (:func:`transcalib.images.track` with the translations) and compares
+every tracked observation with the exact projection of the 3-D point its first
+observation shows (:meth:`RobotRendered.track_truth`):
 
 - ``err`` the tracker's error per coordinate (px, RMS) against ``sigma_px``, the
   calibration's pixel noise: what the fit absorbs (errors shared by a track's
@@ -34,7 +36,11 @@ translations) and compares every tracked observation with the exact projection o
 - fx's error, its reported std and which std the calibration reported (``model`` or the
   point-clustered sandwich ``robust``, docs/uncertainty.md §7) and z = error / std, for
   the tracked positions and for the exact projections with white noise of the tracker's
-  RMS error (``exact+noise``: what the model's std promises).
+  RMS error (``exact+noise``: what the model's std promises);
+- in the summary, fx from the exact projections plus one component of the tracker's
+  error: ``along`` the motion (each observation's error along its displacement from the
+  track's first view) or ``across`` it (the rest), tracks next to another surface left
+  out (T-junctions): which component carries fx's lean.
 
 Writes ``benchmarks/results/render_floor.md`` (``--quick``: 2 seeds, a scratch folder).
 """
@@ -54,20 +60,46 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import md_table, results_dir  # noqa: E402
 from bench_robot_error_renders import FIRST_SEED, JPEG_QUALITY  # noqa: E402  (its perfect-robot seeds)
 
-VARIANTS = ("default", "clean")
+VARIANTS = ("default", "clean", "lens+noise")
+#: The calibrations of each render (the summary's rows).
+CALIBRATIONS = ("tracked", "tracked - view field", "exact+noise", "exact+along", "exact+across")
+
+
+def _degrade(variant: str):
+    """``robot_scene``'s ``degrade`` of a variant: every effect, none (nor the lens), or
+    the lens and the preset's read noise alone."""
+    from dataclasses import replace
+
+    from transcalib.synth.robot_layout import preset_degradations
+
+    if variant != "lens+noise":
+        return variant == "default"
+    return replace(preset_degradations((640, 480)), vignetting=0.0, exposure=0.0, full_well_e=None,
+                   jpeg_quality=None, specular=0.0)
+
+
+def _tracked(r, folder: Path) -> np.ndarray:
+    """``uv`` of the renders written as JPEG files and tracked as the command tracks them."""
+    from transcalib.images import track
+
+    paths = [folder / f"view{i:02d}.jpg" for i in range(len(r.images))]
+    for path, im in zip(paths, r.images):
+        cv2.imwrite(str(path), im, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    return track(paths, T=r.T).uv
 
 
 def trial(job: tuple) -> dict:
-    """One render of ``(variant, seed)``: the tracker's errors and two calibrations."""
+    """One render of ``(variant, seed, supersample)``: the tracker's errors and the calibrations."""
+    import tempfile
+
     from transcalib import Poses, calibrate
-    from transcalib.images import track
     from transcalib.synth.robot import robot_scene
 
-    variant, seed = job
-    r = robot_scene("eye-in-hand", rng=seed, degrade=variant == "default", session_views=12, single_views=0)
-    grey = [cv2.imdecode(cv2.imencode(".jpg", im, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1], cv2.IMREAD_GRAYSCALE)
-            for im in r.images]
-    uv = track(grey, T=r.T).uv
+    variant, seed, supersample = job
+    r = robot_scene("eye-in-hand", rng=seed, degrade=_degrade(variant), session_views=12, single_views=0,
+                    supersample=supersample)
+    with tempfile.TemporaryDirectory() as tmp:
+        uv = _tracked(r, Path(tmp))
     X, junction = r.track_truth(uv)
     keep = np.all(np.isfinite(X), axis=1) & ~junction  # a T-junction has no fixed 3-D point
     uv, X = uv[:, keep], X[keep]
@@ -80,8 +112,9 @@ def trial(job: tuple) -> dict:
     noisy = exact + np.random.default_rng(seed).normal(0.0, rms, exact.shape)
     field = _view_field(err, exact, seen, r.K)
     out["field"] = float(np.sqrt(np.nanmean(field**2)))
-    for name, u in (("tracked", uv), ("exact+noise", np.where(seen[..., None], noisy, np.nan)),
-                    ("tracked - view field", uv - field)):
+    along = _along_part(err, exact, seen)
+    for name, u in zip(CALIBRATIONS, (uv, uv - field, np.where(seen[..., None], noisy, np.nan),
+                                      exact + along, exact + (err - along))):
         cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
         e = cal.K[0, 0] - r.K[0, 0]
         reported = cal.uncertainty.reported["fx"] if cal.uncertainty is not None else "model"
@@ -125,6 +158,16 @@ def _view_field(err, exact, seen, K, degree: int = 2) -> np.ndarray:
     return out
 
 
+def _along_part(err, exact, seen) -> np.ndarray:
+    """The component of each observation's error along its displacement from its track's
+    first view ``(n_views, n_points, 2)`` (0 where it has not moved; NaN where unseen)."""
+    first = np.argmax(seen, axis=0)
+    d = exact - exact[first, np.arange(exact.shape[1])][None]
+    dn = np.linalg.norm(d, axis=2, keepdims=True)
+    u = np.divide(d, dn, out=np.zeros_like(d), where=dn > 1e-9)
+    return np.sum(err * u, axis=2, keepdims=True) * u
+
+
 def _along(err, exact, seen) -> float:
     """Least-squares slope of the error along each observation's displacement from its
     track's first view against that displacement (px per px)."""
@@ -152,7 +195,7 @@ def _radial(err, uv, seen, K) -> float:
     return float(np.median(out))
 
 
-def table(rows: list, elapsed: float, seeds: int) -> str:
+def table(rows: list, elapsed: float, seeds: int, supersample: int) -> str:
     head = ["variant", "seed", "err px", "shift px (white)", "view field px", "along", "radial px @300",
             "sigma_px tracked", "fx err (tracked)", "fx std (reported)", "z tracked", "z without the view field",
             "fx err (exact+noise)", "z exact+noise"]
@@ -163,42 +206,52 @@ def table(rows: list, elapsed: float, seeds: int) -> str:
                      r["along"], r["radial"], t["sigma_px"], t["fx_err"], f"{t['fx_std']:.4f} ({t['reported']})",
                      t["fx_err"] / t["fx_std"], f["fx_err"] / f["fx_std"], x["fx_err"], x["fx_err"] / x["fx_std"]])
     summary = []
-    for v in VARIANTS:
+    for v in dict.fromkeys(r["variant"] for r in rows):
         mine = [r for r in rows if r["variant"] == v]
-        for name in ("tracked", "tracked - view field", "exact+noise"):
+        for name in CALIBRATIONS:
             z = np.array([r[name]["fx_err"] / r[name]["fx_std"] for r in mine])
             e = np.array([r[name]["fx_err"] for r in mine])
             sd = np.array([r[name]["fx_std"] for r in mine])
             shift = np.sqrt(np.mean([r["shift"] ** 2 for r in mine]))
-            summary.append(f"- {v}, {name}: fx std ratio {np.sqrt(np.mean(sd**2) / np.mean(e**2)):.2f}, RMS z "
-                           f"{np.sqrt(np.mean(z**2)):.2f}, mean error {e.mean():+.4f} px (N = {len(mine)})"
+            summary.append(f"- {v}, {name}: fx std ratio {np.sqrt(np.mean(sd**2) / np.mean(e**2)):.2f}, mean z "
+                           f"{z.mean():+.2f}, RMS z {np.sqrt(np.mean(z**2)):.2f}, mean error {e.mean():+.4f} px "
+                           f"(N = {len(mine)})"
                            + (f"; views' mean error {shift:.4f} px RMS" if name == "tracked" else ""))
     return "\n".join([
         "# The renders' perfect-robot floor: the tracker against the truth", "",
-        f"`python benchmarks/bench_render_floor.py --seeds {seeds}` ({elapsed:.0f} s). One-session perfect-robot "
-        "renders (12 views, JPEG 90; seeds of bench_robot_error_renders.py), tracked in process. err: the tracker's "
+        f"`python benchmarks/bench_render_floor.py --seeds {seeds} --supersample {supersample}` ({elapsed:.0f} s). "
+        f"One-session perfect-robot renders ({supersample} x {supersample} samples per pixel, 12 views, JPEG 90 "
+        "files; seeds of bench_robot_error_renders.py), tracked as the command tracks them. err: the tracker's "
         "RMS error per coordinate against the exact projection of the point its first observation shows; shift: "
         "RMS of the views' mean errors (in brackets: what white errors of that RMS would give); view field: RMS of "
         "each view's quadratic error field over the image, and z without it (the tracked positions less that "
         "field); along: "
         "the error along the displacement from the first view per px of displacement; radial: median per-view "
         "radial error at 300 px; z = fx error / reported std (tracked) and for the exact projections with white "
-        "noise of the tracker's RMS error (exact+noise). Ratio = RMS std / RMS error (1 when the std is right; "
-        "its own uncertainty ~1/sqrt(2N)).", "", md_table(head, body), "", *summary, ""])
+        "noise of the tracker's RMS error (exact+noise), and in the summary for the exact projections plus the "
+        "tracker's error along the motion or across it (exact+along, exact+across). Ratio = RMS std / RMS error "
+        "(1 when the std is right; its own uncertainty ~1/sqrt(2N)).", "", md_table(head, body), "", *summary, ""])
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=10)
+    p.add_argument("--supersample", type=int, default=2, help="samples per pixel and axis (the Monte Carlo's: 4)")
+    p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--quick", action="store_true")
     a = p.parse_args(argv)
+    variants = [v.strip() for v in a.variants.split(",") if v.strip()]
+    if not variants or set(variants) - set(VARIANTS):
+        p.error(f"--variants: give some of {', '.join(VARIANTS)}, got {a.variants!r}")
+    if a.supersample < 1:
+        p.error(f"--supersample must be >= 1, got {a.supersample}")
     seeds = 2 if a.quick else a.seeds
-    jobs = [(v, FIRST_SEED + k) for k in range(seeds) for v in VARIANTS]
+    jobs = [(v, FIRST_SEED + k, a.supersample) for k in range(seeds) for v in variants]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(trial, jobs))
-    text = table(rows, time.perf_counter() - t0, seeds)
+    text = table(rows, time.perf_counter() - t0, seeds, a.supersample)
     (results_dir(a.quick) / "render_floor.md").write_text(text)
     sys.stdout.write(text)
 
