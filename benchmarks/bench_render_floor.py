@@ -9,7 +9,8 @@ only 0.02-0.04 px. This study takes the one-session perfect-robot renders of
 translation, JPEG 90 files, ``--supersample`` samples per pixel as the Monte Carlo's
 ``--supersample``), with the camera effects on (``default``: vignetting, exposure,
 sensor noise, a highlight, lens distortion), off (``clean``: none of them, no lens
-distortion) or all off but the lens and read noise (``lens+noise``), tracks the files as
+distortion), all off but the lens and read noise (``lens+noise``) or those plus one effect
+(``lens+noise+exposure``, the effects of ``bench_link_lean.py``), tracks the files as
 the command does (:func:`transcalib.images.track` with the translations) and compares
 every tracked observation with the exact projection of the 3-D point its first
 observation shows (:meth:`RobotRendered.track_truth`):
@@ -58,6 +59,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import md_table, results_dir  # noqa: E402
+from bench_link_lean import EFFECTS  # noqa: E402  (one camera effect each)
 from bench_robot_error_renders import FIRST_SEED, JPEG_QUALITY  # noqa: E402  (its perfect-robot seeds)
 
 VARIANTS = ("default", "clean", "lens+noise")
@@ -66,16 +68,16 @@ CALIBRATIONS = ("tracked", "tracked - view field", "exact+noise", "exact+along",
 
 
 def _degrade(variant: str):
-    """``robot_scene``'s ``degrade`` of a variant: every effect, none (nor the lens), or
-    the lens and the preset's read noise alone."""
+    """``robot_scene``'s ``degrade`` of a variant: every effect, none (nor the lens), the
+    lens and the preset's read noise alone, or those plus one effect (``lens+noise+jpeg``)."""
     from dataclasses import replace
 
     from transcalib.synth.robot_layout import preset_degradations
 
-    if variant != "lens+noise":
+    if not variant.startswith("lens+noise"):
         return variant == "default"
-    return replace(preset_degradations((640, 480)), vignetting=0.0, exposure=0.0, full_well_e=None,
-                   jpeg_quality=None, specular=0.0)
+    off = dict(vignetting=0.0, exposure=0.0, full_well_e=None, jpeg_quality=None, specular=0.0)
+    return replace(preset_degradations((640, 480)), **{**off, **EFFECTS.get(variant[len("lens+noise+"):], {})})
 
 
 def _tracked(r, folder: Path) -> np.ndarray:
@@ -237,13 +239,15 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=10)
     p.add_argument("--supersample", type=int, default=2, help="samples per pixel and axis (the Monte Carlo's: 4)")
-    p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
+    p.add_argument("--variants", default=",".join(VARIANTS),
+                   help=f"comma-separated, of {', '.join(VARIANTS)} and lens+noise+E, E one of {', '.join(EFFECTS)}")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--quick", action="store_true")
     a = p.parse_args(argv)
     variants = [v.strip() for v in a.variants.split(",") if v.strip()]
-    if not variants or set(variants) - set(VARIANTS):
-        p.error(f"--variants: give some of {', '.join(VARIANTS)}, got {a.variants!r}")
+    known = set(VARIANTS) | {f"lens+noise+{e}" for e in EFFECTS}
+    if not variants or set(variants) - known:
+        p.error(f"--variants: give some of {', '.join(sorted(known))}, got {a.variants!r}")
     if a.supersample < 1:
         p.error(f"--supersample must be >= 1, got {a.supersample}")
     seeds = 2 if a.quick else a.seeds
