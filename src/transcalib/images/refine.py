@@ -5,7 +5,7 @@ all observations of a view pair at once (:func:`lk_affine`): the template is a w
 the track's reference observation (Gaussian weights), the warp
 ``x_tgt = p + M o`` for template offsets ``o`` (across orientations a homography
 ``p + M o / (1 + g . o)`` with its projective row ``g`` given, :mod:`.link`),
-photometric ``a I_tgt + b + c . o``; images are
+photometric ``(a + d . o) I_tgt + b + c . o``; images are
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
 ``cv2.remap`` of a three-channel image). The affine part models the change of scale and
 foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
@@ -13,7 +13,12 @@ the gain and offset exposure changes, the ramp ``c`` a brightness gradient acros
 window that differs between the views (shading, vignetting: with gain and offset alone
 it pulled the alignment by a few thousandths of a pixel, alike over a view, which the
 calibration's std does not see; renders of a perfect robot: fx's std / RMS error 0.56,
-with the ramp 0.82, ``benchmarks/bench_render_floor.py``). A step that reverses the previous one is halved
+with the ramp 0.82, ``benchmarks/bench_render_floor.py``), and the gain's own gradient
+``d`` a brightness change that multiplies the texture (vignetting: an additive ramp
+leaves the texture's bright side weighed more, a pull towards the brighter side that
+grows with the gradient, so with the distance from the image centre; alike over a view,
+it scaled each view's tracks about the centre by a few 1e-6 as the scene moved in
+depth, and leaned a session's fx by one std). A step that reverses the previous one is halved
 (steps that ring about the optimum converge). An observation is dropped when it does not
 converge, correlates poorly with its template, moves too far, distorts the window
 implausibly, lies on too weak a texture, or is too near the border.
@@ -135,10 +140,11 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
     Tm = _sample(ref_img[..., 0], p_ref[:, :1] + ox[None], p_ref[:, 1:2] + oy[None])
     p, M = p0.astype(float).copy(), M0.astype(float).copy()
     a, b, c = np.ones(m), np.zeros(m), np.zeros((m, 2))  # gain, offset, ramp across the window
+    d = np.zeros((m, 2))  # the gain's own gradient across the window
     conv = np.zeros(m, bool)
     active = np.ones(m, bool)
     last = np.full(m, np.inf)
-    eye = np.eye(10, dtype=np.float32)
+    eye = np.eye(12, dtype=np.float32)
     last_move = np.zeros((m, 2))
     for _ in range(iterations):
         ia = np.flatnonzero(active)
@@ -147,14 +153,15 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
         wx, wy, shrink = _warp(p[ia], M[ia], None if g is None else g[ia], ox, oy)
         S = _sample(tgt, wx, wy)
         I, Gx, Gy = S[..., 0], S[..., 1], S[..., 2]
-        aa = a[ia, None].astype(np.float32)
+        aa = (a[ia, None] + d[ia, :1] * ox + d[ia, 1:] * oy).astype(np.float32)  # the gain at each sample
         res = aa * I + (b[ia, None] + c[ia, :1] * ox + c[ia, 1:] * oy).astype(np.float32) - Tm[ia]
-        J = np.empty((len(ia), 10, I.shape[1]), np.float32)
+        J = np.empty((len(ia), 12, I.shape[1]), np.float32)
         J[:, 0], J[:, 1] = aa * Gx, aa * Gy
         ax, ay = (J[:, 0], J[:, 1]) if shrink is None else (J[:, 0] * shrink, J[:, 1] * shrink)
         J[:, 2], J[:, 3] = ax * ox, ax * oy
         J[:, 4], J[:, 5] = ay * ox, ay * oy
         J[:, 6], J[:, 7], J[:, 8], J[:, 9] = I, 1.0, ox, oy
+        J[:, 10], J[:, 11] = I * ox, I * oy
         Jw = J * wgt
         H = (Jw @ J.transpose(0, 2, 1)).astype(float)
         grad = (Jw @ res[..., None])[..., 0].astype(float)
@@ -175,7 +182,8 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
         M[ia] += delta[:, 2:6].reshape(-1, 2, 2)
         a[ia] += delta[:, 6]
         b[ia] += delta[:, 7]
-        c[ia] += delta[:, 8:]
+        c[ia] += delta[:, 8:10]
+        d[ia] += delta[:, 10:]
         last[ia] = step
         done = step < 2e-3
         conv[ia[done]] = True
