@@ -14,11 +14,10 @@ window that differs between the views (shading, vignetting: with gain and offset
 it pulled the alignment by a few thousandths of a pixel, alike over a view, which the
 calibration's std does not see; renders of a perfect robot: fx's std / RMS error 0.56,
 with the ramp 0.82, ``benchmarks/bench_render_floor.py``), and the gain's own gradient
-``d`` a brightness change that multiplies the texture (vignetting: an additive ramp
-leaves the texture's bright side weighed more, a pull towards the brighter side that
-grows with the gradient, so with the distance from the image centre; alike over a view,
-it scaled each view's tracks about the centre by a few 1e-6 as the scene moved in
-depth, and leaned a session's fx by one std). A step that reverses the previous one is halved
+``d`` a brightness change that multiplies the texture (vignetting; without it each
+view's tracks came out scaled about the image centre by a few 1e-6 on renders, which
+leaned a session's fx by about one std; with it the lean halved and the single views'
+hand-eye t_z lean under every camera effect went, docs/uncertainty.md section 6). A step that reverses the previous one is halved
 (steps that ring about the optimum converge). An observation is dropped when it does not
 converge, correlates poorly with its template, moves too far, distorts the window
 implausibly, lies on too weak a texture, or is too near the border.
