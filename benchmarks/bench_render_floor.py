@@ -160,11 +160,16 @@ def _view_field(err, exact, seen, K, degree: int = 2) -> np.ndarray:
     return out
 
 
+def _displacements(exact, seen) -> np.ndarray:
+    """Each observation's displacement from its track's first view ``(n_views, n_points, 2)``."""
+    first = np.argmax(seen, axis=0)
+    return exact - exact[first, np.arange(exact.shape[1])][None]
+
+
 def _along_part(err, exact, seen) -> np.ndarray:
     """The component of each observation's error along its displacement from its track's
     first view ``(n_views, n_points, 2)`` (0 where it has not moved; NaN where unseen)."""
-    first = np.argmax(seen, axis=0)
-    d = exact - exact[first, np.arange(exact.shape[1])][None]
+    d = _displacements(exact, seen)
     dn = np.linalg.norm(d, axis=2, keepdims=True)
     u = np.divide(d, dn, out=np.zeros_like(d), where=dn > 1e-9)
     return np.sum(err * u, axis=2, keepdims=True) * u
@@ -173,8 +178,7 @@ def _along_part(err, exact, seen) -> np.ndarray:
 def _along(err, exact, seen) -> float:
     """Least-squares slope of the error along each observation's displacement from its
     track's first view against that displacement (px per px)."""
-    first = np.argmax(seen, axis=0)
-    d = exact - exact[first, np.arange(exact.shape[1])][None]
+    d = _displacements(exact, seen)
     dn = np.linalg.norm(d, axis=2)
     m = seen & (dn > 1.0)
     along = np.sum(err * d, axis=2)[m] / dn[m]
