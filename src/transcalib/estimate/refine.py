@@ -619,8 +619,10 @@ class _Fitter:
 
 
 def _inverse(S: np.ndarray) -> np.ndarray:
-    """``S^-1`` of a symmetric positive (semi-)definite ``S``, Jacobi-scaled."""
-    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
+    """``S^-1`` of a symmetric positive (semi-)definite ``S``, Jacobi-scaled (a parameter
+    without information, a zero row and column, left unscaled: its pseudo-inverse is 0)."""
+    diag = np.diag(S)
+    d = 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0))
     return np.linalg.pinv(S * d[:, None] * d[None, :], rcond=1e-14, hermitian=True) * d[:, None] * d[None, :]
 
 

@@ -172,9 +172,13 @@ def _held_as_start(cal: Calibration, verdict) -> Calibration:
     rather than select afresh from the exact-pose fit, where they ran away before (on a
     render with single views at 0.2 deg / 2 mm selecting afresh ended with cx 9 std off);
     the score tests' p-values are those of the misfit's fit ``verdict``, the scales'
-    checks against them not made (NaN)."""
+    checks against them not made (NaN). With a component held at 0 (left out) the
+    selection starts afresh (no robot error in the start): a prior of scale 0 would weigh
+    its errors infinitely, and continued without it the other component took up a wrong
+    lens's misfit with fx (13 % on ``tests/test_realistic.py``'s scene with the lens
+    forced to none), which the fresh selection's checks against the scores leave out."""
     re = cal.robot_error
-    if re is None or verdict is None:
+    if re is None or verdict is None or min(re.sigma_rot_deg, re.sigma_pos) <= 0:
         return replace(cal, robot_error=None)
     return replace(cal, robot_error=replace(re, source=("estimated",) * len(re.source), p_values=verdict.p_values,
                                             consistency_p=np.full(len(re.source), np.nan),
