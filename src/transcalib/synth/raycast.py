@@ -168,37 +168,63 @@ def nearest_hits(surfaces, d, C) -> tuple[np.ndarray, np.ndarray]:
     return best, which
 
 
+#: Pixel rows rendered at a time by :func:`render_view` (its temporaries stay in the cache).
+STRIP_ROWS = 8
+
+
 def render_view(surfaces, d, C, S, background, K, R, dist, image_size):
-    """Supersampled intensity of one view: rays ``d`` (3 arrays ``(Hs, Ws)``), centre ``C``."""
+    """Supersampled intensity of one view: rays ``d`` (3 arrays ``(Hs, Ws)``), centre ``C``;
+    ``(Hs / S, Ws / S)``, in strips of :data:`STRIP_ROWS` pixel rows (the same values as
+    the whole image at once)."""
     Hs, Ws = d[0].shape
-    best = np.full((Hs, Ws), np.inf)
-    owner = np.full((Hs, Ws), -1, dtype=np.int32)
-    crops, coords = [], []
-    for k, sf in enumerate(surfaces):  # pass 1: z-buffer
-        sl = _crop(sf, K, R, dist, C, image_size, S)
-        crops.append(sl)
-        if sl is None:
-            coords.append(None)
+    crops = [_crop(sf, K, R, dist, C, image_size, S) for sf in surfaces]
+    out = np.empty((Hs // S, Ws // S))
+    step = STRIP_ROWS * S
+    for a in range(0, Hs, step):
+        b = min(a + step, Hs)
+        out[a // S: b // S] = _render_rows(surfaces, crops, d, C, background, a, b).reshape(
+            (b - a) // S, S, Ws // S, S).mean(axis=(1, 3))
+    return out
+
+
+def _render_rows(surfaces, crops, d, C, background, a: int, b: int) -> np.ndarray:
+    """Sample rows ``a:b`` of :func:`render_view`: a z-buffer pass, then the texture of the
+    visible samples (their footprints from the surface coordinates' differences over the
+    whole crop: one row more on each side where the crop has it)."""
+    Ws = d[0].shape[1]
+    best = np.full((b - a, Ws), np.inf)
+    owner = np.full((b - a, Ws), -1, dtype=np.int32)
+    parts = []
+    for k, (sf, sl) in enumerate(zip(surfaces, crops)):  # pass 1: z-buffer
+        if sl is None or sl[0].stop <= a or sl[0].start >= b:
+            parts.append(None)
             continue
-        z, s, t = surface_hits(sf, d, C, sl)
-        hit = on_surface(sf, z, s, t) & (z < best[sl])
-        best[sl][hit] = z[hit]
-        owner[sl][hit] = k
-        coords.append((s, t) if hit.any() else None)
-    out = np.full((Hs, Ws), float(background))
-    for k, sf in enumerate(surfaces):  # pass 2: texture of the visible samples
-        sl = crops[k]
-        if sl is None or coords[k] is None:
+        lo, hi = max(sl[0].start, a - 1), min(sl[0].stop, b + 1)  # the rows of the crop used here
+        z, s, t = surface_hits(sf, d, C, (slice(lo, hi), sl[1]))
+        inner = slice(max(sl[0].start, a) - lo, min(sl[0].stop, b) - lo)  # of those, rows a:b
+        rows = slice(max(sl[0].start, a) - a, min(sl[0].stop, b) - a)
+        hit = on_surface(sf, z[inner], s[inner], t[inner]) & (z[inner] < best[rows, sl[1]])
+        best[rows, sl[1]][hit] = z[inner][hit]
+        owner[rows, sl[1]][hit] = k
+        flat = sl[0].stop - sl[0].start < 2 or sl[1].stop - sl[1].start < 2  # no differences across it
+        parts.append((rows, inner, s, t, flat) if hit.any() else None)
+    out = np.full((b - a, Ws), float(background))
+    for k, (sf, sl, part) in enumerate(zip(surfaces, crops, parts)):  # pass 2: texture of the visible samples
+        if part is None:
             continue
-        m = owner[sl] == k
+        rows, inner, s, t, flat = part
+        m = owner[rows, sl[1]] == k
         if not m.any():
             continue
-        s, t = coords[k]
-        # footprint of one sample in surface units: bounding box of its parallelogram
-        with np.errstate(invalid="ignore"):
-            ws = np.abs(np.gradient(s, axis=1)[m]) + np.abs(np.gradient(s, axis=0)[m]) if min(s.shape) > 1 else 0 * s[m]
-            wt = np.abs(np.gradient(t, axis=1)[m]) + np.abs(np.gradient(t, axis=0)[m]) if min(t.shape) > 1 else 0 * t[m]
-        ws = np.where(np.isfinite(ws), ws, 0.0)
-        wt = np.where(np.isfinite(wt), wt, 0.0)
-        out[sl][m] = sf.texture(s[m], t[m], ws, wt)
-    return out.reshape(Hs // S, S, Ws // S, S).mean(axis=(1, 3))
+        ws, wt = (0 * s[inner][m], 0 * t[inner][m]) if flat else (_footprint(s, inner, m), _footprint(t, inner, m))
+        out[rows, sl[1]][m] = sf.texture(s[inner][m], t[inner][m], ws, wt)
+    return out
+
+
+def _footprint(s: np.ndarray, inner: slice, m: np.ndarray) -> np.ndarray:
+    """A sample's footprint along one surface axis: the bounding box of its parallelogram,
+    ``|ds/dcol| + |ds/drow|`` (central differences, one-sided at the crop's edges), at the
+    samples ``m`` of rows ``inner`` of ``s``; 0 where not finite."""
+    with np.errstate(invalid="ignore"):
+        w = np.abs(np.gradient(s[inner], axis=1)[m]) + np.abs(np.gradient(s, axis=0)[inner][m])
+    return np.where(np.isfinite(w), w, 0.0)
