@@ -116,7 +116,7 @@ def run_case(texture, warp, inverse, n_points: int, rng):
     pts, truth = pts[inside][:n_points], truth[inside][:n_points]
     M0 = jacobian(warp, pts[:, 0], pts[:, 1])
     start = truth + rng.normal(0, 0.2, truth.shape)
-    p, _, _, _, conv = lk_affine(sm[0], sm[1], pts, start, M0, 8, 24)
+    p, _, _, _, conv = lk_affine(sm.plain(0), sm[1], pts, start, M0, 8, 24)
     return (p - truth)[conv], truth[conv]
 
 

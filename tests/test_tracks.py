@@ -347,7 +347,7 @@ def _lk_errors(texture, warp, inverse, pts, M0, g=None, size=(400, 300)):
     sm = SmoothedImages([texture(x, y), texture(xs, ys)])
     truth = np.column_stack(warp(pts[:, 0], pts[:, 1]))
     start = truth + np.random.default_rng(1).normal(0, 0.2, truth.shape)
-    p, _, _, _, conv = lk_affine(sm[0], sm[1], pts, start, M0, 8, 24, g)
+    p, _, _, _, conv = lk_affine(sm.plain(0), sm[1], pts, start, M0, 8, 24, g)
     assert conv.mean() > 0.95
     return (p - truth)[conv]
 

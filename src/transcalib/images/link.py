@@ -113,7 +113,7 @@ def _lk_accept(smoothed, a, b, x, pred, J, opts, shape, max_shift_px, g=None):
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return out
-    p, M, ncc, min_eig, conv = lk_affine(smoothed[a], smoothed[b], x[idx], pred[idx], J[idx], ref.window_radius,
+    p, M, ncc, min_eig, conv = lk_affine(smoothed.plain(a), smoothed[b], x[idx], pred[idx], J[idx], ref.window_radius,
                                          2 * ref.iterations, None if g is None else g[idx])
     det = np.linalg.det(M)
     good = (conv & (ncc >= ref.min_ncc) & (min_eig > 1.0) & (np.abs(det) > 0.2) & (np.abs(det) < 5.0)

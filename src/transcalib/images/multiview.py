@@ -206,7 +206,7 @@ def _align(smoothed, r, v, x, p0, J, opts: GeneralOptions, shape):
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return out
-    p, M, ncc, min_eig, conv = lk_affine(smoothed[r], smoothed[v], x[idx], p0[idx], J[idx], opts.window_radius,
+    p, M, ncc, min_eig, conv = lk_affine(smoothed.plain(r), smoothed[v], x[idx], p0[idx], J[idx], opts.window_radius,
                                          opts.iterations)
     det = np.linalg.det(M)
     good = (conv & (ncc >= opts.min_ncc) & (min_eig > 1.0) & (det > 0.2) & (det < 5.0) & inside(p)

@@ -65,19 +65,27 @@ class RefineOptions:
 
 class SmoothedImages:
     """Per view: the image smoothed with sigma 1 and its gradients, as one three-channel
-    float32 image (``[I, dI/dx, dI/dy]``), built on first use."""
+    float32 image (``[I, dI/dx, dI/dy]``), and the smoothed image alone (:meth:`plain`:
+    the templates' source), built on first use."""
 
     def __init__(self, grey: list):
         self.grey = grey
         self._cache = {}
 
-    def __getitem__(self, v: int) -> np.ndarray:
+    def _build(self, v: int) -> tuple:
         if v not in self._cache:
             sm = cv2.GaussianBlur(np.asarray(self.grey[v], np.float32), (0, 0), 1.0)
             gx = cv2.Sobel(sm, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
             gy = cv2.Sobel(sm, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
-            self._cache[v] = cv2.merge([sm, gx, gy])
+            self._cache[v] = (cv2.merge([sm, gx, gy]), sm)
         return self._cache[v]
+
+    def __getitem__(self, v: int) -> np.ndarray:
+        return self._build(v)[0]
+
+    def plain(self, v: int) -> np.ndarray:
+        """``(h, w)`` float32: the smoothed image of view ``v``."""
+        return self._build(v)[1]
 
     def shape(self) -> tuple[int, int]:
         return self.grey[0].shape[:2]
@@ -108,8 +116,10 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
 
     Parameters
     ----------
-    ref_img, tgt : (h, w, 3) float32
-        :class:`SmoothedImages` entries (image and gradients).
+    ref_img : (h, w) float32
+        The smoothed reference view (:meth:`SmoothedImages.plain`): the templates.
+    tgt : (h, w, 3) float32
+        The target view's :class:`SmoothedImages` entry (image and gradients).
     p_ref : (m, 2) float
         Template centres in the reference view.
     p0 : (m, 2) float
@@ -138,7 +148,7 @@ def lk_affine(ref_img: np.ndarray, tgt: np.ndarray, p_ref: np.ndarray, p0: np.nd
     m = len(p_ref)
     ox, oy, wgt = _offsets(radius)
     sw = np.sqrt(wgt)  # the weights' roots in J and the residual: H = J J^T, grad = J r
-    Tm = _sample(ref_img[..., 0], p_ref[:, :1] + ox[None], p_ref[:, 1:2] + oy[None])
+    Tm = _sample(ref_img, p_ref[:, :1] + ox[None], p_ref[:, 1:2] + oy[None])
     p, M = p0.astype(float).copy(), M0.astype(float).copy()
     a, b, c = np.ones(m), np.zeros(m), np.zeros((m, 2))  # gain, offset, ramp across the window
     d = np.zeros((m, 2))  # the gain's own gradient across the window
@@ -323,7 +333,7 @@ def refine_to_reference(smoothed: SmoothedImages, uv: np.ndarray, ref: np.ndarra
         if M0 is not None and not np.all(np.isfinite(M0)):
             M0 = np.where(np.isfinite(M0), M0, _start_warp(epi, r, j, p_ref, p0, None))
         M0 = _start_warp(epi, r, j, p_ref, p0, M0)
-        p, M, ncc, min_eig, conv = lk_affine(smoothed[r], smoothed[j], p_ref, p0, M0, opts.window_radius,
+        p, M, ncc, min_eig, conv = lk_affine(smoothed.plain(r), smoothed[j], p_ref, p0, M0, opts.window_radius,
                                              opts.iterations)
         det = np.linalg.det(M)
         good = (inside[r, sel] & inside[j, sel] & conv & (ncc >= opts.min_ncc)
