@@ -1,6 +1,7 @@
 """Where the renders' perfect-robot floor comes from: the tracker's errors against the truth.
 
     python benchmarks/bench_render_floor.py [--seeds N] [--supersample S] [--variants V,...] [--jobs J] [--quick]
+                                            [--name NAME]
 
 On renders with a perfect robot the reported std of fx falls short of its scatter (one
 session: ratio 0.49, benchmarks/results/robot_error_renders.md), though the pixel noise is
@@ -9,8 +10,9 @@ only 0.02-0.04 px. This study takes the one-session perfect-robot renders of
 translation, JPEG 90 files, ``--supersample`` samples per pixel as the Monte Carlo's
 ``--supersample``), with the camera effects on (``default``: vignetting, exposure,
 sensor noise, a highlight, lens distortion), off (``clean``: none of them, no lens
-distortion), all off but the lens and read noise (``lens+noise``) or those plus one effect
-(``lens+noise+exposure``, the effects of ``bench_link_lean.py``), tracks the files as
+distortion), all off but the lens and read noise (``lens+noise``), those plus one effect
+(``lens+noise+exposure``, the effects of ``bench_link_lean.py``), or every effect with
+more read noise (``noisy``: does the floor matter once the tracks are noisier?), tracks the files as
 the command does (:func:`transcalib.images.track` with the translations) and compares
 every tracked observation with the exact projection of the 3-D point its first
 observation shows (:meth:`RobotRendered.track_truth`):
@@ -43,7 +45,7 @@ observation shows (:meth:`RobotRendered.track_truth`):
   track's first view) or ``across`` it (the rest), tracks next to another surface left
   out (T-junctions): which component carries fx's lean.
 
-Writes ``benchmarks/results/render_floor.md`` (``--quick``: 2 seeds, a scratch folder).
+Writes ``benchmarks/results/NAME.md`` (default ``render_floor``; ``--quick``: 2 seeds, a scratch folder).
 """
 
 from __future__ import annotations
@@ -62,18 +64,24 @@ from _common import md_table, results_dir  # noqa: E402
 from bench_link_lean import EFFECTS  # noqa: E402  (one camera effect each)
 from bench_robot_error_renders import FIRST_SEED, JPEG_QUALITY  # noqa: E402  (its perfect-robot seeds)
 
-VARIANTS = ("default", "clean", "lens+noise")
+VARIANTS = ("default", "clean", "lens+noise", "noisy")
+#: Read noise (grey levels) of the ``noisy`` variant: every effect, tracks of a few hundredths
+#: of a pixel more noise (the preset's read noise is 1.2).
+NOISY_READ_DN = 8.0
 #: The calibrations of each render (the summary's rows).
 CALIBRATIONS = ("tracked", "tracked - view field", "exact+noise", "exact+along", "exact+across")
 
 
 def _degrade(variant: str):
     """``robot_scene``'s ``degrade`` of a variant: every effect, none (nor the lens), the
-    lens and the preset's read noise alone, or those plus one effect (``lens+noise+jpeg``)."""
+    lens and the preset's read noise alone, those plus one effect (``lens+noise+jpeg``),
+    or every effect with :data:`NOISY_READ_DN` of read noise (``noisy``)."""
     from dataclasses import replace
 
     from transcalib.synth.robot_layout import preset_degradations
 
+    if variant == "noisy":
+        return replace(preset_degradations((640, 480)), read_noise_dn=NOISY_READ_DN)
     if not variant.startswith("lens+noise"):
         return variant == "default"
     off = dict(vignetting=0.0, exposure=0.0, full_well_e=None, jpeg_quality=None, specular=0.0)
@@ -201,7 +209,7 @@ def _radial(err, uv, seen, K) -> float:
     return float(np.median(out))
 
 
-def table(rows: list, elapsed: float, seeds: int, supersample: int) -> str:
+def table(rows: list, elapsed: float, seeds: int, supersample: int, command: str = "") -> str:
     head = ["variant", "seed", "err px", "shift px (white)", "view field px", "along", "radial px @300",
             "sigma_px tracked", "fx err (tracked)", "fx std (reported)", "z tracked", "z without the view field",
             "fx err (exact+noise)", "z exact+noise"]
@@ -225,7 +233,8 @@ def table(rows: list, elapsed: float, seeds: int, supersample: int) -> str:
                            + (f"; views' mean error {shift:.4f} px RMS" if name == "tracked" else ""))
     return "\n".join([
         "# The renders' perfect-robot floor: the tracker against the truth", "",
-        f"`python benchmarks/bench_render_floor.py --seeds {seeds} --supersample {supersample}` ({elapsed:.0f} s). "
+        f"`python benchmarks/bench_render_floor.py --seeds {seeds} --supersample {supersample}{command}` "
+        f"({elapsed:.0f} s). "
         f"One-session perfect-robot renders ({supersample} x {supersample} samples per pixel, 12 views, JPEG 90 "
         "files; seeds of bench_robot_error_renders.py), tracked as the command tracks them. err: the tracker's "
         "RMS error per coordinate against the exact projection of the point its first observation shows; shift: "
@@ -247,6 +256,7 @@ def main(argv=None) -> None:
                    help=f"comma-separated, of {', '.join(VARIANTS)} and lens+noise+E, E one of {', '.join(EFFECTS)}")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--name", default="render_floor", help="results file name, without .md")
     a = p.parse_args(argv)
     variants = [v.strip() for v in a.variants.split(",") if v.strip()]
     known = set(VARIANTS) | {f"lens+noise+{e}" for e in EFFECTS}
@@ -259,8 +269,10 @@ def main(argv=None) -> None:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(trial, jobs))
-    text = table(rows, time.perf_counter() - t0, seeds, a.supersample)
-    (results_dir(a.quick) / "render_floor.md").write_text(text)
+    command = (f" --variants {','.join(variants)}" if variants != list(VARIANTS) else "") + \
+        (f" --name {a.name}" if a.name != "render_floor" else "")
+    text = table(rows, time.perf_counter() - t0, seeds, a.supersample, command)
+    (results_dir(a.quick) / f"{a.name}.md").write_text(text)
     sys.stdout.write(text)
 
 

@@ -178,11 +178,29 @@ def _checks(rows: list) -> str:
 
 
 def _case_trial(case: tuple) -> dict:
-    """One trial of ``(layout, sigma_rot, sigma_pos, seed)`` as a JSON-able record."""
-    layout, sr, sp, seed, supersample = case
+    """One trial of ``(layout, sigma_rot, sigma_pos, seed, supersample, code)`` as a JSON-able
+    record (``code``: :func:`_code_version`)."""
+    layout, sr, sp, seed, supersample, code = case
     row = trial(layout, sr, sp, seed, supersample)
     plain = {k: (list(map(_plain, v)) if isinstance(v, tuple) else _plain(v)) for k, v in row.items()}
-    return {"layout": layout, "sigma_rot": sr, "sigma_pos": sp, "seed": seed, "row": plain}
+    return {"layout": layout, "sigma_rot": sr, "sigma_pos": sp, "seed": seed, "code": code, "row": plain}
+
+
+def _code_version() -> str | None:
+    """The commit of the checkout the calibrations run from (``+changes`` when its files
+    differ from it), or None outside a git checkout: recorded with every trial, since a
+    Monte Carlo of many sessions may span several versions."""
+    import transcalib
+
+    src = Path(transcalib.__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=src, capture_output=True, text=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], cwd=src, capture_output=True, text=True)
+    except OSError:
+        return None
+    if head.returncode != 0:
+        return None
+    return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
 
 
 def _plain(v):
@@ -208,11 +226,12 @@ def main(argv=None) -> None:
         a.out = OUT if a.supersample == 2 else OUT.with_name(f"{OUT.stem}_ss{a.supersample}.md")
     log = a.out.with_suffix(".jsonl")
     done = {(r["layout"], r["sigma_rot"], r["sigma_pos"], r["seed"]) for r in _recorded(log)}
+    code = _code_version()
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs) as pool:
         for k in range(a.trials):  # trials interleaved over the cases: a run cut short stays balanced
             todo = [(layout, sr, sp, FIRST_SEED + 1000 * g + k) for layout in LAYOUTS for g, (sr, sp) in enumerate(CASES)]
-            todo = [(*c, a.supersample) for c in todo if c not in done]
+            todo = [(*c, a.supersample, code) for c in todo if c not in done]
             if not todo:
                 continue
             with log.open("a") as f:
