@@ -1,6 +1,6 @@
 """The sub-pixel alignment against an exact oracle: where its error comes from.
 
-    python benchmarks/bench_lk_oracle.py [--points N] [--quick]
+    python benchmarks/bench_lk_oracle.py [--points N] [--noise L,...] [--quick]
 
 :func:`transcalib.images.refine.lk_affine` (the tracker's sub-pixel stage) aligns
 windows of a band-limited texture (a sum of cosines below 0.35 cycles per px, so the
@@ -10,9 +10,13 @@ image is ``I(W^-1(x))`` evaluated exactly, the start is the truth plus 0.2 px of
 and the warp's exact Jacobian. Per case, over the converged points: ``rms`` the error per
 coordinate, ``pull`` the norm of the mean error (alike over the image: what the
 calibration absorbs, as a few thousandths of a pixel over a view's ~1000 points weigh on
-fx like the pixel noise of every point) and ``field`` the RMS over a 4 x 4 grid of
-image cells of the cells' mean errors (a smooth error pattern over the image), each
-beside what independent errors of the same spread would give.
+fx like the pixel noise of every point), ``field`` the RMS over a 4 x 4 grid of
+image cells of the cells' mean errors (a smooth error pattern over the image) and
+``scale`` the errors' isotropic scale about the image centre (``sum e.r / sum r.r``: a
+view's tracks scaled by a few 1e-6 lean a session's fx, docs/uncertainty.md section 6),
+each beside what independent errors of the same spread would give. ``--noise`` adds
+white noise of those grey levels to both images (independent draws): does the noise
+bias the alignment, beyond scattering it?
 
 Cases (640 x 480, f = 660 px, as ``robot_scene``):
 
@@ -103,13 +107,17 @@ def jacobian(warp, x, y, h: float = 0.5):
     return np.stack(cols, axis=-1)
 
 
-def run_case(texture, warp, inverse, n_points: int, rng):
-    """Errors ``(m, 2)`` and target positions of the converged points."""
+def run_case(texture, warp, inverse, n_points: int, rng, noise: float = 0.0):
+    """Errors ``(m, 2)`` and target positions of the converged points (``noise``: std of
+    white noise added to each image, grey levels)."""
     from transcalib.images.refine import SmoothedImages, lk_affine
 
     yy, xx = np.mgrid[0:H, 0:W].astype(float)
     xs, ys = inverse(xx, yy)
-    sm = SmoothedImages([texture(xx, yy), texture(xs, ys)])
+    images = [texture(xx, yy), texture(xs, ys)]
+    if noise > 0:
+        images = [im + rng.normal(0.0, noise, im.shape) for im in images]
+    sm = SmoothedImages(images)
     pts = np.column_stack([rng.uniform(40, W - 40, 4 * n_points), rng.uniform(40, H - 40, 4 * n_points)])
     truth = np.column_stack(warp(pts[:, 0], pts[:, 1]))
     inside = (truth[:, 0] > 40) & (truth[:, 0] < W - 40) & (truth[:, 1] > 40) & (truth[:, 1] < H - 40)
@@ -131,6 +139,14 @@ def field_rms(err, at, cells: int = 4) -> tuple[float, float]:
     return float(np.sqrt(np.mean(np.sum(means**2, axis=1)))), float(np.sqrt(white))
 
 
+def scale_about_centre(err, at) -> tuple[float, float]:
+    """The errors' isotropic scale about the image centre, ``sum e.r / sum r.r`` (``r`` the
+    position from the centre), and its std under independent errors of the same spread."""
+    r = at - [(W - 1) / 2, (H - 1) / 2]
+    rr = np.sum(r * r)
+    return float(np.sum(err * r) / rr), float(np.sqrt(np.sum(err.var(0) * np.sum(r * r, axis=0))) / rr)
+
+
 def cases():
     shift = np.array([3.37, -1.71])
     out = {"shift (3.37, -1.71) px": ((lambda x, y: (x + shift[0], y + shift[1])),
@@ -148,29 +164,41 @@ def cases():
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=1500, help="points per case")
+    ap.add_argument("--noise", default="0", help="white noise added to both images, grey levels (comma-separated)")
     ap.add_argument("--quick", action="store_true", help="300 points per case, written to a scratch folder")
     a = ap.parse_args(argv)
     if a.quick:
         a.points = 300
+    try:
+        levels = [float(v) for v in a.noise.split(",")]
+    except ValueError:
+        ap.error(f"--noise: comma-separated grey levels, got {a.noise!r}")
+    if any(v < 0 for v in levels):
+        ap.error(f"--noise: levels must be >= 0, got {a.noise!r}")
     t0 = time.perf_counter()
     rows = []
     for name, (warp, inverse) in cases().items():
-        rng = np.random.default_rng(0)
-        texture = band_limited(rng)
-        err, at = run_case(texture, warp, inverse, a.points, rng)
-        rms = np.sqrt((err**2).mean(0))
-        field, white = field_rms(err, at)
-        rows.append([name, len(err), float(rms[0]), float(rms[1]), float(np.linalg.norm(err.mean(0))),
-                     float(np.sqrt(np.sum(err.var(0)) / len(err))), field, white])
+        for noise in levels:
+            rng = np.random.default_rng(0)
+            texture = band_limited(rng)
+            err, at = run_case(texture, warp, inverse, a.points, rng, noise)
+            rms = np.sqrt((err**2).mean(0))
+            field, white = field_rms(err, at)
+            kappa, kappa_white = scale_about_centre(err, at)
+            rows.append([name, noise, len(err), float(rms[0]), float(rms[1]), float(np.linalg.norm(err.mean(0))),
+                         float(np.sqrt(np.sum(err.var(0)) / len(err))), field, white, f"{kappa * 1e6:+.2f}",
+                         f"{kappa_white * 1e6:.2f}"])
     text = "\n".join([
         "# The sub-pixel alignment against an exact oracle", "",
-        f"`python benchmarks/bench_lk_oracle.py --points {a.points}` ({time.perf_counter() - t0:.0f} s). "
+        f"`python benchmarks/bench_lk_oracle.py --points {a.points} --noise {a.noise}` "
+        f"({time.perf_counter() - t0:.0f} s). "
         "`lk_affine` (17 x 17 window, the tracker's settings) on a band-limited texture moved by an exact warp "
-        "(no noise, no renderer); errors against the truth over the converged points. pull: norm of the mean "
-        "error (alike over the image); field: RMS of the mean errors of a 4 x 4 grid of image cells; (white): "
-        "what independent errors of the same spread would give each.", "",
-        md_table(["case", "points", "rms x px", "rms y px", "pull px", "pull (white) px", "field px",
-                  "field (white) px"], rows), ""])
+        "(no renderer; noise: white noise of that std, grey levels, added to both images); errors against the "
+        "truth over the converged points. pull: norm of the mean error (alike over the image); field: RMS of "
+        "the mean errors of a 4 x 4 grid of image cells; scale: the errors' isotropic scale about the image "
+        "centre (1e-6); (white): what independent errors of the same spread would give each.", "",
+        md_table(["case", "noise", "points", "rms x px", "rms y px", "pull px", "pull (white) px", "field px",
+                  "field (white) px", "scale 1e-6", "scale (white) 1e-6"], rows), ""])
     out = results_dir(a.quick) / "lk_oracle.md"
     out.write_text(text)
     print(text)
