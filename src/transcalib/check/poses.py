@@ -212,8 +212,6 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
         ``flagged`` (views), ``dC (n_views, 3)`` (recorded minus fitted centre, model
         frame), ``angle_deg (n_views,)``, ``p_value (n_views,)``.
     """
-    from scipy.optimize import least_squares
-
     from ..geometry.camera import project
     from ..geometry.rotation import rotvec_to_matrix
     from ..geometry.triangulate import triangulate
@@ -242,6 +240,8 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
             return (uv[v, tracks] - x).ravel()
 
         ok = np.isfinite(X[:, 0])
+        from scipy.optimize import least_squares  # here: a tenth of a second, rarely needed
+
         fit = least_squares(lambda p: np.nan_to_num(residuals(p)[np.repeat(ok, 2)], nan=1e6), np.zeros(6),
                             loss="soft_l1", f_scale=3 * sigma, x_scale="jac")
         r = fit.fun.reshape(-1, 2)

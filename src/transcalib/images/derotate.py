@@ -171,9 +171,12 @@ class Lens:
     lam: float = 0.0
 
     def undistort(self, x: np.ndarray) -> np.ndarray:
+        """Points ``x (m, 2)`` undistorted: ``(m, 2)``, or ``(k, m, 2)`` for ``k`` values
+        of ``lam`` at once (``lam (k,)``)."""
         d = np.asarray(x, float) - self.centre
         r2 = d[..., :1] * d[..., :1] + d[..., 1:2] * d[..., 1:2]
-        return self.centre + d / (1.0 + self.lam * r2 / self.s**2)
+        lam = np.asarray(self.lam, float)[..., None, None] if np.ndim(self.lam) else self.lam
+        return self.centre + d / (1.0 + lam * r2 / self.s**2)
 
     def distort(self, xu: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`undistort`: the root ``r = 2 r_u / (1 + sqrt(1 - 4 lam r_u^2))``
@@ -185,12 +188,13 @@ class Lens:
 
 
 def _apply(H: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``pi(H [x; 1])`` of points ``x (m, 2)``; ``H (3, 3)`` or one per point ``(m, 3, 3)``."""
+    """``pi(H [x; 1])`` of points ``x (..., m, 2)``; ``H (3, 3)`` or one per point
+    ``(..., m, 3, 3)`` (written out: a batched 3 x 3 product per point costs ten times more)."""
     x = np.asarray(x, float)
-    xh = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], axis=-1)
-    y = xh @ H.T if H.ndim == 2 else np.einsum("mab,mb->ma", H, xh)
+    u, v = x[..., 0], x[..., 1]
+    h = [H[..., a, 0] * u + H[..., a, 1] * v + H[..., a, 2] for a in range(3)]
     with np.errstate(divide="ignore", invalid="ignore"):  # unseen (NaN) points stay NaN
-        return y[..., :2] / y[..., 2:3]
+        return np.stack([h[0] / h[2], h[1] / h[2]], axis=-1)
 
 
 # --------------------------------------------------------------------------- the fit
@@ -218,47 +222,50 @@ class _Data:
 
 
 def _homographies(A: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """``H_v = A exp([w_v]x) A^-1`` ``(n, 3, 3)``."""
-    return A @ rotvec_to_matrix(omega) @ np.linalg.inv(A)
+    """``H_v = A exp([w_v]x) A^-1``: ``A (..., 3, 3)``, ``omega (..., n, 3)`` -> ``(..., n, 3, 3)``."""
+    return A[..., None, :, :] @ rotvec_to_matrix(omega) @ np.linalg.inv(A)[..., None, :, :]
 
 
-def residuals(A: np.ndarray, lam: float, omega: np.ndarray, d: _Data) -> np.ndarray:
+def residuals(A: np.ndarray, lam, omega: np.ndarray, d: _Data) -> np.ndarray:
     """Signed distances ``(N,)`` (px) of the undistorted, derotated ``y~`` from the
     epipolar lines through ``x~`` and ``e = A t``: ``cross(e3 x~ - e_xy, y~ - x~) / |e3 x~ - e_xy|``
-    (0 for matches moving less than :data:`~.epipoles.MOVING_PX`)."""
+    (0 for matches moving less than :data:`~.epipoles.MOVING_PX`). With ``k`` parameter
+    sets at once (``A (k, 3, 3)``, ``lam (k,)``, ``omega (k, n, 3)``): ``(k, N)``."""
     H = _homographies(A, omega)
     lens = Lens(d.centre, d.s, lam)
-    xd, yd = _apply(H[d.vi], lens.undistort(d.x)), _apply(H[d.vj], lens.undistort(d.y))
-    e = d.t @ A.T
-    dirn = e[:, 2:3] * xd - e[:, :2]
+    xd, yd = _apply(H[..., d.vi, :, :], lens.undistort(d.x)), _apply(H[..., d.vj, :, :], lens.undistort(d.y))
+    e = d.t @ np.swapaxes(A, -1, -2)
+    dirn = e[..., 2:3] * xd - e[..., :2]
     disp = yd - xd
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = (dirn[:, 0] * disp[:, 1] - dirn[:, 1] * disp[:, 0]) / np.sqrt(dirn[:, 0] ** 2 + dirn[:, 1] ** 2)
+        r = (dirn[..., 0] * disp[..., 1] - dirn[..., 1] * disp[..., 0]) / np.sqrt(dirn[..., 0] ** 2 + dirn[..., 1] ** 2)
     # back to image pixels: undistortion scales lengths near y by 1 / (1 + lam r^2), and a
     # large lam would otherwise shrink every residual (a degenerate fit)
     u, v = d.y[:, 0] - d.centre[0], d.y[:, 1] - d.centre[1]
-    r = r * (1.0 + lam * (u * u + v * v) / d.s**2)
+    r = r * (1.0 + np.asarray(lam, float)[..., None] * (u * u + v * v) / d.s**2)
     return np.where(d.still, 0.0, np.nan_to_num(r, nan=1e6))
 
 
 def _unpack(p: np.ndarray, n: int):
-    """Parameters ``(10 + 3 (n - 1),)`` -> ``A (3, 3)``, ``lam``, ``omega (n, 3)`` (``w_0 = 0``)."""
-    return p[:9].reshape(3, 3), p[9], np.vstack([np.zeros(3), p[10:].reshape(n - 1, 3)])
+    """Parameters ``(..., 10 + 3 (n - 1))`` -> ``A (..., 3, 3)``, ``lam (...)``,
+    ``omega (..., n, 3)`` (``w_0 = 0``)."""
+    lead = p.shape[:-1]
+    omega = np.concatenate([np.zeros(lead + (1, 3)), p[..., 10:].reshape(lead + (n - 1, 3))], axis=-2)
+    return p[..., :9].reshape(lead + (3, 3)), p[..., 9], omega
 
 
-def _jacobian(p: np.ndarray, n: int, d: _Data, mine: list, r: np.ndarray) -> np.ndarray:
-    """``(N, len(p))`` forward differences of :func:`residuals` ``r`` at ``p`` (steps 1e-7
-    of ``|A|``, 1e-7 in ``lam`` and in radians: the truncation error, ~1e-7 of a residual's
-    curvature, is far below the noise; Gauss-Newton needs no more); a view's rotation
-    only on its own matches ``mine[v]``."""
-    J = np.zeros((len(d.x), len(p)))
+def _jacobian(p: np.ndarray, n: int, d: _Data, mine: list) -> np.ndarray:
+    """``(N, len(p))`` forward differences of :func:`residuals` at ``p`` (steps 1e-7 of
+    ``|A|``, 1e-7 in ``lam`` and in radians: the truncation error, ~1e-7 of a residual's
+    curvature, is far below the noise; Gauss-Newton needs no more), every step in one
+    batch with ``p`` itself; a view's rotation only on its own matches ``mine[v]``."""
     step = np.r_[np.full(9, 1e-7 * np.linalg.norm(p[:9])), np.full(len(p) - 9, 1e-7)]
-    for k in range(len(p)):  # one column per parameter, vectorised over the matches
-        idx = mine[1 + (k - 10) // 3] if k >= 10 else slice(None)
-        dk = d if k < 10 else d.subset(idx)
-        dp = np.zeros_like(p)
-        dp[k] = step[k]
-        J[idx, k] = (residuals(*_unpack(p + dp, n), dk) - r[idx]) / step[k]
+    r = residuals(*_unpack(p + np.vstack([np.zeros(len(p)), np.diag(step)]), n), d)  # (1 + len(p), N)
+    J = ((r[1:] - r[0]) / step[:, None]).T
+    for v in range(1, n):  # exact zeros off a view's own matches
+        others = np.ones(len(d.x), bool)
+        others[mine[v]] = False
+        J[others, 10 + 3 * (v - 1):13 + 3 * (v - 1)] = 0.0
     return J
 
 
@@ -280,7 +287,7 @@ def _lm(p: np.ndarray, n: int, d: _Data, opts: RotationOptions):
 
     for _ in range(opts.iterations):
         w = 1.0 / (1.0 + (r / (opts.cauchy_c * sigma)) ** 2)
-        J = _jacobian(p, n, d, mine, r)
+        J = _jacobian(p, n, d, mine)
         Jw = J * w[:, None]
         N, g = Jw.T @ J / sigma**2 + P, Jw.T @ r / sigma**2 + P @ p
         c0, improved = cost(r, p, sigma), False

@@ -31,8 +31,9 @@ __all__ = ["track"]
 
 #: The stages that import SciPy (half a second on the project's machine): imported where
 #: they are used, by :func:`_load_stages` on a second thread while the main thread decodes
-#: the images and detects the features (OpenCV releases the GIL meanwhile).
-_STAGES = ("session", "link", "multiview")
+#: the images and detects the features (OpenCV releases the GIL meanwhile); the sessions'
+#: stages, or under general motion (every group a single view) the multi-view tracker's.
+_STAGES = {False: ("session", "link"), True: ("multiview",)}
 
 #: With fewer feature tracks seen in 3+ views, ``track(method="auto")`` tries the target mode.
 AUTO_MIN_LONG_TRACKS = 30
@@ -161,7 +162,7 @@ def track(
     n_images = len(images) if hasattr(images, "__len__") and not isinstance(images, str) else None
     T = _check_T(T, n_images)
     groups, labels = _groups(rotations, sessions, n_images, session_tolerance_deg)
-    _load_stages()
+    _load_stages(general=groups is not None and max(len(g) for g in groups) < 2)
     opts = dict(ratio=ratio, threshold_px=threshold_px, final_threshold_px=final_threshold_px, smooth_px=smooth_px,
                 refine=refine, session_tolerance_deg=session_tolerance_deg, window_radius=window_radius,
                 min_ncc=min_ncc, max_seeds=2000 if max_tracks is None else int(1.3 * max_tracks))
@@ -191,11 +192,11 @@ def track(
     return tracks
 
 
-def _load_stages() -> None:
-    """Import :data:`_STAGES` on a daemon thread (a failed import is left for the main
-    thread's own import to report)."""
+def _load_stages(general: bool) -> None:
+    """Import the :data:`_STAGES` of sessions or of ``general`` motion on a daemon thread
+    (a failed import is left for the main thread's own import to report)."""
     def work():
-        for name in _STAGES:
+        for name in _STAGES[general]:
             try:
                 importlib.import_module(f".{name}", __package__)
             except Exception:  # noqa: BLE001 - reported where the stage is imported
