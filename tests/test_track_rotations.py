@@ -7,7 +7,8 @@ import pytest
 
 from transcalib.geometry.rotation import rotvec_to_matrix
 from transcalib.images import RotatedViewsError, track
-from transcalib.images.derotate import Derotation, Lens, estimate_rotations
+from transcalib.images.derotate import (Derotation, Lens, RotationOptions, _jacobian, _pair_data, _unpack,
+                                        estimate_rotations, residuals)
 from transcalib.synth.robot import robot_scene
 
 #: Rotation errors (deg, robot flange frame) of six session views; view 3 is turned 0.8 deg,
@@ -50,6 +51,28 @@ def test_exact_rotations_recovered(lam):
     assert np.abs(d_line).max() / np.linalg.norm(e) < 1e-3
     # the maps are inverse to each other
     assert np.allclose(est.to_image(2, est.to_model(2, xy[(0, 2)][1])), xy[(0, 2)][1], atol=1e-9)
+
+
+def test_jacobian_of_all_parameters_at_once_matches_each_alone():
+    """The derotation fit's Jacobian, every parameter's step in one batched evaluation,
+    against central differences of the one-set residuals, one parameter at a time."""
+    xy, general, T, _, _ = _exact_matches(n=4, n_points=60, lam=0.05)
+    d, _ = _pair_data(xy, general, T, (480, 640), RotationOptions(), np.random.default_rng(0))
+    A = np.array([[500.0, 0, 322], [0, 505, 236], [0, 0, 1]]) @ rotvec_to_matrix(np.array([2.9, 0.3, -0.2]))
+    rng = np.random.default_rng(1)  # near the fit's start, off its solution
+    p = np.r_[(A / np.linalg.norm(A) + rng.normal(0, 1e-4, (3, 3))).ravel(), 0.03, np.radians(rng.uniform(-0.5, 0.5, 9))]
+    mine = [np.flatnonzero((d.vi == v) | (d.vj == v)) for v in range(4)]
+    J = _jacobian(p, 4, d, mine)
+    h = 1e-6
+    central = np.column_stack([(residuals(*_unpack(p + h * e, 4), d) - residuals(*_unpack(p - h * e, 4), d)) / (2 * h)
+                               for e in np.eye(len(p))])
+    # forward differences: each column within 1e-3 of its size (A's third row, the most
+    # curved, ~1e-4)
+    assert np.all(np.abs(J - central).max(0) < 1e-3 * np.abs(central).max(0))
+    for v in range(1, 4):  # a view's rotation moves its own matches only
+        others = np.setdiff1d(np.arange(len(d.x)), mine[v])
+        assert np.all(J[others, 10 + 3 * (v - 1):13 + 3 * (v - 1)] == 0.0)
+        assert np.all(central[others, 10 + 3 * (v - 1):13 + 3 * (v - 1)] == 0.0)
 
 
 def test_identity_without_estimate():

@@ -217,9 +217,6 @@ class _Data:
         u, v = self.y[:, 0] - self.x[:, 0], self.y[:, 1] - self.x[:, 1]
         return np.sqrt(u * u + v * v) < MOVING_PX
 
-    def subset(self, idx: np.ndarray) -> "_Data":
-        return _Data(self.x[idx], self.y[idx], self.vi[idx], self.vj[idx], self.t[idx], self.centre, self.s)
-
 
 def _homographies(A: np.ndarray, omega: np.ndarray) -> np.ndarray:
     """``H_v = A exp([w_v]x) A^-1``: ``A (..., 3, 3)``, ``omega (..., n, 3)`` -> ``(..., n, 3, 3)``."""
