@@ -222,7 +222,6 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
                     rng) -> Tracks:
     """Feature tracking of every group, then the links between groups (``opts``: the
     arguments of :func:`_session_options`, built once the images are detected)."""
-    rng = np.random.default_rng(rng)
     report = progress_fn(progress)
     t0 = time.perf_counter()
     grey, rgb, names = load_images(images)
@@ -239,6 +238,7 @@ def _track_features(images, *, T, rotations, groups, labels, method, opts, detec
     if method == "sift":
         feats = [replace(f, corners=f.keypoints) for f in feats]
     times["detect"] = time.perf_counter() - t0
+    rng = np.random.default_rng(rng)  # after the detection: numpy.random is imported by then, beside it
     from .checks import keep_tracks
     from .link import link_groups
     from .session import track_session
