@@ -495,16 +495,22 @@ class _Fitter:
                 break
             sig[c] = float(np.sqrt(tests[c].sigma2))
             tried.add(c)  # tested once: a component the rounds drop again is not tried twice
-            before, p_run = (out, self.lay, self.robot), {}
-            try:
-                out = self._rounds(state, idx, mask, sig, dof, sigma_px, None if zero is None else zero[0])
-                sig = dict(self.robot.sigma)
-                fitted = all(np.isfinite(v) for v in sig.values())
-            except RunAway as run:  # the scales left the scores' evidence behind
-                fitted, p_run = False, run.p
-            except DegenerateError:  # the rounds ran off to where the fit breaks down: a misfit too
-                fitted = False
-            if not fitted:
+            before = (out, self.lay, self.robot)
+            at_zero = zero[0]  # the scores the scales are checked against
+            fitted, p_run = self._try_rounds(state, idx, mask, sig, dof, sigma_px, at_zero)
+            # one component alone can run away where the data need both (one orientation and
+            # the lens estimated: the lens takes up the other's errors): with every component
+            # these tests found, before it counts as a misfit
+            both = {k: float(np.sqrt(t.sigma2)) for k, t in tests.items()
+                    if k not in sig and t.p_value < GATE_ALPHA and t.sigma2 > 0}
+            if not fitted and both:
+                out, self.lay, self.robot = before
+                fitted, _ = self._try_rounds(state, idx, mask, {**sig, **both}, dof, sigma_px, at_zero)
+                if fitted:
+                    tried |= set(both)
+            if fitted:
+                out, sig = fitted
+            else:
                 consistent[c] = p_run.get(c, 0.0)
                 out, self.lay, self.robot = before
                 sig = {} if self.robot is None else dict(self.robot.sigma)
@@ -521,6 +527,19 @@ class _Fitter:
                 replace(state, E=None), idx, mask, "linear")
         self.robot = replace(self.robot, p_values=p_values, consistency=consistent, scores=scores)
         return out
+
+    def _try_rounds(self, state, idx, mask, sig, dof, sigma_px, joint):
+        """:meth:`_rounds` of the scales ``sig``: ``((out, fitted scales), {})``, or
+        ``(None, p-values)`` when the scales left the scores' evidence behind
+        (:class:`RunAway`) or the fit broke down (a misfit too)."""
+        try:
+            out = self._rounds(state, idx, mask, sig, dof, sigma_px, joint)
+        except RunAway as run:
+            return None, run.p
+        except DegenerateError:
+            return None, {}
+        sig = dict(self.robot.sigma)
+        return ((out, sig), {}) if all(np.isfinite(v) for v in sig.values()) else (None, {})
 
     def _drop_misfits(self, out, sig, zero, consistent, idx, mask, dof):
         """The fitted scales ``sig`` checked against the scores where they were tested
