@@ -446,7 +446,9 @@ class _Fitter:
         of each component whose scale is not given, then rounds of fit and
         variance-component update (:mod:`.variance_components`) of the scales found and
         the pixel noise; then the fitted scales are checked against the scores at zero
-        (:meth:`_drop_misfits`). Near the solution (scales given by the fit of a
+        (:meth:`_drop_misfits`); a component whose rounds run away alone is fitted again
+        with the others the same tests found before it counts as a misfit. Near the
+        solution (scales given by the fit of a
         subset) one round. A refit of nearly the same tracks (:class:`RobotStart`: other
         inliers, a richer lens, the robust loss's polish on the inliers) runs the rounds
         from the scales and errors found before and tests only the components not tested
@@ -497,19 +499,19 @@ class _Fitter:
             tried.add(c)  # tested once: a component the rounds drop again is not tried twice
             before = (out, self.lay, self.robot)
             at_zero = zero[0]  # the scores the scales are checked against
-            fitted, p_run = self._try_rounds(state, idx, mask, sig, dof, sigma_px, at_zero)
+            fit, p_run = self._try_rounds(state, idx, mask, sig, dof, sigma_px, at_zero)
             # one component alone can run away where the data need both (one orientation and
             # the lens estimated: the lens takes up the other's errors): with every component
             # these tests found, before it counts as a misfit
             both = {k: float(np.sqrt(t.sigma2)) for k, t in tests.items()
                     if k not in sig and t.p_value < GATE_ALPHA and t.sigma2 > 0}
-            if not fitted and both:
+            if fit is None and both:
                 out, self.lay, self.robot = before
-                fitted, _ = self._try_rounds(state, idx, mask, {**sig, **both}, dof, sigma_px, at_zero)
-                if fitted:
+                fit, _ = self._try_rounds(state, idx, mask, {**sig, **both}, dof, sigma_px, at_zero)
+                if fit is not None:
                     tried |= set(both)
-            if fitted:
-                out, sig = fitted
+            if fit is not None:
+                out, sig = fit
             else:
                 consistent[c] = p_run.get(c, 0.0)
                 out, self.lay, self.robot = before
