@@ -537,25 +537,31 @@ def test_the_command_keeps_freed_memory_on_glibc():
 
 _TUNED = """
 import json, os
+import gc
 from transcalib.cli.main import tune_process
 tune_process()
 import pyarrow as pa
 from threadpoolctl import threadpool_info
 print(json.dumps({"pool": pa.default_memory_pool().backend_name, "env": os.environ.get("OPENBLAS_NUM_THREADS"),
-                  "blas": [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]}))
+                  "blas": [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"],
+                  "gc": gc.get_threshold()[0]}))
 """
 
 
 @pytest.mark.parametrize("user_env", [{}, {"OPENBLAS_NUM_THREADS": "2", "ARROW_DEFAULT_MEMORY_POOL": "mimalloc"}])
 def test_the_command_process_runs_blas_on_one_thread_and_arrow_on_glibc(user_env):
     """tune_process (the console script's, in a process of its own): numpy's BLAS on one
-    thread, the same for processes it starts, Arrow's default pool the system one; a
-    user's own settings are kept."""
+    thread, the same for processes it starts, Arrow's default pool the system one, the
+    garbage collector's youngest generation at GC_THRESHOLD; a user's own settings are
+    kept."""
+    from transcalib.cli.main import GC_THRESHOLD
+
     env = {k: v for k, v in os.environ.items()
            if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "ARROW_DEFAULT_MEMORY_POOL")}
     r = subprocess.run([sys.executable, "-c", _TUNED], env={**env, **user_env}, capture_output=True, text=True,
                        check=True)
     got = json.loads(r.stdout)
+    assert got["gc"] == GC_THRESHOLD
     if user_env:
         assert got["env"] == "2" and got["pool"] == "mimalloc" and set(got["blas"]) == {2}
     else:

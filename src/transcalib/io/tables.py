@@ -366,11 +366,11 @@ def _write_arrow_csv(path, header: list[str], columns: list) -> None:
     """Write Arrow columns as CSV with an unquoted ``header`` line, atomically; chunks of
     rows are formatted on threads (:func:`~transcalib.io.text.write_in_order`)."""
     import pyarrow as pa
+    import pyarrow.compute as pc
     import pyarrow.csv as pcsv
 
     table = pa.table({name: c for name, c in zip(header, columns)})
-    needs_quotes = any(pa.types.is_string(c.type) and len(c) and
-                       pa.compute.any(pa.compute.match_substring_regex(c, '[,"\n\r]')).as_py()
+    needs_quotes = any(pa.types.is_string(c.type) and len(c) and pc.any(pc.match_substring_regex(c, '[,"\n\r]')).as_py()
                        for c in table.columns)
     opts = pcsv.WriteOptions(include_header=False, quoting_style="needed" if needs_quotes else "none")
 
