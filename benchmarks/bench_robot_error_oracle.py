@@ -79,8 +79,8 @@ def trial(job: tuple) -> dict:
     X = X[np.all(np.isfinite(X), axis=1)][:N_POINTS]
     Q, c = camera_poses(r.meta["true_R"], r.meta["true_T"], r.R_X, r.t_X, r.setup)
     exact = project(r.K, Q, X, c, r.dist)
-    uv = exact + rng.normal(0.0, noise_px, exact.shape) + _view_fields(exact, r.K, variant, field_px, rng)
     inside = (exact[..., 0] > 5) & (exact[..., 0] < w - 5) & (exact[..., 1] > 5) & (exact[..., 1] < h - 5)
+    uv = exact + rng.normal(0.0, noise_px, exact.shape) + _view_fields(exact, inside, r.K, variant, field_px, rng)
     cal = calibrate(np.where(inside[..., None], uv, np.nan), Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
     row = {"fx": (cal.K[0, 0] - r.K[0, 0], cal.std["fx"]), "cx": (cal.K[0, 2] - r.K[0, 2], cal.std["cx"])}
     for a, k in enumerate(("rx", "ry", "rz")):  # R_est R_true^T = exp([w]x), degrees
@@ -93,15 +93,16 @@ def trial(job: tuple) -> dict:
             "row": {k: [float(v) for v in p] for k, p in row.items()}}
 
 
-def _view_fields(exact: np.ndarray, K: np.ndarray, variant: str, field_px: float, rng) -> np.ndarray:
+def _view_fields(exact: np.ndarray, inside: np.ndarray, K: np.ndarray, variant: str, field_px: float,
+                 rng) -> np.ndarray:
     """Each view's error field ``(n_views, n, 2)`` of ``variant`` (zero for ``white``):
     random coefficients per view and coordinate on :data:`FIELD_BASES`, scaled to
-    ``field_px`` RMS per coordinate over the image (the basis's RMS over the points)."""
+    ``field_px`` RMS per coordinate over the observations ``inside (n_views, n)`` the image."""
     kind = variant.partition("+")[2]
     if not kind:
         return np.zeros_like(exact)
     B = FIELD_BASES[kind]((exact - K[:2, 2]) / 300.0)  # (n_views, n, k)
-    scale = field_px / np.sqrt(np.mean(np.sum(B**2, axis=-1)))  # E|field coordinate|^2 = coef^2 E|B|^2
+    scale = field_px / np.sqrt(np.mean(np.sum(B[inside] ** 2, axis=-1)))  # E|field coord|^2 = coef^2 E|B|^2
     return np.einsum("vnb,vbc->vnc", B, rng.normal(0.0, scale, (len(exact), B.shape[-1], 2)))
 
 
