@@ -536,8 +536,7 @@ def test_the_command_keeps_freed_memory_on_glibc():
 
 
 _TUNED = """
-import json, os
-import gc
+import gc, json, os
 from transcalib.cli.main import tune_process
 tune_process()
 import pyarrow as pa
