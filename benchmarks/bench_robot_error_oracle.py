@@ -30,7 +30,7 @@ variant holds and the field variant falls to the renders' ratio, an error field 
 over a view's points is what the renders' tracks add that the model does not hold.
 
 Writes ``benchmarks/results/NAME.md`` (default ``robot_error_oracle``; ``--quick``: 6
-trials, one layout and case, a scratch folder). A trial takes ~3 s on one core.
+trials, one layout and case, a scratch folder). A trial takes 3 s (one session) to 5 s (single views) on one core.
 """
 
 from __future__ import annotations
