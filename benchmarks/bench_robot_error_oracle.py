@@ -47,7 +47,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import md_table, results_dir  # noqa: E402
-from bench_robot_error_renders import CASES, FIRST_SEED, LAYOUTS  # noqa: E402  (its scenes and seeds)
+from bench_robot_error_renders import CASES, FIRST_SEED, LAYOUTS, _summary  # noqa: E402  (its scenes, seeds, ratios)
 
 VARIANTS = ("white", "white+quadratic", "white+linear")
 #: The field bases (columns over the offsets ``q = (x - c) / 300 px``) of the variants.
@@ -106,13 +106,6 @@ def _view_fields(exact: np.ndarray, inside: np.ndarray, K: np.ndarray, variant: 
     return np.einsum("vnb,vbc->vnc", B, rng.normal(0.0, scale, (len(exact), B.shape[-1], 2)))
 
 
-def _ratio(rows: list, key: str) -> tuple[float, float]:
-    """(RMS reported std / RMS error, share within 1.96 std) of one parameter."""
-    e = np.array([r[key][0] for r in rows])
-    s = np.array([r[key][1] for r in rows])
-    return float(np.sqrt(np.mean(s**2)) / np.sqrt(np.mean(e**2))), float(np.mean(np.abs(e) < 1.96 * s))
-
-
 def _renders() -> dict:
     """The renders' recorded rows by ``(layout, sigma_rot, sigma_pos, seed)`` (none without the file)."""
     if not RENDERS.exists():
@@ -149,7 +142,7 @@ def table(records: list, args, elapsed: float) -> str:
             for name, recs in [(v, [r["row"] for r in by_variant[v]]) for v in VARIANTS if v in by_variant] + \
                     ([("renders", paired)] if paired else []):
                 rows.append([sr, sp, name, len(recs)] + [f"{a:.2f} / {100 * b:.0f} %"
-                                                         for a, b in (_ratio(recs, k) for k in keys)])
+                                                         for a, b in (_summary(recs, k) for k in keys)])
         if rows:
             lines += [f"## {layout}", "", md_table(["sigma_rot deg", "sigma_pos mm", "tracks", "N"]
                                                    + [f"{k} ratio / cover" for k in keys], rows), ""]
