@@ -625,3 +625,18 @@ def test_undistort_inverts_distort_to_rounding(dist):
     got = undistort(np.stack([d.xd, d.yd], axis=-1), dist)
     assert np.nanmax(np.abs(got[..., 0] - x)) < 1e-14 and np.nanmax(np.abs(got[..., 1] - y)) < 1e-14
     assert np.isnan(got[0, :2]).all() and np.array_equal(got[0, 2], [0.0, 0.0])
+
+
+def test_solve_spd_refuses_what_it_cannot_solve():
+    """The damped step's solve says None (the damping grows) rather than return inf or
+    warn of an overflow: a diagonal at or below zero (the Schur complement's rounding),
+    a matrix that is not positive definite, one so nearly singular that the solution
+    overflows. A well-posed system is solved to rounding."""
+    from transcalib.estimate.schur import solve_spd
+
+    A = np.array([[4.0, 1.0], [1.0, 3.0]])
+    assert np.allclose(A @ solve_spd(A, np.array([1.0, 2.0])), [1.0, 2.0], atol=1e-14)
+    with np.errstate(all="raise"):
+        assert solve_spd(np.array([[1.0, 0.0], [0.0, -1e-3]]), np.ones(2)) is None
+        assert solve_spd(np.array([[1.0, 2.0], [2.0, 1.0]]), np.ones(2)) is None
+        assert solve_spd(np.array([[1e300, 0.0], [0.0, 1e-300]]), np.array([1.0, 1e300])) is None

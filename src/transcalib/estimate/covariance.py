@@ -34,8 +34,12 @@ __all__ = ["reduced_information", "covariance", "sandwich", "Sandwich", "check_i
 #: combination counts as undetermined.
 IDENTIFIABILITY_RTOL = 1e-10
 #: Determinant of a point's Jacobi-scaled 3x3 information block at or below which the
-#: point counts as undetermined (its rays are, to rounding, parallel).
-UNDETERMINED_POINT_DET = 1e-12
+#: point counts as undetermined (its rays are, to rounding, parallel). Eliminating a
+#: point puts rounding of about ``10 eps / det`` of its own information into ``S``; where
+#: the points absorb nearly all of a parameter's information (the hand-eye offset with
+#: one session and a few single views keeps ~1e-6 of it) that must stay far below what
+#: is left: at 1e-12 one point of det 1e-11 made a render's ``S`` indefinite (t free).
+UNDETERMINED_POINT_DET = 1e-8
 
 
 def reduced_information(state: State, lay: Layout, data, obs_weight=None, ok=None) -> Reduced:

@@ -59,13 +59,19 @@ def schur(U, W, V, bg, bX):
 
 
 def solve_spd(S: np.ndarray, rhs: np.ndarray):
-    """Solve ``S x = rhs`` (Jacobi-scaled Cholesky); None if not positive definite."""
-    d = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))
-    try:
-        L = np.linalg.cholesky(S * d[:, None] * d[None, :])
-    except np.linalg.LinAlgError:
+    """Solve ``S x = rhs`` (Jacobi-scaled Cholesky); None if not positive definite, or
+    so nearly singular that the solution overflows."""
+    diag = np.diag(S)
+    if not np.all(diag > 0):
         return None
-    return d * np.linalg.solve(L.T, np.linalg.solve(L, rhs * d))
+    d = 1.0 / np.sqrt(diag)
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            L = np.linalg.cholesky(S * d[:, None] * d[None, :])
+        except np.linalg.LinAlgError:
+            return None
+        x = d * np.linalg.solve(L.T, np.linalg.solve(L, rhs * d))
+    return x if np.all(np.isfinite(x)) else None
 
 
 def psd_factor(M: np.ndarray) -> np.ndarray:
