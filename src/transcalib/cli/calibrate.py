@@ -116,6 +116,9 @@ def _model(g) -> None:
                         "where it is significantly larger than the model-based one, 'model', 'robust' (the "
                         "sandwich), or 'max' (the larger); both are written to calibration.json "
                         "(docs/uncertainty.md §7)")
+    g.add_argument("--no-view-field", action="store_true",
+                   help="do not test the residuals for an error field alike over each view's points (by default a "
+                        "field the test finds is included in the model-based std; docs/uncertainty.md §7.1)")
 
 
 def _robust(g) -> None:
@@ -220,7 +223,7 @@ def build_options(args, size=None):
     given = {"distortion": args.distortion, "robot_sigma_pos": args.robot_sigma,
              "robot_sigma_deg": args.robot_sigma_deg,
              "robot_error": False if args.no_robot_error else True if args.robot_error else None,
-             "loss": args.loss, "uncertainty": args.uncertainty,
+             "loss": args.loss, "uncertainty": args.uncertainty, "view_field": False if args.no_view_field else None,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
@@ -240,7 +243,8 @@ def _check_refinement_options(args, fixed: dict) -> None:
         given = [opt for opt, value in (("--distortion", args.distortion), ("--robot-sigma", args.robot_sigma),
                                         ("--robot-sigma-deg", args.robot_sigma_deg),
                                         ("--robot-error", args.robot_error),
-                                        ("--uncertainty", args.uncertainty), ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
+                                        ("--uncertainty", args.uncertainty), ("--no-view-field", args.no_view_field),
+                                        ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
                                         ("--estimate-skew", args.estimate_skew),
                                         ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]
         if given:

@@ -143,7 +143,18 @@ def uncertainty_lines(cal) -> list:
     ratios = ", ".join(f"{k} {u.std_robust[k] / u.std_model[k]:.2f}" for k in names)
     robust = [k for k, v in u.reported.items() if v == "robust" and not k.startswith("robot")]
     which = ("model-based" if not robust else "sandwich for " + ", ".join(robust) + ", model-based for the rest")
-    return [f"Uncertainty: std {which}; sandwich / model std: {ratios} (misfit ratio {u.misfit:.2f})"]
+    return [f"Uncertainty: std {which}; sandwich / model std: {ratios} (misfit ratio {u.misfit:.2f})"] \
+        + _view_field_lines(u.view_field)
+
+
+def _view_field_lines(vf) -> list:
+    """One line on the views' error fields: found and in the std, or not found."""
+    if vf is None:
+        return []
+    if not vf.included:
+        return [f"Per-view error field: not found (p = {vf.p_value:.2f})"]
+    return [f"Per-view error field: {vf.rms_px:.4f} +- {vf.rms_std_px:.4f} px RMS (p = {vf.p_value:.1e}), "
+            "its effect included in the model-based std"]
 
 
 def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:
@@ -191,4 +202,7 @@ def _uncertainty_json(u) -> dict | None:
         return None
     keep = lambda m: {k: v for k, v in m.items() if not k.startswith("robot")}  # noqa: E731
     return {"std_model": keep(u.std_model), "std_robust": keep(u.std_robust), "reported": keep(u.reported),
-            "p_value": keep(u.p_value), "dof": keep(u.dof), "misfit": u.misfit, "n_clusters": u.n_clusters}
+            "p_value": keep(u.p_value), "dof": keep(u.dof), "misfit": u.misfit, "n_clusters": u.n_clusters,
+            "view_field": None if u.view_field is None else {
+                "rms_px": u.view_field.rms_px, "rms_std_px": u.view_field.rms_std_px,
+                "tau_px2": u.view_field.tau_px2, "p_value": u.view_field.p_value, "included": u.view_field.included}}

@@ -22,7 +22,7 @@ from ..errors import DegenerateError, InputError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params, pad_dist
 from ..geometry.rotation import matrix_to_rotvec
 from ..types import (CalibrateOptions, Calibration, CalibrationStats, DistortionStep, HandEye, LinearEstimate,
-                     RefineOptions, RefineStats, RobotError, Uncertainty, ViewRotations)
+                     RefineOptions, RefineStats, RobotError, Uncertainty, ViewFieldEstimate, ViewRotations)
 from ..types.options import check_fixed_distortion
 from ..validate import as_uv_T
 from .bundle import BundleProblem, all_residuals, cost, sum_sq
@@ -37,6 +37,7 @@ from .robot_scales import (DROP_FRACTION, DROP_REDUNDANCY, RobotFit, RobotStart,
                            component_sigma, extrapolated, robot_weights)
 from .solvers import gauss_newton, levenberg_marquardt
 from .variance_components import GATE_ALPHA, MAX_ROUNDS, MISFIT_ALPHA, RTOL, JointScore, redundancy, score_test
+from .view_field import view_field
 
 __all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "with_robot_scales"]
 
@@ -731,7 +732,7 @@ def _result(pb: _Problem, fitter: _Fitter, fit: _Fit, initial, t_start) -> Calib
     var_X, ok = cv.var_X, cv.ok
     dof_fit = lay.residual_dof(int(fit.mask[:, fit.idx].sum()), len(fit.idx))
     sigma = _sigma(pb, fit, fitter.cost, dof_fit)
-    uncertainty, cov = _uncertainty(fit, lay, cv, sigma, pb.opts.uncertainty)
+    uncertainty, cov = _uncertainty(fit, lay, cv, sigma, pb.opts)
     std = _std(cov, lay.names())
     names = lay.names()
     X_std = np.full((n_points, 3), np.nan)
@@ -768,20 +769,22 @@ def _std(cov: np.ndarray, names: tuple) -> dict:
     return std
 
 
-def _uncertainty(fit: _Fit, lay: Layout, cv, sigma: float, rule: str) -> tuple[Uncertainty, np.ndarray]:
-    """The model-based covariance ``sigma^2 S^-1`` and the sandwich (:func:`sandwich`) side
-    by side, and the covariance ``Calibration.cov`` reports (rotations in degrees).
+def _uncertainty(fit: _Fit, lay: Layout, cv, sigma: float, opts: RefineOptions) -> tuple[Uncertainty, np.ndarray]:
+    """The model-based covariance ``sigma^2 S^-1`` (plus the views' error fields where
+    the residuals show them, :func:`_view_field`) and the sandwich (:func:`sandwich`)
+    side by side, and the covariance ``Calibration.cov`` reports (rotations in degrees).
 
-    ``rule`` (``RefineOptions.uncertainty``): "model", "robust", "max" (per parameter the
-    larger), or "auto": per parameter the sandwich where its variance ratio to the
-    model's is significant, ``P(chi2(nu)/nu >= ratio) < SANDWICH_ALPHA`` (``nu`` its
-    effective dof), else the model's. The reported
-    ``cov`` is the model's with those rows and columns scaled by the std ratio (``D C D``:
-    the model's correlations, positive semi-definite); with "robust" the sandwich itself.
+    ``opts.uncertainty``: "model", "robust", "max" (per parameter the larger), or
+    "auto": per parameter the sandwich where its variance ratio to the model's is
+    significant, ``P(chi2(nu)/nu >= ratio) < SANDWICH_ALPHA`` (``nu`` its effective dof),
+    else the model's. The reported ``cov`` is the model's with those rows and columns
+    scaled by the std ratio (``D C D``: the model's correlations, positive
+    semi-definite); with "robust" the sandwich itself.
     """
-    names = lay.names()
+    names, rule = lay.names(), opts.uncertainty
     scale = np.where(lay.rotation_mask(), np.degrees(1.0), 1.0)  # rotations in degrees
-    cov_model = sigma**2 * cv.Sinv * scale[:, None] * scale[None, :]
+    field, cov_field = _view_field(fit, lay, cv, sigma) if opts.view_field else (None, 0.0)
+    cov_model = (sigma**2 * cv.Sinv + cov_field) * scale[:, None] * scale[None, :]
     try:
         sw = sandwich(fit.last, lay, fit.data, cv.system, cv.Sinv, None if cv.ok.all() else cv.ok)
         cov_robust, dof = sw.cov * scale[:, None] * scale[None, :], sw.dof
@@ -801,8 +804,21 @@ def _uncertainty(fit: _Fit, lay: Layout, cv, sigma: float, rule: str) -> tuple[U
         cov = cov_model * d[:, None] * d[None, :]
     named = lambda v: {nm: float(x) for nm, x in zip(names, v)}  # noqa: E731
     unc = Uncertainty(_std(cov_model, names), _std(cov_robust, names), cov_robust, named(dof), named(p_value),
-                      {nm: "robust" if r else "model" for nm, r in zip(names, robust)}, misfit, n_clusters)
+                      {nm: "robust" if r else "model" for nm, r in zip(names, robust)}, misfit, n_clusters, field)
     return unc, cov
+
+
+def _view_field(fit: _Fit, lay: Layout, cv, sigma: float) -> tuple[ViewFieldEstimate | None, np.ndarray | float]:
+    """The views' error fields at the solution (:mod:`.view_field`, the basis over the
+    tracked area) and their share of the model's covariance (unit px^2, 0 unless the
+    test finds them). None without pixel noise to measure them against."""
+    if not sigma > 0:
+        return None, 0.0
+    uv = np.concatenate(fit.data.uv, axis=1)
+    box = np.concatenate([uv.min(axis=1), uv.max(axis=1)])
+    vf = view_field(fit.last, lay, fit.data, cv.system, cv.Sinv, sigma, box, None if cv.ok.all() else cv.ok)
+    est = ViewFieldEstimate(vf.rms_px, vf.rms_std_px, vf.tau, vf.p_value, vf.detected)
+    return est, vf.covariance() if vf.detected else 0.0
 
 
 def _residuals(pb: _Problem, fit: _Fit, fitter: _Fitter) -> tuple[np.ndarray, float]:

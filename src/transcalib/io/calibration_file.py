@@ -191,8 +191,7 @@ def _estimates_to_json(cal) -> dict:
     return _tagged({
         "T_std": cal.T_std,
         "robot_error": None if re is None else {f.name: getattr(re, f.name) for f in fields(re)},
-        "uncertainty": None if un is None else {f.name: (dict(v) if isinstance(v, MappingProxyType) else v)
-                                                for f in fields(un) for v in [getattr(un, f.name)]},
+        "uncertainty": None if un is None else {f.name: _plain_field(getattr(un, f.name)) for f in fields(un)},
         "view_rotations": None if vr is None else {"deg": vr.deg, "std_deg": vr.std_deg, "chi2": vr.chi2},
         "flange_rotations": cal.flange_rotations,
         "hand_eye": None if he is None else {"setup": he.setup, **{k: np.asarray(getattr(he, k)) for k in
@@ -200,11 +199,22 @@ def _estimates_to_json(cal) -> dict:
                                              "session_labels": list(he.session_labels), "notes": list(he.notes)}})
 
 
+def _plain_field(v):
+    """A field of :class:`~transcalib.types.Uncertainty` as JSON-able values."""
+    if isinstance(v, MappingProxyType):
+        return dict(v)
+    if is_dataclass(v):
+        return {f.name: getattr(v, f.name) for f in fields(v)}
+    return v
+
+
 def _estimates_from_json(doc: dict) -> dict:
-    from ..types import HandEye, RobotError, Uncertainty, ViewRotations
+    from ..types import HandEye, RobotError, Uncertainty, ViewFieldEstimate, ViewRotations
 
     d = _untagged(doc)
     vr, he, re, un = d["view_rotations"], d["hand_eye"], d.get("robot_error"), d.get("uncertainty")
+    if un is not None and un.get("view_field") is not None:
+        un = {**un, "view_field": ViewFieldEstimate(**un["view_field"])}
     return {"T_std": d["T_std"], "flange_rotations": d["flange_rotations"],
             "robot_error": None if re is None else RobotError(**re),
             "uncertainty": None if un is None else Uncertainty(**un),

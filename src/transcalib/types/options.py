@@ -138,6 +138,12 @@ class RefineOptions:
         parameter the sandwich where it is significantly (5 %) larger than the model's
         (the model misses a misfit), else the model's ("auto", default;
         docs/uncertainty.md §7).
+    view_field : bool
+        Test the residuals for an error field alike over each view's points (a smooth
+        field over the image, degree <= 2: a tracker's per-view bias) and, where the
+        likelihood-ratio test finds it (5 %), include its effect in the model-based
+        covariance (:mod:`transcalib.estimate.view_field`; docs/uncertainty.md §7.1).
+        The estimate itself does not change. False: the model without it.
     """
 
     distortion: str = "auto"
@@ -156,8 +162,11 @@ class RefineOptions:
     robot_sigma_deg: float | None = None
     robot_sigma_pos: float | None = None
     uncertainty: str = "auto"
+    view_field: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.view_field, (bool, np.bool_)):
+            raise InputError(f"view_field must be True or False, got {self.view_field!r}")
         if self.uncertainty not in UNCERTAINTIES:
             raise InputError(f"uncertainty must be one of {', '.join(UNCERTAINTIES)}, got {self.uncertainty!r}")
         if self.distortion not in ("auto", *DIST_MODELS):

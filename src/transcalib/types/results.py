@@ -234,6 +234,42 @@ class ViewRotations:
 
 
 @dataclass(frozen=True, eq=False)
+class ViewFieldEstimate:
+    """An error field alike over each view's points, as the residuals show it
+    (:mod:`transcalib.estimate.view_field`; docs/uncertainty.md §7.1).
+
+    Attributes
+    ----------
+    rms_px : float
+        A view's field, RMS per image coordinate over the tracked area (px): each
+        view's shift, linear and quadratic field together.
+    rms_std_px : float
+        Its std (NaN at 0).
+    tau_px2 : (3,) float
+        Variance of each coefficient of degree 0, 1, 2 (px^2).
+    p_value : float
+        Likelihood-ratio test of no field.
+    included : bool
+        Whether the model-based covariance (``Uncertainty.std_model``) includes the
+        fields' effect (the test at 5 %).
+    """
+
+    rms_px: float
+    rms_std_px: float
+    tau_px2: np.ndarray
+    p_value: float
+    included: bool
+
+    def __post_init__(self):
+        _freeze(self, arrays=("tau_px2",))
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ViewFieldEstimate) and _same_fields(self, other)
+
+    __hash__ = None
+
+
+@dataclass(frozen=True, eq=False)
 class Uncertainty:
     """The model-based and the cluster-robust (sandwich) uncertainty of a refined
     calibration, and which one :attr:`Calibration.std` reports
@@ -243,7 +279,8 @@ class Uncertainty:
     ----------
     std_model : mapping of str to float
         ``sigma sqrt(diag S^-1)``: exact when the model (white pixel noise of one scale,
-        the robot error model) is right; the Cramér-Rao bound at the truth.
+        the robot error model) is right; the Cramér-Rao bound at the truth. With
+        ``view_field.included`` the views' error fields' share added.
     std_robust : mapping of str to float
         ``sqrt(diag(S^-1 M S^-1))`` with ``M`` the CR2-corrected outer products of each
         point's (and each view's priors') score: valid when pixel errors are correlated
@@ -262,6 +299,9 @@ class Uncertainty:
         ``tr(S^-1 M) / (sigma^2 p)``: 1 in expectation under the model.
     n_clusters : int
         Points (and views with priors) whose scores form ``M``.
+    view_field : ViewFieldEstimate or None
+        The per-view error field the residuals show (None: not tested,
+        ``RefineOptions.view_field=False``).
     """
 
     std_model: Mapping
@@ -272,6 +312,7 @@ class Uncertainty:
     reported: Mapping
     misfit: float
     n_clusters: int
+    view_field: ViewFieldEstimate | None = None
 
     def __post_init__(self):
         _freeze(self, arrays=("cov_robust",), mappings=("std_model", "std_robust", "dof", "p_value", "reported"))
