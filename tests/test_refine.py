@@ -279,26 +279,31 @@ def test_sigma_T_noise_free_is_exact_and_keeps_translations():
 
 
 def test_sigma_T_honest_std_and_better_translations():
-    """With 0.3 mm robot noise, fixed translations (robot_error=False) give overconfident
-    error bars; modelling them gives error bars that match the Monte-Carlo spread, and
-    better translations."""
+    """With 0.3 mm robot noise, fixed translations (robot_error=False, no view field)
+    give overconfident error bars; modelling them gives error bars that match the
+    Monte-Carlo spread, and better translations. The view field test alone, with the
+    translations still taken as exact, takes the fixed model's error bars most of the
+    way (each view's translation error shifts and scales its image: a field of degree 1)."""
     base = simulate.paper_scene()
     sigma_T = np.array([0.0, 0.3, 0.3, 0.3])  # view 0 is exact in simulate.observe
-    fixed, modelled, pred_fixed, pred_mod, err_T, err_meas = [], [], [], [], [], []
+    fixed, modelled, pred_fixed, pred_field, pred_mod, err_T, err_meas = [], [], [], [], [], [], []
     for k in range(120):
         scene = simulate.observe(base, 0.5, robot_noise=0.3, rng=3000 + k)
         start = linear_start(scene)
-        a = refine(scene.uv, scene.T, start, options=RefineOptions(robot_error=False))
+        a = refine(scene.uv, scene.T, start, options=RefineOptions(robot_error=False, view_field=False))
         b = refine(scene.uv, scene.T, start, sigma_T=sigma_T)
         fixed.append(_k4(a.K))
         modelled.append(_k4(b.K))
         pred_fixed.append([a.std[n] for n in KEYS])
+        pred_field.append([refine(scene.uv, scene.T, start, options=RefineOptions(robot_error=False)).std[n]
+                           for n in KEYS])
         pred_mod.append([b.std[n] for n in KEYS])
         err_T.append(np.abs(b.T - scene.T_true)[1:].mean())
         err_meas.append(np.abs(scene.T - scene.T_true)[1:].mean())
     emp_mod = np.std(modelled, axis=0)
     assert np.all(np.abs(np.mean(pred_mod, axis=0) / emp_mod - 1) < 0.25)
     assert np.all(np.mean(pred_fixed, axis=0) < 0.6 * np.std(fixed, axis=0))  # overconfident
+    assert np.all(np.mean(pred_field, axis=0) > 0.75 * np.std(fixed, axis=0))  # the view field's share
     assert np.all(emp_mod < np.std(fixed, axis=0))
     assert np.mean(err_T) < np.mean(err_meas)
     bound = crlb(simulate.observe(base, 0.5, robot_noise=0.3, rng=0))

@@ -139,7 +139,7 @@ def uncertainty_lines(cal) -> list:
     names = [k for k in _RATIO_NAMES if k in u.std_model and u.std_model[k] > 0 and np.isfinite(u.std_robust[k])]
     if not names:  # no sandwich (a point alone determines some parameter combination)
         return ["Uncertainty: std model-based (too few points per parameter for the sandwich check of the noise "
-                "model)"]
+                "model)"] + _view_field_lines(u.view_field)
     ratios = ", ".join(f"{k} {u.std_robust[k] / u.std_model[k]:.2f}" for k in names)
     robust = [k for k, v in u.reported.items() if v == "robust" and not k.startswith("robot")]
     which = ("model-based" if not robust else "sandwich for " + ", ".join(robust) + ", model-based for the rest")
