@@ -37,10 +37,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
-from scipy.stats import chi2
 
 from .bundle import _view_system
+from .distributions import chi2_sf
 from .schur import Reduced, one_blas_thread
 
 __all__ = ["ViewField", "view_field", "fit_components", "legendre_basis", "N_BASIS", "DEGREES", "FIELD_ALPHA"]
@@ -124,7 +123,12 @@ def view_field(state, lay, data, red: Reduced, Sinv: np.ndarray, sigma: float, b
     ok : (n,) bool, optional
         Points that count (the others contribute nothing).
     """
-    S_ff, S_cf, g = _field_system(state, lay, data, red, np.asarray(box, float), ok, block)
+    with one_blas_thread():  # small products: BLAS's threads would only spin
+        return _view_field(state, lay, data, red, Sinv, sigma, np.asarray(box, float), ok, block)
+
+
+def _view_field(state, lay, data, red, Sinv, sigma, box, ok, block) -> ViewField:
+    S_ff, S_cf, g = _field_system(state, lay, data, red, box, ok, block)
     Q = S_ff - S_cf.T @ Sinv @ S_cf
     lam, vec = np.linalg.eigh(0.5 * (Q + Q.T))
     keep = lam > ABSORBED_RTOL * max(lam[-1], 1e-300)
@@ -133,9 +137,8 @@ def view_field(state, lay, data, red: Reduced, Sinv: np.ndarray, sigma: float, b
     P = vec[:, keep] * lam[keep]  # Q's range: g = P^T ... with Cov(V^T g) = s2 L + sum_d tau_d P^T D_d P
     degree = np.tile(DEGREES, 2 * lay.n_views)
     parts = [P[degree == d].T @ P[degree == d] for d in (1, 2)]
-    with one_blas_thread():  # small matrices: BLAS's threads would only spin
-        tau, tau_cov, lr = fit_components(vec[:, keep].T @ g, lam[keep], parts, sigma**2)
-    p = float(chi2.sf(lr, 1) / 2 + chi2.sf(lr, 2) / 4) if lr > 0 else 1.0
+    tau, tau_cov, lr = fit_components(vec[:, keep].T @ g, lam[keep], parts, sigma**2)
+    p = float(chi2_sf(lr, 1) / 2 + chi2_sf(lr, 2) / 4) if lr > 0 else 1.0
     return ViewField(tau, tau_cov, p, Sinv @ S_cf)
 
 
@@ -171,13 +174,14 @@ def fit_components(z: np.ndarray, lam: np.ndarray, parts: list, s2: float, itera
 def _loglik(z, lam, parts, s2, tau):
     """Log-likelihood, score ``(K,)`` and Fisher information ``(K, K)`` at ``tau``."""
     C = np.diag(s2 * lam) + sum(t * A for t, A in zip(tau, parts))
-    factor = cho_factor(C, lower=True)
-    Cinv = cho_solve(factor, np.eye(len(z)))
+    L = np.linalg.cholesky(C)
+    Linv = np.linalg.solve(L, np.eye(len(z)))
+    Cinv = Linv.T @ Linv
     y = Cinv @ z
     M = [Cinv @ A for A in parts]
     score = np.array([0.5 * (y @ A @ y - np.trace(m)) for A, m in zip(parts, M)])
     F = 0.5 * np.array([[np.sum(a * b.T) for b in M] for a in M])
-    return -np.sum(np.log(np.diag(factor[0]))) - 0.5 * z @ y, score, F
+    return -np.sum(np.log(np.diag(L))) - 0.5 * z @ y, score, F
 
 
 def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: int):
