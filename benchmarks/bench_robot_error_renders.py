@@ -113,6 +113,9 @@ def _row(r, s: dict, he: dict, layout: str) -> dict:
     checks = [v for v in re["consistency_p"].values() if v is not None and np.isfinite(v)]
     row["check_p"] = min(checks) if checks else None  # the misfit check's lowest p-value
     row["dist_model"] = s["dist_model"]
+    vf = (s.get("uncertainty") or {}).get("view_field")
+    if vf is not None:  # each view's error field (docs/uncertainty.md section 7.1): RMS px, p-value, in the std
+        row["view_field"] = (vf["rms_px"], vf["p_value"], vf["included"])
     row["codes"] = [d["code"] for d in s["diagnostics"]]
     row["stages"] = s["stages"]
     return row
@@ -139,11 +142,13 @@ def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.nam
              "misfit: share of trials with a component left out as a misfit (in brackets: of the trials recorded "
              "with their stages, the share where a misfit on the way had the tracks judged again at held scales); "
              "check p: the misfit check's lowest "
-             "p-value, its median and shares below 0.01 and 0.001 (the verdict's level).", ""]
+             "p-value, its median and shares below 0.01 and 0.001 (the verdict's level). field: each view's error "
+             "field (docs/uncertainty.md section 7.1), the share of trials where its test found it and the median "
+             "RMS found (of the trials recorded with it).", ""]
     for layout in LAYOUTS:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
         head = ("| sigma_rot deg | sigma_pos mm | N | fails | " + " | ".join(f"{k} ratio / cover" for k in keys)
-                + " | sigma_rot est (on) | sigma_pos est (on) | misfit | check p | lens |")
+                + " | sigma_rot est (on) | sigma_pos est (on) | misfit | check p | field | lens |")
         lines += [f"## {layout}", "", head, "|" + "---|" * (head.count("|") - 1)]
         for (sr, sp) in CASES:
             chunk = results.get((layout, sr, sp), [])
@@ -156,7 +161,7 @@ def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.nam
             lens = ", ".join(f"{m} {sum(r['dist_model'] == m for r in ok)}" for m in sorted({r["dist_model"] for r in ok}))
             lines.append(f"| {sr} | {sp} | {len(chunk)} | {len(chunk) - len(ok)} | " + " | ".join(cells)
                          + f" | {np.median(rob[:, 0]):.3f} ({100 * on[0]:.0f} %) | {np.median(rob[:, 1]):.2f} "
-                           f"({100 * on[1]:.0f} %) | {_checks(ok)} | {lens} |")
+                           f"({100 * on[1]:.0f} %) | {_checks(ok)} | {_fields(ok)} | {lens} |")
         fails = [r["failed"] for c, rows in results.items() if c[0] == layout for r in rows if "failed" in r]
         lines += [""] + ([f"Failures: {'; '.join(sorted(set(fails)))}", ""] if fails else [])
     return "\n".join(lines) + "\n"
@@ -175,6 +180,13 @@ def _checks(rows: list) -> str:
     low = (f"{np.median(p):.2f}; {100 * np.mean(p < 1e-2):.0f} / {100 * np.mean(p < 1e-3):.0f} % below 0.01 / "
            f"0.001 (of {len(p)})" if len(p) else "-")
     return f"{100 * misfit:.0f} %{held} | {low}"
+
+
+def _fields(rows: list) -> str:
+    """Each view's error field: share found and median RMS found (px), of the trials recorded with it."""
+    vf = [r["view_field"] for r in rows if "view_field" in r]
+    found = [v[0] for v in vf if v[2]]
+    return f"{100 * len(found) / len(vf):.0f} %, {np.median(found) if found else 0:.4f} px (of {len(vf)})" if vf else "-"
 
 
 def _case_trial(case: tuple) -> dict:
