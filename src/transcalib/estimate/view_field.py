@@ -82,7 +82,8 @@ class ViewField:
 
     @property
     def rms_px(self) -> float:
-        """A view's field, RMS per coordinate over the image: ``sqrt(tau . n_d)`` (px)."""
+        """A view's field, RMS per coordinate over the basis's rectangle: ``sqrt(2 tau_1 +
+        3 tau_2)`` (px)."""
         return float(np.sqrt(self.tau @ _PER_DEGREE))
 
     @property
@@ -134,7 +135,7 @@ def _view_field(state, lay, data, red, Sinv, sigma, box, ok, block) -> ViewField
     keep = lam > ABSORBED_RTOL * max(lam[-1], 1e-300)
     if not keep.any():  # the model absorbs every field: nothing to measure them by
         return ViewField(np.zeros(2), np.zeros((2, 2)), 1.0, Sinv @ S_cf)
-    P = vec[:, keep] * lam[keep]  # Q's range: g = P^T ... with Cov(V^T g) = s2 L + sum_d tau_d P^T D_d P
+    P = vec[:, keep] * lam[keep]  # on Q's range: Cov(V^T g) = s2 diag(lam) + sum_d tau_d P^T D_d P
     degree = np.tile(DEGREES, 2 * lay.n_views)
     parts = [P[degree == d].T @ P[degree == d] for d in (1, 2)]
     tau, tau_cov, lr = fit_components(vec[:, keep].T @ g, lam[keep], parts, sigma**2)
