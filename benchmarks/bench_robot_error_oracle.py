@@ -2,7 +2,7 @@
 
     python benchmarks/bench_robot_error_oracle.py [--trials N] [--layouts L,...] [--cases C,...]
                                                   [--variants V,...] [--noise-px S] [--field-px F]
-                                                  [--jobs J] [--name NAME] [--quick]
+                                                  [--no-view-field] [--jobs J] [--name NAME] [--quick]
 
 On renders through the command (``bench_robot_error_renders.py``) some robot-error rows
 report fx's std at 0.74-0.8 of its scatter, where the simulation (``bench_robot_error.py``)
@@ -47,7 +47,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import md_table, results_dir  # noqa: E402
-from bench_robot_error_renders import CASES, FIRST_SEED, LAYOUTS, _summary  # noqa: E402  (its scenes, seeds, ratios)
+from bench_robot_error_renders import CASES, FIRST_SEED, LAYOUTS, _fields, _summary  # noqa: E402  (its scenes, seeds, ratios)
 
 VARIANTS = ("white", "white+quadratic", "white+linear")
 #: The field bases (columns over the offsets ``q = (x - c) / 300 px``) of the variants.
@@ -68,7 +68,9 @@ def trial(job: tuple) -> dict:
     from transcalib.synth.robot import robot_scene
     from transcalib.synth.robot_layout import camera_poses
 
-    layout, s_rot, s_pos, seed, variant, noise_px, field_px = job
+    from transcalib.types import RefineOptions
+
+    layout, s_rot, s_pos, seed, variant, noise_px, field_px, view_field = job
     opts = LAYOUTS[layout]
     n_views = opts["session_views"] + opts["single_views"]
     err = sample_errors(n_views, s_rot, s_pos, rng=seed + 7)  # as the renders draw them
@@ -81,7 +83,8 @@ def trial(job: tuple) -> dict:
     exact = project(r.K, Q, X, c, r.dist)
     inside = (exact[..., 0] > 5) & (exact[..., 0] < w - 5) & (exact[..., 1] > 5) & (exact[..., 1] < h - 5)
     uv = exact + rng.normal(0.0, noise_px, exact.shape) + _view_fields(exact, inside, r.K, variant, field_px, rng)
-    cal = calibrate(np.where(inside[..., None], uv, np.nan), Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
+    cal = calibrate(np.where(inside[..., None], uv, np.nan), Poses.of(r.T, r.R), image_size=r.image_size, rng=0,
+                    refinement=RefineOptions(view_field=view_field))
     row = {"fx": (cal.K[0, 0] - r.K[0, 0], cal.std["fx"]), "cx": (cal.K[0, 2] - r.K[0, 2], cal.std["cx"])}
     for a, k in enumerate(("rx", "ry", "rz")):  # R_est R_true^T = exp([w]x), degrees
         row[k] = (np.degrees(matrix_to_rotvec(cal.R @ r.R_X))[a], cal.std[k])
@@ -89,6 +92,9 @@ def trial(job: tuple) -> dict:
         he = cal.hand_eye
         for a, k in enumerate(("t_x", "t_y", "t_z")):
             row[k] = (he.t[a] - r.t_X[a], float(np.sqrt(he.t_cov[a, a])))
+    vf = cal.uncertainty.view_field
+    if vf is not None:  # each view's error field the test found (docs/uncertainty.md section 7.1)
+        row["view_field"] = (vf.rms_px, vf.p_value, vf.included)
     return {"layout": layout, "sigma_rot": s_rot, "sigma_pos": s_pos, "seed": seed, "variant": variant,
             "row": {k: [float(v) for v in p] for k, p in row.items()}}
 
@@ -126,7 +132,9 @@ def table(records: list, args, elapsed: float) -> str:
              f"{N_POINTS} surface points at the true poses plus the variant's errors, calibrated with the reported "
              "poses and default options. ratio = RMS reported std / RMS error (its own uncertainty ~1/sqrt(2N)); "
              "cover = share within 1.96 std. renders: the renders' Monte Carlo on the same seeds (the tracker's "
-             "tracks through the command).", ""]
+             "tracks through the command). field: each view's error field (docs/uncertainty.md section 7.1), the "
+             "share of trials where its test found it and the median RMS found; with --no-view-field not tested "
+             "(-) and not in the std.", ""]
     groups = {}
     for rec in records:
         groups.setdefault((rec["layout"], rec["sigma_rot"], rec["sigma_pos"]), {}).setdefault(
@@ -142,10 +150,11 @@ def table(records: list, args, elapsed: float) -> str:
             for name, recs in [(v, [r["row"] for r in by_variant[v]]) for v in VARIANTS if v in by_variant] + \
                     ([("renders", paired)] if paired else []):
                 rows.append([sr, sp, name, len(recs)] + [f"{a:.2f} / {100 * b:.0f} %"
-                                                         for a, b in (_summary(recs, k) for k in keys)])
+                                                         for a, b in (_summary(recs, k) for k in keys)]
+                            + [_fields(recs)])
         if rows:
             lines += [f"## {layout}", "", md_table(["sigma_rot deg", "sigma_pos mm", "tracks", "N"]
-                                                   + [f"{k} ratio / cover" for k in keys], rows), ""]
+                                                   + [f"{k} ratio / cover" for k in keys] + ["field"], rows), ""]
     return "\n".join(lines)
 
 
@@ -159,6 +168,8 @@ def main(argv=None) -> None:
     p.add_argument("--variants", default=",".join(VARIANTS), help="some of: " + ", ".join(VARIANTS))
     p.add_argument("--noise-px", type=float, default=0.02, help="white pixel noise (px)")
     p.add_argument("--field-px", type=float, default=0.0025, help="RMS per coordinate of each view's field (px)")
+    p.add_argument("--no-view-field", action="store_true",
+                   help="calibrate without the per-view error field's share of the std (docs/uncertainty.md 7.1)")
     p.add_argument("--jobs", type=int, default=1)
     p.add_argument("--name", default="robot_error_oracle", help="the table's file name, without .md")
     p.add_argument("--quick", action="store_true", help="6 trials of one session at 0.1 deg / 1 mm, scratch folder")
@@ -174,7 +185,7 @@ def main(argv=None) -> None:
         p.error(f"--cases: give some of {', '.join(known)}")
     if a.quick:
         a.trials, layouts, cases = 6, ["one session"], [(0.1, 1.0)]
-    jobs = [(lay, sr, sp, FIRST_SEED + 1000 * CASES.index((sr, sp)) + k, v, a.noise_px, a.field_px)
+    jobs = [(lay, sr, sp, FIRST_SEED + 1000 * CASES.index((sr, sp)) + k, v, a.noise_px, a.field_px, not a.no_view_field)
             for k in range(a.trials) for lay in layouts for sr, sp in cases for v in variants]
     t0 = time.perf_counter()
     records = []
