@@ -201,6 +201,13 @@ def test_cli_reports_the_field_and_widens_the_std_only_where_found(tmp_path, cap
     assert back.included and back.rms_px == pytest.approx(vf["rms_px"], rel=1e-12)
 
 
+def test_option_validated():
+    from transcalib.types import InputError, RefineOptions
+
+    with pytest.raises(InputError, match="view_field must be True or False"):
+        RefineOptions(view_field="no")
+
+
 def test_white_noise_rarely_finds_a_field():
     """Pure white noise on 40 random scenes: the test's false alarms stay near its 5 %
     level (at most 6 of 40), and the std then changes little."""

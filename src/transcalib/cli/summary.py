@@ -153,7 +153,7 @@ def _view_field_lines(vf) -> list:
         return []
     if not vf.included:
         return [f"Per-view error field: not found (p = {vf.p_value:.2f})"]
-    return [f"Per-view error field: {vf.rms_px:.4f} +- {vf.rms_std_px:.4f} px RMS (p = {vf.p_value:.1e}), "
+    return [f"Per-view error field: {vf.rms_px:.4f} ± {vf.rms_std_px:.4f} px RMS (p = {vf.p_value:.1e}), "
             "its effect included in the model-based std"]
 
 

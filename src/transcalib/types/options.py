@@ -140,7 +140,7 @@ class RefineOptions:
         docs/uncertainty.md §7).
     view_field : bool
         Test the residuals for an error field alike over each view's points (a smooth
-        field over the image, degree <= 2: a tracker's per-view bias) and, where the
+        field over the image of degree 1 and 2: a tracker's per-view bias) and, where the
         likelihood-ratio test finds it (5 %), include its effect in the model-based
         covariance (:mod:`transcalib.estimate.view_field`; docs/uncertainty.md §7.1).
         The estimate itself does not change. False: the model without it.
