@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .bundle import _view_system
+from .covariance import _prior_rows
 from .distributions import chi2_sf
 from .schur import Reduced, one_blas_thread
 
@@ -50,8 +51,14 @@ DEGREES = np.array([1, 1, 2, 2, 2])
 _PER_DEGREE = np.array([2.0, 3.0])  # functions of degree 1 and 2
 #: Level of the likelihood-ratio test that takes the fields into the covariance.
 FIELD_ALPHA = 0.05
-#: Eigenvalues of ``Q`` below this fraction of the largest: directions the model absorbs.
-ABSORBED_RTOL = 1e-9
+#: Directions of ``Q`` whose information is below this share of a coefficient's own
+#: (the median diagonal of ``S_ff``, before the model takes its part) are left out of
+#: the estimate of ``tau``: the model absorbs nearly all of such a field, and what the
+#: residuals keep of it is the size of the fit's second-order terms (with 10^5 points
+#: of white noise five such directions, 1e-5 of a coefficient's information, held
+#: 10^5 times their noise and made ``tau`` absurd). Their share of the covariance
+#: (``G``) stays.
+ABSORBED_SHARE = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,10 +136,11 @@ def view_field(state, lay, data, red: Reduced, Sinv: np.ndarray, sigma: float, b
 
 
 def _view_field(state, lay, data, red, Sinv, sigma, box, ok, block) -> ViewField:
-    S_ff, S_cf, g = _field_system(state, lay, data, red, box, ok, block)
+    S_ff, S_cf, g_f, g_c = _field_system(state, lay, data, red, box, ok, block)
+    g = g_f - S_cf.T @ (Sinv @ g_c)  # the global parameters profiled out (a fit a few steps short of converged)
     Q = S_ff - S_cf.T @ Sinv @ S_cf
     lam, vec = np.linalg.eigh(0.5 * (Q + Q.T))
-    keep = lam > ABSORBED_RTOL * max(lam[-1], 1e-300)
+    keep = lam > ABSORBED_SHARE * max(np.median(np.diag(S_ff)), 1e-300)
     if not keep.any():  # the model absorbs every field: nothing to measure them by
         return ViewField(np.zeros(2), np.zeros((2, 2)), 1.0, Sinv @ S_cf)
     P = vec[:, keep] * lam[keep]  # on Q's range: Cov(V^T g) = s2 diag(lam) + sum_d tau_d P^T D_d P
@@ -186,8 +194,9 @@ def _loglik(z, lam, parts, s2, tau):
 
 
 def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: int):
-    """``S_ff (mV, mV)``, ``S_cf (p, mV)`` and the fields' reduced score ``g (mV,)``,
-    :data:`block` points at a time (O(n) memory).
+    """``S_ff (mV, mV)``, ``S_cf (p, mV)``, the fields' reduced score ``g_f (mV,)`` and
+    the global parameters' ``g_c (p,)`` (the priors' included), :data:`block` points at a
+    time (O(n) memory).
 
     Coefficient ``(i, c, l)`` (view, image coordinate, basis function; column ``m i +
     6 c + l``) moves observation ``(i, j)``'s coordinate ``c`` by ``phi_l(x_ij)``: its
@@ -195,7 +204,7 @@ def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: in
     (:mod:`transcalib.estimate.schur`), the points are eliminated ::
 
         S_ff = U_ff - sum_j W_f,j V_j^-1 W_f,j^T,   S_cf = U_cf - sum_j W_j V_j^-1 W_f,j^T,
-        g = b_f - sum_j W_f,j V_j^-1 b_j
+        g_f = b_f - sum_j W_f,j V_j^-1 b_j,      g_c = b_c - sum_j W_j V_j^-1 b_j + b_prior
 
     with ``U_ff = sum B^T B`` (one 10 x 10 block per view), ``U_cf = sum J_c^T B``,
     ``W_f,j = sum_i B_ij^T J_Xij^T``, ``b_f = sum B^T r``, ``b_j = sum_i J_Xij^T r_ij``
@@ -203,7 +212,7 @@ def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: in
     """
     V, m = lay.n_views, 2 * N_BASIS
     p, n = lay.size, data.n_points
-    S_ff, S_cf, g = np.zeros((m * V, m * V)), np.zeros((p, m * V)), np.zeros(m * V)
+    S_ff, S_cf, g, g_c = np.zeros((m * V, m * V)), np.zeros((p, m * V)), np.zeros(m * V), np.zeros(p)
     for lo in range(0, n, block):
         hi = min(lo + block, n)
         part, sub = data.points(lo, hi), replace(state, X=state.X[lo:hi])
@@ -222,6 +231,7 @@ def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: in
             S_ff[cols, cols] += np.kron(np.eye(2), phi.T @ phi)
             S_cf[lay.view_columns(i), cols] += np.einsum("pkn,nl->pkl", Jg, phi).reshape(len(Jg), m)
             g[cols] += (r @ phi).reshape(m)
+            g_c[lay.view_columns(i)] += np.einsum("pkn,kn->p", Jg, r)
             W_f[cols, :, pts] = np.einsum("nl,dkn->kldn", phi, JX).reshape(m, 3, len(pts))
             b_X[:, pts] += np.einsum("dkn,kn->dn", JX, r)
         W2 = W_f.reshape(m * V, -1)
@@ -229,4 +239,8 @@ def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: in
         S_ff -= Y_f @ W2.T
         S_cf -= red.Y[:, :, lo:hi].reshape(p, -1) @ W2.T
         g -= Y_f @ b_X.reshape(-1)
-    return 0.5 * (S_ff + S_ff.T), S_cf, g
+        g_c -= red.Y[:, :, lo:hi].reshape(p, -1) @ b_X.reshape(-1)
+    prior = _prior_rows(state, lay, data)
+    if prior is not None:
+        g_c += np.einsum("pkv,kv->p", prior[0], prior[1])
+    return 0.5 * (S_ff + S_ff.T), S_cf, g, g_c
