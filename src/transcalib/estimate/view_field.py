@@ -140,6 +140,8 @@ def view_field(state, lay, data, red: Reduced, Sinv: np.ndarray, sigma: float, b
 
 
 def _view_field(state, lay, data, red, Sinv, sigma, box, ok, block) -> ViewField:
+    """:func:`view_field`'s work: the fields' system on (a sample of) the points, ``Q``'s
+    informative directions, ``tau`` and its test."""
     starts = _sampled_blocks(data.n_points, block)
     S_ff, S_cf, g_f, g_c, S_s, share = _field_system(state, lay, data, red, box, ok, block, starts)
     G = Sinv @ S_cf / share  # every point's coupling, estimated from the sample's
