@@ -814,8 +814,8 @@ def _view_field(fit: _Fit, lay: Layout, cv, sigma: float) -> tuple[ViewFieldEsti
     test finds them). None without pixel noise to measure them against."""
     if not sigma > 0:
         return None, 0.0
-    uv = np.concatenate(fit.data.uv, axis=1)
-    box = np.concatenate([uv.min(axis=1), uv.max(axis=1)])
+    seen = [u for u in fit.data.uv if u.size]  # the tracked area, without a copy of every observation
+    box = np.concatenate([np.min([u.min(axis=1) for u in seen], axis=0), np.max([u.max(axis=1) for u in seen], axis=0)])
     vf = view_field(fit.last, lay, fit.data, cv.system, cv.Sinv, sigma, box, None if cv.ok.all() else cv.ok)
     est = ViewFieldEstimate(vf.rms_px, vf.rms_std_px, vf.tau, vf.p_value, vf.detected)
     return est, vf.covariance() if vf.detected else 0.0

@@ -238,7 +238,8 @@ def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: in
         hi = min(lo + block, n)
         used += hi - lo
         part, sub = data.points(lo, hi), replace(state, X=state.X[lo:hi])
-        W_f, W_c, b_X = np.zeros((m * V, 3, hi - lo)), np.zeros((p, 3, hi - lo)), np.zeros((3, hi - lo))
+        W_f, b_X = np.zeros((m * V, 3, hi - lo)), np.zeros((3, hi - lo))
+        W_c = np.zeros((p, 3, hi - lo)) if sampled else None
         for i in range(V):
             if len(part.pts[i]) == 0:
                 continue
@@ -270,7 +271,8 @@ def _field_system(state, lay, data, red: Reduced, box: np.ndarray, ok, block: in
         S_cf -= Y_c @ W2.T
         g -= Y_f @ b2
         g_c -= Y_c @ b2
-        S_s -= Y_c @ W_c.reshape(p, -1).T
+        if sampled:
+            S_s -= Y_c @ W_c.reshape(p, -1).T
     prior = _prior_rows(state, lay, data)
     if prior is not None:
         g_c += np.einsum("pkv,kv->p", prior[0], prior[1])
