@@ -471,12 +471,14 @@ def test_transcalib_save_round_trip(tmp_path):
     (["9223372036854775808"], "U"), ([""], "U"),
 ])
 def test_point_id_array(ids, kind):
-    from transcalib.io.ids import point_id_array
+    from transcalib.io.ids import FEW_IDS, point_id_array
 
     got = point_id_array(ids)
     assert got.dtype.kind == kind
     assert [str(v) for v in got.tolist()] == ids  # the text of each id is kept
     assert point_id_array(got) is got or kind == "U"  # already an id array: no new work
+    many = ids * (FEW_IDS // len(ids) + 1)  # read by Arrow, not one by one: the same verdict
+    assert point_id_array(many).dtype.kind == kind
 
 
 def test_point_id_array_from_numpy_and_arrow():

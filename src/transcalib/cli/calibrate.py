@@ -480,8 +480,10 @@ def run(args) -> int:
     t_start = time.perf_counter()
     progress = args._progress = Progress(args.quiet)
     plan = check_all(args)  # (1): before importing the numerics
-    # heavy imports while we read / track (the pipeline's half second among them)
-    import_in_background("scipy.special", "transcalib.pipeline.run", "pyarrow.csv", "pyarrow.compute")
+    # heavy imports while we read / track (the pipeline's half second among them); a
+    # tracks file's reader needs pyarrow.compute, writing tracks.csv pyarrow.csv alone
+    reader = ("pyarrow.compute",) if plan.get("tracks") else ()
+    import_in_background("scipy.special", "transcalib.pipeline.run", "pyarrow.csv", *reader)
     note = replacing(plan["out"])
     if note:
         progress.log(note)

@@ -88,8 +88,21 @@ def point_id_array(ids) -> np.ndarray:
     text = arr.astype(str, copy=False)
     if text.size and not _canonical_integer(str(text[0])):  # the usual text ids: decided by the first
         return text
-    ints = integer_ids(pa.array(text))
+    ints = _few_integer_ids(text) if text.size <= FEW_IDS else integer_ids(pa.array(text))
     return text if ints is None else ints
+
+
+#: Up to this many text ids are read as integers in Python (:func:`_few_integer_ids`):
+#: a view's ids need no pyarrow.compute (0.04 s to import).
+FEW_IDS = 1000
+
+
+def _few_integer_ids(text: np.ndarray) -> np.ndarray | None:
+    """:func:`integer_ids` of a few ids ``(n,) str``, one by one."""
+    if not all(_canonical_integer(t) for t in text.tolist()):
+        return None
+    values = [int(t) for t in text.tolist()]
+    return np.array(values, dtype=np.int64) if all(v < 2**63 for v in values) else None
 
 
 def _canonical_integer(s: str) -> bool:

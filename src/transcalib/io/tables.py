@@ -362,16 +362,23 @@ def _id_column(ids):
     return pa.array(point_id_array(ids))
 
 
+def _ids_at(ids: np.ndarray, rows: np.ndarray):
+    """An Arrow column of ``ids[rows]`` (``ids`` from :func:`point_id_array`): integers
+    indexed by numpy, text by Arrow's ``take`` (no fixed-width copy of every row;
+    ``take`` imports pyarrow.compute, 0.04 s)."""
+    import pyarrow as pa
+
+    return pa.array(ids[rows]) if ids.dtype.kind == "i" else pa.array(ids).take(rows)
+
+
 def _write_arrow_csv(path, header: list[str], columns: list) -> None:
     """Write Arrow columns as CSV with an unquoted ``header`` line, atomically; chunks of
     rows are formatted on threads (:func:`~transcalib.io.text.write_in_order`)."""
     import pyarrow as pa
-    import pyarrow.compute as pc
     import pyarrow.csv as pcsv
 
     table = pa.table({name: c for name, c in zip(header, columns)})
-    needs_quotes = any(pa.types.is_string(c.type) and len(c) and pc.any(pc.match_substring_regex(c, '[,"\n\r]')).as_py()
-                       for c in table.columns)
+    needs_quotes = _needs_quotes([c for c in table.columns if pa.types.is_string(c.type) and len(c)])
     opts = pcsv.WriteOptions(include_header=False, quoting_style="needed" if needs_quotes else "none")
 
     def csv_text(rows: slice):
@@ -382,6 +389,16 @@ def _write_arrow_csv(path, header: list[str], columns: list) -> None:
     with atomic_write(path, "wb") as fh:
         fh.write((",".join(header) + "\n").encode())
         text.write_in_order(fh, (partial(csv_text, rows) for rows in text.chunks(table.num_rows)))
+
+
+def _needs_quotes(text_columns: list) -> bool:
+    """Whether a cell of the Arrow string columns holds a comma, quote or line break
+    (pyarrow.compute, 0.04 s to import, only when there is text)."""
+    if not text_columns:
+        return False
+    import pyarrow.compute as pc
+
+    return any(pc.any(pc.match_substring_regex(c, '[,"\n\r]')).as_py() for c in text_columns)
 
 
 def _float_column(x: np.ndarray):
@@ -434,8 +451,7 @@ def write_tracks(path, uv: np.ndarray, point_ids=None, view_ids=None) -> None:
             np.savez(fh, uv=np.asarray(uv, float)[:, keep], view_ids=view_ids.astype(str), point_ids=point_ids[keep])
         return
     j, i = np.nonzero(np.isfinite(uv[..., 0]).T)  # grouped by point: points read back in order
-    cols = [_id_column(view_ids)] + [_id_column(point_ids)]
-    cols = [cols[0].take(i), cols[1].take(j), _float_column(uv[i, j, 0]), _float_column(uv[i, j, 1])]
+    cols = [_ids_at(view_ids, i), _ids_at(point_ids, j), _float_column(uv[i, j, 0]), _float_column(uv[i, j, 1])]
     if suffix == ".parquet":
         import pyarrow as pa
         import pyarrow.parquet as pq
