@@ -23,7 +23,11 @@ from .common import EXIT_INPUT, INTERRUPT_REPORTED, Parser, UsageError, fail, in
 COMMANDS = ("calibrate", "extract", "simulate", "track", "show", "undistort", "plan", "validate", "dense")
 
 
-def build_parser() -> Parser:
+def build_parser(argv: list[str] | None = None) -> Parser:
+    """The command line's parser. Given ``argv``, only the command it names gets its
+    options; the others are listed by name and help line, all ``transcalib --help``
+    shows (every command's options took 0.02 s of each run)."""
+    named = next((a for a in argv or () if not a.startswith("-")), None)
     p = Parser(prog="transcalib",
                description="Camera calibration and metric reconstruction from known robot translations.",
                epilog="Exit status: 0 success, 1 internal failure, 2 bad input, 3 degenerate data, 4 warnings with "
@@ -31,7 +35,11 @@ def build_parser() -> Parser:
     p.add_argument("--version", action="version", version=f"transcalib {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=Parser)
     for name in COMMANDS:
-        importlib.import_module(f".{name}", __package__).add_parser(sub)
+        module = importlib.import_module(f".{name}", __package__)
+        if named == name or named not in COMMANDS:
+            module.add_parser(sub)
+        else:
+            sub.add_parser(module.NAME, help=module.HELP)
     return p
 
 
@@ -110,7 +118,7 @@ def _main(argv: list[str]) -> int:
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser(argv).parse_args(argv)
     except UsageError as exc:  # before any option is known: --json looked up by hand
         return fail(EXIT_INPUT, str(exc), wants_json(argv))
     except SystemExit as exc:  # --help, --version
