@@ -29,7 +29,10 @@ def check(cal, rendered, uv, distance):
     ok = np.isfinite(cal.X[:, 0]) & np.isfinite(X_true[:, 0]) & ~junction
     if cal.inliers is not None:
         ok &= cal.inliers
-    assert ok.sum() >= 0.6 * len(ok)
+    # half at least: the tracks are judged against the noise of the best of them
+    # (checker: 0.013 px since the samples are exact for linear functions, 0.026 before),
+    # and a fifth to a third of them lie 3-4 times above it (0.05 px)
+    assert ok.sum() >= 0.5 * len(ok)
     err = np.linalg.norm(cal.X[ok] - X_true[ok], axis=1)
     assert np.median(err) < 0.005 * distance
     assert np.percentile(err, 90) < 0.01 * distance

@@ -7,7 +7,10 @@ the track's reference observation (Gaussian weights), the warp
 ``p + M o / (1 + g . o)`` with its projective row ``g`` given, :mod:`.link`),
 photometric ``(a + d . o) I_tgt + b + c . o``; images are
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
-``cv2.remap`` of a three-channel image). The affine part models the change of scale and
+``cv2.remap`` of a three-channel image) at positions moved within their pixel so that the
+interpolation is exact for linear functions (:func:`exact_for_ramps`: OpenCV's kernel
+shifted them by up to 0.048 px with the fraction of a pixel, 0.04-0.05 px RMS of every
+alignment; renders' median track error 0.035 -> 0.013-0.016 px). The affine part models the change of scale and
 foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
 the gain and offset exposure changes, the ramp ``c`` a brightness gradient across the
 window that differs between the views (shading, vignetting: with gain and offset alone
@@ -34,7 +37,7 @@ import numpy as np
 from .detect import n_threads
 from .epipoles import pair_epipole, residuals
 
-__all__ = ["RefineOptions", "SmoothedImages", "lk_affine", "refine_to_reference"]
+__all__ = ["RefineOptions", "SmoothedImages", "exact_for_ramps", "lk_affine", "refine_to_reference"]
 
 
 #: Observations per task of :func:`refine_to_reference` (a few tenths of a second of work).
@@ -91,14 +94,45 @@ class SmoothedImages:
         return self.grey[0].shape[:2]
 
 
+def _ramp_table(steps: int) -> np.ndarray:
+    """``psi(t)`` at ``t = k / steps``, ``k = 0 .. steps`` (float32): where OpenCV's bicubic
+    interpolation must sample within a pixel to return a linear function's value at ``t``.
+
+    Its kernel (Keys' cubic convolution with ``a = -0.75``) interpolates a ramp
+    ``f(k) = k`` at the fraction ``t`` as ``phi(t) = t - u (1/4 - u^2)``, ``u = t - 1/2``:
+    up to 0.048 px off, alike for the image and its gradients. ``psi = phi^-1``:
+    ``psi = 1/2 + v`` with ``v`` the real root of ``v^3 + 3/4 v = u`` (Cardano).
+    """
+    u = np.linspace(0.0, 1.0, steps + 1) - 0.5
+    root = np.sqrt(u * u / 4 + 1 / 64)  # (p / 3)^3 = 1/64 for p = 3/4
+    return (0.5 + np.cbrt(u / 2 + root) + np.cbrt(u / 2 - root)).astype(np.float32)
+
+
+#: Steps of :data:`RAMP_TABLE` per pixel: positions land within 2e-5 px of ``psi``.
+RAMP_STEPS = 1 << 15
+RAMP_TABLE = _ramp_table(RAMP_STEPS)
+
+
+def exact_for_ramps(x: np.ndarray) -> np.ndarray:
+    """Sample positions ``x`` (float, any shape) moved within their pixel (float32) so
+    that OpenCV's bicubic interpolation returns every linear function exactly
+    (:func:`_ramp_table`). The alignment's error on an exactly shifted image falls from
+    0.053 to 0.019 px RMS (Lanczos-4 interpolation: 0.015, at 12 times the cost)."""
+    x = np.asarray(x, np.float32)
+    base = np.floor(x)
+    k = ((x - base) * RAMP_STEPS + 0.5).astype(np.int32)
+    return base + RAMP_TABLE.take(k, mode="clip")
+
+
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bicubic samples of ``img`` (h, w[, c]) at float arrays ``x, y`` (m, P): (m, P[, c]) float32."""
+    """Bicubic samples of ``img`` (h, w[, c]) at float arrays ``x, y`` (m, P), exact for
+    linear functions (:func:`exact_for_ramps`): (m, P[, c]) float32."""
     m, P = x.shape
+    x, y = exact_for_ramps(x), exact_for_ramps(y)
     out = np.empty((m, P) + img.shape[2:], np.float32)
     step = max(1, 30000 // max(P, 1))  # cv2 map sides stay below 32767
     for r0 in range(0, m, step):
-        out[r0:r0 + step] = cv2.remap(img, np.asarray(x[r0:r0 + step], np.float32),
-                                      np.asarray(y[r0:r0 + step], np.float32), cv2.INTER_CUBIC,
+        out[r0:r0 + step] = cv2.remap(img, x[r0:r0 + step], y[r0:r0 + step], cv2.INTER_CUBIC,
                                       borderMode=cv2.BORDER_REPLICATE)
     return out
 
