@@ -10,8 +10,8 @@ smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients
 ``cv2.remap`` of a three-channel image) at positions moved within their pixel so that the
 interpolation is exact for linear functions (:func:`exact_for_ramps`: OpenCV's kernel
 shifted them by up to 0.048 px with the fraction of a pixel, 0.04-0.05 px RMS of every
-alignment; renders' median track error 0.035 -> 0.013-0.016 px). The affine part models the change of scale and
-foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
+alignment; renders' median track error 0.035 -> 0.013-0.016 px). The affine part models
+the change of scale and foreshortening between the views (its start ``(1 + rho e3) I`` comes from the epipole),
 the gain and offset exposure changes, the ramp ``c`` a brightness gradient across the
 window that differs between the views (shading, vignetting: with gain and offset alone
 it pulled the alignment by a few thousandths of a pixel, alike over a view, which the
