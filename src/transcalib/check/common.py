@@ -38,3 +38,12 @@ def camera_poses(calibration, T):
 def squared_norms(res: np.ndarray) -> np.ndarray:
     """``|r|^2`` of each residual ``res (..., 2)`` (NaN where the residual is), in one pass."""
     return np.einsum("...k,...k->...", res, res)
+
+
+def inlier_uv(uv, calibration) -> np.ndarray:
+    """``uv (n_views, n_points, 2)`` as float with the tracks outside
+    ``calibration.inliers`` (when it has them) set to NaN: the data a refit uses."""
+    uv = np.asarray(uv, float)
+    if calibration.inliers is None:
+        return uv
+    return np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)

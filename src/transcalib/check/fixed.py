@@ -26,6 +26,7 @@ from ..estimate.distributions import f_sf
 from ..estimate.layout import Layout
 from ..estimate.refine import refine
 from ..types import Calibration
+from .common import inlier_uv
 from .rotation import _refinement
 
 __all__ = ["fixed_score_test", "check_fixed", "FIX_ALPHA"]
@@ -107,8 +108,7 @@ def _refit_value(uv, T, calibration: Calibration, opts, name: str) -> float | No
     linear estimate (which fixes nothing: a start far from the wrong value's solution),
     or None."""
     others = {k: v for k, v in opts.fix.items() if k != name}
-    if calibration.inliers is not None:
-        uv = np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)
+    uv = inlier_uv(uv, calibration)
     try:
         start = calibration.linear if calibration.linear is not None else calibration
         c = refine(uv, T, start, options=replace(opts, fix=others))

@@ -39,7 +39,7 @@ from ..estimate.covariance import linearise, profile_step
 from ..estimate.distributions import chi2_sf, f_sf
 from ..estimate.refine import refine
 from ..types import Calibration
-from .common import camera_poses, fmt_vec
+from .common import camera_poses, fmt_vec, inlier_uv
 from .rotation import _refinement
 
 __all__ = ["pose_test", "check_pose_outliers", "check_repeated_poses", "check_unit", "truth_mismatch",
@@ -178,8 +178,7 @@ def _refit(uv, T, calibration: Calibration, views) -> tuple:
     sigma[list(views)] = 1e3 * scale  # free: the prior carries no information
     others = [v for v in range(n) if v not in views]
     rot = tuple(views) if others else ()
-    if calibration.inliers is not None:
-        uv = np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)
+    uv = inlier_uv(uv, calibration)
     try:
         c = refine(uv, T, calibration, options=replace(opts, sigma_T=sigma, estimate_view_rotations=rot or False,
                                                        robot_sigma_deg=None, robot_sigma_pos=None))  # sigma_T's model

@@ -60,7 +60,7 @@ from ..estimate.covariance import linearise, profile_step
 from ..estimate.distributions import chi2_ppf, f_sf
 from ..estimate.refine import refine, with_robot_scales
 from ..types import Calibration, RefineOptions
-from .common import fmt_list
+from .common import fmt_list, inlier_uv
 
 __all__ = ["view_rotation_test", "locate_view_rotation", "check_view_rotations", "ROTATION_ALPHA"]
 
@@ -213,9 +213,7 @@ def _fit_rotated_views(uv, T, calibration: Calibration, candidates):
     if not candidates:
         return None
     opts = _refinement(calibration)
-    uv = np.asarray(uv, float)
-    if calibration.inliers is not None:
-        uv = np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)
+    uv = inlier_uv(uv, calibration)
     fits = {}
     for i in sorted(set(int(i) for i in candidates)):  # a few views at most
         try:
@@ -288,9 +286,7 @@ def _one_view_as_robot_error(uv, T, calibration: Calibration, alpha: float) -> d
     if re is None or re.source[0] != "estimated" or calibration.options is None:
         return None
     opts = replace(calibration.options.refinement, distortion=calibration.dist_model)
-    uv = np.asarray(uv, float)
-    if calibration.inliers is not None:
-        uv = np.where(np.asarray(calibration.inliers, bool)[None, :, None], uv, np.nan)
+    uv = inlier_uv(uv, calibration)
     try:
         exact = refine(uv, T, calibration, options=replace(opts, robot_error=False, robot_sigma_deg=None,
                                                            robot_sigma_pos=None))
