@@ -43,12 +43,17 @@ def warm_up() -> float:
 def _serve(conn) -> None:
     """The worker process: warm up, say ``ready``, draw the one job, say ``done``."""
     import gc
+    import os
     import signal
     import sys
     import traceback
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # unwinds: no temporary file left
+    # stopped during the job: unwind (no temporary file left); before it nothing is
+    # written, so end at once: a shutdown that cuts an import short once wrote "Fatal
+    # Python error: PyThreadState_Get" on the command's stderr beside its own error
+    job = []
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1) if job else os._exit(1))
     from . import render_report
 
     try:
@@ -56,6 +61,7 @@ def _serve(conn) -> None:
         gc.disable()  # no collection pauses in the one job: its garbage (megabytes) ends with the process
         conn.send(("ready", None))
         data, folder = conn.recv()
+        job.append(folder)
         t0, c0 = time.perf_counter(), time.process_time()
         paths = render_report(data, folder)
         conn.send(("done", ([str(p) for p in paths], time.perf_counter() - t0, time.process_time() - c0)))
