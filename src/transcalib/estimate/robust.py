@@ -209,7 +209,7 @@ class _PairProblem:
 # ----------------------------------------------------------------------------------------
 
 
-def estimate_robust(uv, T, *, options: RansacOptions | None = None, rng=None, progress=None) -> RobustEstimate:
+def estimate_robust(uv, T, *, options: RansacOptions | None = None, rng=0, progress=None) -> RobustEstimate:
     """Calibrate linearly despite gross outliers: two-point LO-RANSAC, then a TLS refit.
 
     Parameters
@@ -221,7 +221,7 @@ def estimate_robust(uv, T, *, options: RansacOptions | None = None, rng=None, pr
     options : RansacOptions, optional
         False-rejection rate, confidence, maximum trials, and an optional fixed threshold.
     rng : seed or numpy Generator
-        Randomness of the sampling.
+        Randomness of the sampling; the default seed repeats the result for the same input.
     progress : callable, optional
         Called after every batch of hypotheses with a
         :class:`~transcalib.types.ProgressEvent` (stage ``"robust"``, ``done`` the

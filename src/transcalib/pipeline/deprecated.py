@@ -67,7 +67,7 @@ def calibrate_sessions(uv, T, flange_rotations, *, session_of_view=None,
                        tolerance_deg: float = SESSION_TOLERANCE_DEG, distortion: str = "none", fix=None,
                        square_pixels: bool = False, estimate_skew: bool = False, sigma_T=None, sigma_px=None,
                        loss: str = "linear", loss_scale_px: float = 1.0, max_iterations: int = 100,
-                       robust: bool = False, ransac: RansacOptions | None = None, rng=None) -> HandEyeCalibration:
+                       robust: bool = False, ransac: RansacOptions | None = None, rng=0) -> HandEyeCalibration:
     """Deprecated: ``transcalib.calibrate(uv, Poses.of(T, flange_rotations,
     session=session_of_view), session_tolerance_deg=tolerance_deg, ...)``, whose result
     holds the hand-eye pose in ``hand_eye``. The arguments are those of

@@ -53,7 +53,7 @@ def calibrate(
     image_size=None,
     unit: str = "units",
     subset_points: int | None = SUBSET_POINTS,
-    rng=None,
+    rng=0,
     progress=None,
 ) -> Calibration:
     """Calibrate the camera and reconstruct the scene from tracks and known robot poses.
@@ -111,7 +111,8 @@ def calibrate(
         Gauss-Newton steps with every track finish (:class:`CalibrateOptions`). None:
         every stage uses every track.
     rng : seed or Generator
-        Randomness of RANSAC.
+        Randomness of RANSAC and of the subset. The default seed gives the same result for
+        the same input on every run; pass a Generator (or None) for fresh randomness.
     progress : callable, optional
         ``progress(event)`` with a :class:`~transcalib.types.ProgressEvent` after each
         stage (and each step of the long ones).
