@@ -175,3 +175,27 @@ def test_strips_render_the_whole_image_alike(monkeypatch):
     assert all(np.array_equal(a, b) for a, b in zip(strips, whole))
     monkeypatch.setattr(raycast, "STRIP_ROWS", 1)  # strips of one pixel row: as many edges as rows
     assert all(np.array_equal(a, b) for a, b in zip(images(), whole))
+
+
+def test_moving_a_surface_with_its_rays_leaves_the_hits():
+    """Casting in the camera frame (the surfaces moved, not the rays) is the same cast:
+    a plane and a sphere moved by ``x -> Q x + t`` with the rays' centre and directions
+    give the same depths and texture coordinates."""
+    from scipy.spatial.transform import Rotation
+    from transcalib.synth import surfaces
+    from transcalib.synth.raycast import surface_hits
+
+    rng = np.random.default_rng(3)
+    Q, t = Rotation.from_rotvec([0.3, -0.8, 0.5]).as_matrix(), np.array([40.0, -15.0, 300.0])
+    plane = surfaces.plane([10.0, 5.0, 500.0], Rotation.from_rotvec([0.2, 0.1, 0.0]).as_matrix(), (400.0, 300.0),
+                           texture=None)
+    ball = surfaces.sphere([30.0, -20.0, 450.0], 60.0, texture=None,
+                           frame=Rotation.from_rotvec([0.4, 0.0, -0.3]).as_matrix())
+    C = np.array([5.0, -3.0, 2.0])
+    d = np.r_[rng.uniform(-0.25, 0.25, (2, 500)), np.ones((1, 500))]
+    for sf in (plane, ball):
+        z, s, u = surface_hits(sf, list(d), C)
+        z2, s2, u2 = surface_hits(sf.moved(Q, t), list(Q @ d), Q @ C + t)
+        hit = np.isfinite(z)
+        assert 50 < hit.sum() and np.array_equal(hit, np.isfinite(z2))
+        np.testing.assert_allclose(np.c_[z2, s2, u2][hit], np.c_[z, s, u][hit], rtol=0, atol=1e-9)

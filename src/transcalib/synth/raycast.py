@@ -19,30 +19,47 @@ pixels its rays can reach (:func:`_crop`; through a lens, :func:`_distorted_box`
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..geometry.camera import distort, pad_dist, pixels_to_rays, undistort
 
-__all__ = ["sample_rays", "surface_hits", "on_surface", "nearest_hits", "render_view"]
+__all__ = ["sample_rays", "camera_rays", "surface_hits", "on_surface", "nearest_hits", "render_view"]
 
 
 def sample_rays(K, R, dist, image_size, S):
-    """World ray directions ``R^T [x, y, 1]`` of the ``S x S`` samples of every pixel, at
-    offsets ``(k + 1/2) / S - 1/2`` around its centre: three arrays ``(H*S, W*S)`` (the
-    grid form of :func:`transcalib.geometry.camera.pixels_to_rays`: ``y`` once per row)."""
+    """World ray directions ``R^T [x, y, 1]`` of the ``S x S`` samples of every pixel
+    (:func:`camera_rays`): three arrays ``(H*S, W*S)``."""
+    x, y = camera_rays(K, dist, image_size, S)
+    return [x * R[0, k] + y * R[1, k] + R[2, k] for k in range(3)]
+
+
+def camera_rays(K, dist, image_size, S):
+    """Camera-frame rays ``[x, y, 1]`` of the ``S x S`` samples of every pixel, at offsets
+    ``(k + 1/2) / S - 1/2`` around its centre: ``x, y`` each ``(H*S, W*S)``, read-only (the
+    grid form of :func:`transcalib.geometry.camera.pixels_to_rays`). The last camera's are
+    kept: every view of a scene, and every scene of a study, shares them."""
+    K, dist = np.asarray(K, float), np.asarray(dist, float).ravel()
+    return _camera_rays(tuple(K.ravel()), tuple(dist), tuple(int(n) for n in image_size), int(S))
+
+
+@lru_cache(maxsize=1)
+def _camera_rays(K: tuple, dist: tuple, image_size: tuple, S: int):
     w, h = image_size
+    fx, sk, cx, _, fy, cy = K[:6]
     off = (np.arange(S) + 0.5) / S - 0.5
     u = (np.arange(w)[:, None] + off[None, :]).ravel()
     v = (np.arange(h)[:, None] + off[None, :]).ravel()
-    fx, sk, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
     y = ((v - cy) / fy)[:, None]
     x = (u[None, :] - cx - sk * y) / fx
     y = np.broadcast_to(y, x.shape)
-    if np.asarray(dist).size and np.any(np.asarray(dist) != 0):
-        xy = undistort(np.stack([x, y], axis=-1), dist)
+    if any(dist):
+        xy = undistort(np.stack([x, y], axis=-1), np.array(dist))
         x, y = xy[..., 0], xy[..., 1]
-    # R^T [x, y, 1]: camera z = 1 at unit ray parameter
-    return [x * R[0, k] + y * R[1, k] + R[2, k] for k in range(3)]
+    x, y = np.array(x), np.array(y)  # own, contiguous copies
+    x.flags.writeable = y.flags.writeable = False
+    return x, y
 
 
 def _crop(sf, K, R, dist, C, image_size, S):

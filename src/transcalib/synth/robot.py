@@ -32,7 +32,7 @@ from ..geometry.camera import pixels_to_rays, project
 from ..types.options import SETUPS
 from ..types.poses import check_rotations
 from .degrade import Degradations, degrade_view, draw_view_effects, overlay_box
-from .raycast import nearest_hits, render_view, sample_rays
+from .raycast import camera_rays, nearest_hits, render_view
 from .render import PixelTruth, _check_render_args
 from .robot_layout import (EYE_TO_HAND_R_BC, EYE_TO_HAND_T_BC, camera_poses, carried_object, check_layout,
                            flange_poses, layout_misses, preset_camera, preset_degradations, view_geometry, work_cell)
@@ -278,11 +278,12 @@ def _cast(out: RobotRendered, opt, effects, S, background, noise_std, blur_sigma
     """Fill ``out.images``: per view, the ray cast of :meth:`RobotRendered.base_surfaces`
     from :meth:`RobotRendered.base_camera`, then the camera effects."""
     w, h = out.image_size
-    xy = sample_rays(out.K, np.eye(3), out.dist, (w, h), S)  # camera-frame [x, y, 1], once
+    x, y = camera_rays(out.K, out.dist, (w, h), S)
+    d = (x, y, np.broadcast_to(1.0, x.shape))  # cast in the camera frame: the surfaces move, not the rays
     for i in range(out.n_views):  # a loop over views, vectorised over pixels
         Rc, C = out.base_camera(i)
-        d = [xy[0] * Rc[0, k] + xy[1] * Rc[1, k] + Rc[2, k] for k in range(3)]  # R^T [x, y, 1]
-        radiance = render_view(out.base_surfaces(i), d, C, S, background, out.K, Rc, out.dist, (w, h))
+        surfaces = [sf.moved(Rc, -Rc @ C) for sf in out.base_surfaces(i)]
+        radiance = render_view(surfaces, d, np.zeros(3), S, background, out.K, np.eye(3), out.dist, (w, h))
         out.images[i] = degrade_view(radiance, opt, i, effects, blur_sigma=blur_sigma, noise_std=noise_std, rng=rng)
 
 

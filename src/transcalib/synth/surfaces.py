@@ -126,6 +126,12 @@ class Sphere:
         """bool mask: the ray met the sphere in front of the camera."""
         return np.isfinite(z) & (z > 0)
 
+    def moved(self, R: np.ndarray, t: np.ndarray) -> "Sphere":
+        """The sphere moved rigidly by ``x -> R x + t`` (as :meth:`Surface.moved`): centre
+        ``R c + t``, axes ``R frame``; the same texture, radius and name."""
+        R, t = np.asarray(R, float), np.asarray(t, float)
+        return replace(self, center=R @ np.asarray(self.center, float) + t, frame=R @ np.asarray(self.frame, float))
+
     def point(self, st: np.ndarray) -> np.ndarray:
         """World points ``(n, 3)`` of texture coordinates ``st`` ``(n, 2)``."""
         st = np.asarray(st, float)
