@@ -231,7 +231,7 @@ def _track_checks(uv, calibration: Calibration, sessions) -> list:
         out += check_parallax(uv, sigma, sessions)
     else:
         out.append(skipped("parallax check", "no estimate of the pixel noise (refine the calibration)"))
-    out += check_inliers(calibration.inliers, uv)
+    out += check_inliers(calibration.inliers, uv, calibration.residuals_px, calibration.sigma_px)
     if robust is not None and calibration.options is not None:
         ransac = calibration.options.ransac
         out += check_threshold(robust.sigma_px, robust.rule_sigma_px, ransac.threshold_px, ransac.false_rejection)

@@ -23,6 +23,9 @@ __all__ = ["check_parallax", "check_inliers", "check_threshold", "check_intrinsi
 LOW_PARALLAX_SIGMAS = 5.0
 #: Warn when fewer of the tracked points are inliers.
 MIN_INLIER_FRACTION = 0.5
+#: A track erring by this much or more is matched to the wrong place: the tracker's
+#: features are at least its smoothing (sigma 1 px) across, a smaller error stays on them.
+WRONG_MATCH_PX = 1.0
 
 
 def track_motion_px(uv: np.ndarray, sessions=None) -> np.ndarray:
@@ -81,19 +84,42 @@ def check_parallax(uv: np.ndarray, sigma_px: float, sessions=None) -> list:
     return out
 
 
-def check_inliers(inliers, uv: np.ndarray) -> list:
-    """Warn when few of the tracked points are inliers (``inliers_few``)."""
+def check_inliers(inliers, uv: np.ndarray, residuals_px=None, sigma_px=None) -> list:
+    """Warn when few of the tracked points are inliers (``inliers_few``), saying whether the
+    others are wrong (an error of :data:`WRONG_MATCH_PX` or more) or only less precise
+    than the best tracks (``residuals_px (n_views, n_points, 2)``, the fit's
+    ``sigma_px``; without them the others are taken as wrong)."""
     if inliers is None:
         return []
     tracked = np.isfinite(uv[..., 0]).sum(axis=0) >= 2
     frac = float(np.sum(inliers & tracked) / max(tracked.sum(), 1))
     if frac >= MIN_INLIER_FRACTION:
         return []
+    head = f"only {100 * frac:.0f} % of the tracked points are inliers"
+    others = tracked & ~inliers
+    worst = np.full(int(others.sum()), np.inf)
+    if residuals_px is not None:
+        e = np.linalg.norm(np.asarray(residuals_px, float)[:, others], axis=-1)
+        seen = np.isfinite(e).any(axis=0)
+        worst[seen] = np.nanmax(e[:, seen], axis=0)
+    sizes = ""
+    if np.isfinite(worst).any():
+        lo, med, hi = np.percentile(worst[np.isfinite(worst)], [10, 50, 90])
+        sizes = (f"; the others' largest residuals are {lo:.2g}-{hi:.2g} px (median {med:.2g}; 10th-90th "
+                 "percentile)")
+    wrong = float(np.sum(~(worst < WRONG_MATCH_PX)) / max(tracked.sum(), 1))
+    if sigma_px and wrong <= 1 - MIN_INLIER_FRACTION:
+        return [Diagnostic(
+            "inliers_few",
+            f"{head} at the precision of the best tracks ({sigma_px:.2g} px per coordinate){sizes}, less than "
+            f"{WRONG_MATCH_PX:g} px: tracks less precise than the best (aliasing, blur, weak texture), not wrong "
+            f"ones{f' ({100 * wrong:.0f} % of the tracked points err by more)' if wrong else ''}. The calibration "
+            "leaves them out and its std holds for the inliers; sharper images or more texture would keep more.")]
     return [Diagnostic(
         "inliers_few",
-        f"only {100 * frac:.0f} % of the tracked points are inliers (at most {100 * (1 - MIN_INLIER_FRACTION):.0f} "
-        "% outliers are expected of a tracker): the tracks are mostly wrong (repetitive texture, moving objects) "
-        "or the camera rotated; check the tracks, or the robot's orientation.")]
+        f"{head} (at most {100 * (1 - MIN_INLIER_FRACTION):.0f} % outliers are expected of a tracker){sizes}: "
+        "the tracks are mostly wrong (repetitive texture, moving objects) or the camera rotated; check the "
+        "tracks, or the robot's orientation.")]
 
 
 def check_threshold(sigma_px: float, rule_sigma_px: float, threshold_px, alpha: float) -> list:
