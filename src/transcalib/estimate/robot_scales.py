@@ -20,7 +20,7 @@ from .robot_error import COMPONENTS
 from .variance_components import MISFIT_ALPHA, JointScore
 
 __all__ = ["RobotStart", "RobotFit", "RunAway", "check_growth", "robot_weights", "extrapolated",
-           "component_sigma", "DROP_FRACTION", "DROP_REDUNDANCY", "RUNAWAY_ALPHA"]
+           "component_sigma", "robot_error_on", "DROP_FRACTION", "DROP_REDUNDANCY", "RUNAWAY_ALPHA"]
 
 
 @dataclass(frozen=True)
@@ -138,3 +138,9 @@ def component_sigma(state: State, comp: str, r: float) -> float:
     """``sqrt(|e_k|^2 / r_k)`` of a component's estimated errors (0 without redundancy)."""
     e = state.E[:, :3] if comp == "rot" else state.E[:, 3:]
     return float(np.sqrt(np.sum(e * e) / r)) if r > 1e-9 else 0.0
+
+
+def robot_error_on(opts) -> bool:
+    """Whether ``opts`` model the robot pose error: ``robot_error`` True or None (the
+    default: the score tests decide each component), never with ``sigma_T``."""
+    return opts.sigma_T is None and opts.robot_error is not False
