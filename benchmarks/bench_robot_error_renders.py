@@ -29,7 +29,8 @@ after each round of trials. ``--supersample 4`` renders 4 x 4 samples per pixel 
 of 2 x 2 (the render twice as costly, a trial ~1.7 x), recorded in
 ``robot_error_renders_ss4.jsonl`` / ``.md``: at 2 x 2 the renderer's texture blur steps
 along lines that move between views, which left the perfect-robot rows a floor
-(docs/uncertainty.md section 6).
+(docs/uncertainty.md section 6). ``--paired-with EARLIER.jsonl`` adds to the table the
+trials of an earlier run on the same seeds, before -> now (after a change of the code).
 """
 
 from __future__ import annotations
@@ -189,6 +190,40 @@ def _fields(rows: list) -> str:
     return f"{100 * len(found) / len(vf):.0f} %, {np.median(found) if found else 0:.4f} px (of {len(vf)})" if vf else "-"
 
 
+def paired_table(log: Path, before: Path) -> str:
+    """The trials of ``log`` and of an earlier run ``before`` on the same seeds, per case
+    and parameter: std ratio and coverage before -> now, and RMS error now / before (the
+    change the code made, free of the seeds' own scatter)."""
+    runs = [{(r["layout"], r["sigma_rot"], r["sigma_pos"], r["seed"]): _row_of(r["row"]) for r in _recorded(path)}
+            for path in (before, log)]
+    lines = [f"## Paired with {before.name}", "",
+             f"The trials of both runs on the same seeds: std ratio (coverage) {before.name} -> {log.name}, and "
+             "the RMS error's ratio now / before.", "",
+             "| layout | sigma_rot deg | sigma_pos mm | N | " + " | ".join(PAIRED_KEYS) + " |",
+             "|---|---|---|---|" + "---|" * len(PAIRED_KEYS)]
+    for layout in LAYOUTS:
+        for sr, sp in CASES:
+            seeds = sorted(c[3] for c in runs[1] if c[:3] == (layout, sr, sp) and c in runs[0]
+                           and "failed" not in runs[0][c] and "failed" not in runs[1][c])
+            if not seeds:
+                continue
+            pairs = [[run[(layout, sr, sp, k)] for k in seeds] for run in runs]
+            cells = []
+            for key in PAIRED_KEYS:
+                if key not in pairs[0][0]:
+                    cells.append("-")
+                    continue
+                (r0, c0), (r1, c1) = (_summary(rows, key) for rows in pairs)
+                rms = [np.sqrt(np.mean([r[key][0] ** 2 for r in rows])) for rows in pairs]
+                cells.append(f"{r0:.2f} ({100 * c0:.0f} %) -> {r1:.2f} ({100 * c1:.0f} %); x{rms[1] / rms[0]:.2f}")
+            lines.append(f"| {layout} | {sr} | {sp} | {len(seeds)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+#: Parameters of :func:`paired_table`.
+PAIRED_KEYS = ("fx", "cx", "rx", "ry", "rz", "t_x", "t_y", "t_z")
+
+
 def _case_trial(case: tuple) -> dict:
     """One trial of ``(layout, sigma_rot, sigma_pos, seed, supersample, code)`` as a JSON-able
     record (``code``: :func:`_code_version`)."""
@@ -233,7 +268,11 @@ def main(argv=None) -> None:
     p.add_argument("--out", type=Path, default=None, help=f"table (default {OUT.name}; with --supersample N "
                    "other than 2, robot_error_renders_ssN.md)")
     p.add_argument("--supersample", type=int, default=2, help="samples per pixel along each axis of the renders")
+    p.add_argument("--paired-with", type=Path, default=None, metavar="JSONL",
+                   help="an earlier run's trials: the table gains their comparison on the same seeds")
     a = p.parse_args(argv)
+    if a.paired_with is not None and not a.paired_with.is_file():
+        p.error(f"--paired-with: no such file {a.paired_with}")
     if a.out is None:
         a.out = OUT if a.supersample == 2 else OUT.with_name(f"{OUT.stem}_ss{a.supersample}.md")
     log = a.out.with_suffix(".jsonl")
@@ -250,18 +289,21 @@ def main(argv=None) -> None:
                 for record in pool.map(_case_trial, todo):
                     f.write(json.dumps(record) + "\n")
                     f.flush()
-            _write_table(log, a.out, time.perf_counter() - t0)
+            _write_table(log, a.out, time.perf_counter() - t0, a.paired_with)
             print(f"trial {k + 1}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if log.exists():  # (also: --trials 0 rewrites the table of what is recorded)
-        sys.stdout.write(_write_table(log, a.out, time.perf_counter() - t0))
+        sys.stdout.write(_write_table(log, a.out, time.perf_counter() - t0, a.paired_with))
 
 
-def _write_table(log: Path, out: Path, elapsed: float) -> str:
-    """The table of every trial recorded in ``log``, written to ``out``."""
+def _write_table(log: Path, out: Path, elapsed: float, paired_with: Path | None = None) -> str:
+    """The table of every trial recorded in ``log`` (and its comparison with the run
+    ``paired_with`` on the same seeds), written to ``out``."""
     results = {}
     for r in _recorded(log):
         results.setdefault((r["layout"], r["sigma_rot"], r["sigma_pos"]), []).append(_row_of(r["row"]))
     text = table(results, min(len(v) for v in results.values()), elapsed, log.name)
+    if paired_with is not None:
+        text += "\n" + paired_table(log, paired_with)
     out.write_text(text)
     return text
 
