@@ -114,7 +114,7 @@ def check_inliers(inliers, uv: np.ndarray, residuals_px=None, sigma_px=None) -> 
             f"{head} at the precision of the best tracks ({sigma_px:.2g} px per coordinate){sizes}, less than "
             f"{WRONG_MATCH_PX:g} px: tracks less precise than the best (aliasing, blur, weak texture), not wrong "
             f"ones{f' ({100 * wrong:.0f} % of the tracked points err by more)' if wrong else ''}. The calibration "
-            "leaves them out and its std holds for the inliers; sharper images or more texture would keep more.")]
+            "leaves them out (its std is that of the inliers); sharper images or more texture would keep more.")]
     return [Diagnostic(
         "inliers_few",
         f"{head} (at most {100 * (1 - MIN_INLIER_FRACTION):.0f} % outliers are expected of a tracker){sizes}: "
