@@ -366,41 +366,6 @@ def _lk_errors(texture, warp, inverse, pts, M0, g=None, size=(400, 300)):
     return (p - truth)[conv]
 
 
-def test_session_alignment_holds_the_translations_projective_row():
-    """A floor seen obliquely while the camera moves towards it (pure translation: the
-    homography ``K (I - t n^T / d) K^-1``): an affine window is pulled by the homography's
-    curvature, alike over the view, as a change of scale would; ``refine_to_reference``
-    takes the projective row from the pair's epipole and the neighbours' inverse depths,
-    and is not."""
-    from transcalib.images.refine import RefineOptions, SmoothedImages, lk_affine, refine_to_reference
-
-    rng = np.random.default_rng(3)
-    texture = _band_limited(rng)
-    K = np.array([[500.0, 0, 200], [0, 500, 150], [0, 0, 1]])
-    n, d, t = np.array([0.0, 0.7, 0.714]) / np.linalg.norm([0.0, 0.7, 0.714]), 400.0, np.array([0.0, 0.0, 40.0])
-    H = K @ (np.eye(3) - np.outer(t, n) / d) @ np.linalg.inv(K)
-
-    def apply(A):
-        def f(x, y):
-            q = np.einsum("ij,j...->i...", A, np.stack([x, y, np.ones_like(x)]))
-            return q[0] / q[2], q[1] / q[2]
-        return f
-    warp, inverse = apply(H), apply(np.linalg.inv(H))
-    pts = np.column_stack([rng.uniform(60, 340, 2500), rng.uniform(50, 250, 2500)])
-    truth = np.column_stack(warp(pts[:, 0], pts[:, 1]))
-    ok = (truth > 30).all(1) & (truth[:, 0] < 370) & (truth[:, 1] < 270)
-    pts, truth = pts[ok], truth[ok]
-    y, x = np.mgrid[0:300, 0:400].astype(float)
-    sm = SmoothedImages([texture(x, y), texture(*inverse(x, y))])
-    start = truth + np.random.default_rng(1).normal(0, 0.2, truth.shape)
-    affine = lk_affine(sm.plain(0), sm[1], pts, start, np.repeat(np.eye(2)[None], len(pts), 0), 8, 12)[0] - truth
-    refined = refine_to_reference(sm, np.stack([pts, start]), np.zeros(len(pts), int), {(0, 1): K @ t},
-                                  RefineOptions())[1] - truth
-    assert np.isfinite(refined).all(1).mean() > 0.95
-    assert np.linalg.norm(np.nanmean(affine, axis=0)) > 0.0017  # the pull: 0.0024 px up the floor's slope
-    assert np.linalg.norm(np.nanmean(refined, axis=0)) < 0.0007  # 0.0003: the white noise of the mean
-
-
 def test_bicubic_samples_are_exact_for_linear_functions():
     """OpenCV's bicubic kernel (a = -0.75) returns a linear function's value at a position
     up to 0.048 px off, by the fraction of a pixel; at the positions ``exact_for_ramps``

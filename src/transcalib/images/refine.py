@@ -1,13 +1,11 @@
 """Refinement: every observation aligned to its track's reference view, to a few hundredths of a pixel.
 
-Lucas-Kanade with a warp of a plane's homography and an affine brightness model, batched Gauss-Newton over
+Lucas-Kanade with an affine warp and an affine brightness model, batched Gauss-Newton over
 all observations of a view pair at once (:func:`lk_affine`): the template is a window around
 the track's reference observation (Gaussian weights), the warp
-``x_tgt = p + M o / (1 + g . o)`` for template offsets ``o``, a homography whose
-projective row ``g`` is held (:func:`projective_row`: within a session from the pair's
-epipole and the local slope of the inverse depths; across orientations from the resected
-camera, :mod:`.link`): an affine window alone is pulled by the surface's
-curvature in the map, alike over a view),
+``x_tgt = p + M o`` for template offsets ``o`` (across orientations a homography
+``p + M o / (1 + g . o)`` with its projective row ``g`` held, :func:`projective_row`,
+:mod:`.link`),
 photometric ``(a + d . o) I_tgt + b + c . o``; images are
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
 ``cv2.remap`` of a three-channel image) at positions moved within their pixel so that the
@@ -341,23 +339,6 @@ def projective_row(P: np.ndarray, x: np.ndarray, w: np.ndarray, xs: np.ndarray, 
     return np.where(np.isfinite(g), g, 0.0)
 
 
-def _session_projective_row(epi, r, j, p_ref, p0):
-    """:func:`projective_row` of the pair ``(r, j)`` of a session (None without its
-    epipole): with ``y = x + rho (e3 x - e_xy)`` (:func:`~.epipoles.residuals`) the pair
-    is the camera ``P = [I | -e]`` of the reference view's structure ``(x, 1, w)``,
-    ``w = rho / (1 + rho e3)``, so ``g = -e3 grad rho / (1 + rho e3)``."""
-    e = None if epi is None else pair_epipole(epi, r, j)
-    if e is None or len(p_ref) < 12:
-        return None
-    _, rho = residuals(e, p_ref, p0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = rho / (1.0 + rho * e[2])
-    ok = np.isfinite(w)
-    if ok.sum() < 12:
-        return None
-    return projective_row(np.column_stack([np.eye(3), -np.asarray(e, float)]), p_ref, w, p_ref[ok], w[ok])
-
-
 def refine_to_reference(smoothed: SmoothedImages, uv: np.ndarray, ref: np.ndarray, epi: dict | None,
                         opts: RefineOptions, report=None, only=None, warps=None) -> np.ndarray:
     """Align every non-reference observation of ``uv`` to its track's reference observation.
@@ -404,9 +385,8 @@ def refine_to_reference(smoothed: SmoothedImages, uv: np.ndarray, ref: np.ndarra
         if M0 is not None and not np.all(np.isfinite(M0)):
             M0 = np.where(np.isfinite(M0), M0, _start_warp(epi, r, j, p_ref, p0, None))
         M0 = _start_warp(epi, r, j, p_ref, p0, M0)
-        g = _session_projective_row(epi, r, j, p_ref, p0)
         p, M, ncc, min_eig, conv = lk_affine(smoothed.plain(r), smoothed[j], p_ref, p0, M0, opts.window_radius,
-                                             opts.iterations, g=g)
+                                             opts.iterations)
         det = np.linalg.det(M)
         good = (inside[r, sel] & inside[j, sel] & conv & (ncc >= opts.min_ncc)
                 & (np.linalg.norm(p - p0, axis=1) < opts.max_shift_px) & (det > 0.25) & (det < 4.0) & (min_eig > 1.0))
