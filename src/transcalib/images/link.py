@@ -10,7 +10,7 @@ out: the background behind an object carried by the robot) give a fundamental ma
 where and how its window appears, and Lucas-Kanade against the window in ``a``
 (:func:`~.refine.lk_affine`) finds it, the warp's projective row held at the one the
 resected camera and the local slope of the session's inverse depths give
-(:func:`~.refine.projective_row`: an affine window alone leaves the curvature of the surface's
+(:func:`_projective_row`: an affine window alone leaves the curvature of the surface's
 homography to its centre, a pull of 0.01-0.04 px alike over a view turned 15-45 deg,
 which moved the hand-eye translation by about 2 of its std on renders). A transfer is
 kept when it correlates with the template, converged, and lies on its epipolar line of
@@ -39,8 +39,8 @@ from .checks import merge_duplicates
 from .detect import match_pair, n_threads
 from .epipoles import pair_epipole, residuals
 from .frames import LinkInfo
-from .local import local_affine, plain_window
-from .refine import SmoothedImages, lk_affine, projective_row
+from .local import local_affine, local_linear, plain_window
+from .refine import SmoothedImages, lk_affine
 from .resect import affine_structure, infinite_homography, interpolate_w, project_structure, resect, session_camera
 
 __all__ = ["link_groups", "fundamental"]
@@ -159,7 +159,7 @@ def _transfer(smoothed, pairs, x, w, a, b, opts, shape, rng, H=None, rounds: int
         fin = np.isfinite(pred).all(1)
         _, J, res = local_affine(x[ok][fin], pred[fin], x[todo], return_residual=True)
         todo, J = todo[plain_window(J, res)], J[plain_window(J, res)]
-        g = projective_row(P, x[todo], w[todo], x[ok], w[ok])
+        g = _projective_row(P, x[todo], w[todo], x[ok], w[ok])
         out[todo] = _lk_accept(smoothed, a, b, x[todo], project_structure(P, x[todo], w[todo]), J, opts, shape,
                                opts.refinement.max_shift_px, g)
         found = np.isfinite(out[:, 0])
@@ -168,6 +168,22 @@ def _transfer(smoothed, pairs, x, w, a, b, opts, shape, rng, H=None, rounds: int
                               opts.threshold_px, rng, H=H)
             P = P if P_new is None else P_new
     return _agree_with_camera(out, x, w, rng, opts.threshold_px, H)
+
+
+def _projective_row(P: np.ndarray, x: np.ndarray, w: np.ndarray, xs: np.ndarray, ws: np.ndarray) -> np.ndarray:
+    """``g (m, 2)``: the projective row of the homography ``a -> b`` of the surface about
+    each point ``x`` (view ``a``, inverse depth ``w``): ``x_b = p + M o / (1 + g . o)``.
+
+    About ``x`` the surface is a plane, ``w + grad w . o`` (the gradient of the session's
+    inverse depths ``ws`` at their points ``xs`` around it: :func:`~.local.local_linear`),
+    so ``x~_b ~ P (x + o, 1, w + grad w . o)`` and
+    ``g = (P[2, :2] + P[2, 3] grad w) / P[2] . (x, 1, w)``; 0 where undefined.
+    """
+    _, grad = local_linear(xs, ws, x, k=10, gradient=True)
+    depth = np.column_stack([x, np.ones(len(x)), w]) @ P[2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = (P[2, :2][None] + P[2, 3] * np.nan_to_num(grad)) / depth[:, None]
+    return np.where(np.isfinite(g), g, 0.0)
 
 
 def _agree_with_camera(out, x, w, rng, threshold_px, H):

@@ -4,8 +4,7 @@ Lucas-Kanade with an affine warp and an affine brightness model, batched Gauss-N
 all observations of a view pair at once (:func:`lk_affine`): the template is a window around
 the track's reference observation (Gaussian weights), the warp
 ``x_tgt = p + M o`` for template offsets ``o`` (across orientations a homography
-``p + M o / (1 + g . o)`` with its projective row ``g`` held, :func:`projective_row`,
-:mod:`.link`),
+``p + M o / (1 + g . o)`` with its projective row ``g`` given, :mod:`.link`),
 photometric ``(a + d . o) I_tgt + b + c . o``; images are
 smoothed with a Gaussian of sigma 1 and sampled bicubically (image and gradients in one
 ``cv2.remap`` of a three-channel image) at positions moved within their pixel so that the
@@ -37,7 +36,6 @@ import numpy as np
 
 from .detect import n_threads
 from .epipoles import pair_epipole, residuals
-from .local import local_linear
 
 __all__ = ["RefineOptions", "SmoothedImages", "exact_for_ramps", "lk_affine", "refine_to_reference"]
 
@@ -321,22 +319,6 @@ def _start_warp(epi, r, j, p_ref, p0, M0):
         _, rho = residuals(e, p_ref, p0)
         M = M * np.clip(1.0 + np.nan_to_num(rho) * e[2], 0.5, 2.0)[:, None, None]
     return M
-
-
-def projective_row(P: np.ndarray, x: np.ndarray, w: np.ndarray, xs: np.ndarray, ws: np.ndarray) -> np.ndarray:
-    """``g (m, 2)``: the projective row of the homography ``a -> b`` of the surface about
-    each point ``x`` (view ``a``, inverse depth ``w``): ``x_b = p + M o / (1 + g . o)``.
-
-    About ``x`` the surface is a plane, ``w + grad w . o`` (the gradient of the session's
-    inverse depths ``ws`` at their points ``xs`` around it: :func:`~.local.local_linear`),
-    so ``x~_b ~ P (x + o, 1, w + grad w . o)`` and
-    ``g = (P[2, :2] + P[2, 3] grad w) / P[2] . (x, 1, w)``; 0 where undefined.
-    """
-    _, grad = local_linear(xs, ws, x, k=10, gradient=True)
-    depth = np.column_stack([x, np.ones(len(x)), w]) @ P[2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        g = (P[2, :2][None] + P[2, 3] * np.nan_to_num(grad)) / depth[:, None]
-    return np.where(np.isfinite(g), g, 0.0)
 
 
 def refine_to_reference(smoothed: SmoothedImages, uv: np.ndarray, ref: np.ndarray, epi: dict | None,
