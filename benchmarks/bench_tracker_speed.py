@@ -143,19 +143,17 @@ def main(argv=()) -> str:
             times = {"ours": [], "main": [], "colmap": []}
             cpus = {"ours": [], "main": [], "colmap": []}
             fx = {}
-            for _ in range(repeat):
-                dt, cpu, summ = run_cli(paths, folder, here)
-                times["ours"].append(dt)
-                cpus["ours"].append(cpu)
-                fx["ours"] = summ["K"][0][0]
-                if args.main:
-                    dt, cpu, summ = run_cli(paths, folder, args.main)
-                    times["main"].append(dt)
-                    cpus["main"].append(cpu)
-                    fx["main"] = summ["K"][0][0]
-                dt, cpu = run_colmap(paths, folder)
-                times["colmap"].append(dt)
-                cpus["colmap"].append(cpu)
+            runs = {"ours": lambda: run_cli(paths, folder, here), "colmap": lambda: run_colmap(paths, folder)}
+            if args.main:
+                runs["main"] = lambda: run_cli(paths, folder, args.main)
+            order = list(runs)
+            for k in range(repeat):  # the order turns each round: no command always follows COLMAP's two threads
+                for who in order[k % len(order):] + order[:k % len(order)]:
+                    dt, cpu, *summ = runs[who]()
+                    times[who].append(dt)
+                    cpus[who].append(cpu)
+                    if summ:
+                        fx[who] = summ[0]["K"][0][0]
             st, n_pts, mean_len = stages(paths)
             med = {k: float(np.median(v)) if v else float("nan") for k, v in times.items()}
             mc = {k: float(np.median(v)) if v else float("nan") for k, v in cpus.items()}
