@@ -211,6 +211,10 @@ class _Data:
     centre: tuple
     s: float
 
+    def subset(self, idx: np.ndarray) -> "_Data":
+        """The matches ``idx``."""
+        return _Data(self.x[idx], self.y[idx], self.vi[idx], self.vj[idx], self.t[idx], self.centre, self.s)
+
     @cached_property
     def still(self) -> np.ndarray:
         """(N,) bool: matches moving less than :data:`~.epipoles.MOVING_PX` (no direction)."""
@@ -254,15 +258,21 @@ def _unpack(p: np.ndarray, n: int):
 def _jacobian(p: np.ndarray, n: int, d: _Data, mine: list) -> np.ndarray:
     """``(N, len(p))`` forward differences of :func:`residuals` at ``p`` (steps 1e-7 of
     ``|A|``, 1e-7 in ``lam`` and in radians: the truncation error, ~1e-7 of a residual's
-    curvature, is far below the noise; Gauss-Newton needs no more), every step in one
-    batch with ``p`` itself; a view's rotation only on its own matches ``mine[v]``."""
+    curvature, is far below the noise; Gauss-Newton needs no more). ``A`` and ``lam``,
+    which move every match, in one batch with ``p`` itself; a view's rotation moves only
+    its own matches ``mine[v]`` (:meth:`_Data.subset`), evaluated on those alone: the
+    cost grows with the matches, not with matches times views."""
     step = np.r_[np.full(9, 1e-7 * np.linalg.norm(p[:9])), np.full(len(p) - 9, 1e-7)]
-    r = residuals(*_unpack(p + np.vstack([np.zeros(len(p)), np.diag(step)]), n), d)  # (1 + len(p), N)
-    J = ((r[1:] - r[0]) / step[:, None]).T
-    for v in range(1, n):  # exact zeros off a view's own matches
-        others = np.ones(len(d.x), bool)
-        others[mine[v]] = False
-        J[others, 10 + 3 * (v - 1):13 + 3 * (v - 1)] = 0.0
+    shared = np.vstack([np.zeros(len(p)), np.diag(step)[:10]])
+    r = residuals(*_unpack(p + shared, n), d)  # (11, N)
+    J = np.zeros((len(d.x), len(p)))
+    J[:, :10] = ((r[1:] - r[0]) / step[:10, None]).T
+    for v in range(1, n):
+        cols = slice(10 + 3 * (v - 1), 13 + 3 * (v - 1))
+        own = np.zeros((4, len(p)))
+        own[np.arange(1, 4), np.arange(len(p))[cols]] = step[cols]
+        rv = residuals(*_unpack(p + own, n), d.subset(mine[v]))  # (4, |mine[v]|)
+        J[mine[v], cols] = ((rv[1:] - rv[0]) / step[cols, None]).T
     return J
 
 
