@@ -18,26 +18,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.camera import DIST_NAMES, Camera, pixels_to_rays, project_camera_frame
+from ..geometry.camera import DIST_NAMES, INTRINSIC_PARAMS, Camera, pixels_to_rays, project_camera_frame
 from ..geometry.rotation import rotvec_to_matrix
 
 __all__ = ["calibration_depth_std"]
 
-_INTRINSICS = {"fx": (0,), "fy": (1,), "f": (0, 1), "cx": (2,), "cy": (3,), "skew": (4,)}
 _ROTATION = ("rx", "ry", "rz")
 GRID = (17, 13, 5)  # u, v, rho nodes
 
 
 def _carried(names) -> list[int]:
-    return [k for k, nm in enumerate(names) if nm in _INTRINSICS or nm in DIST_NAMES or nm in _ROTATION]
+    return [k for k, nm in enumerate(names) if nm in INTRINSIC_PARAMS or nm in DIST_NAMES or nm in _ROTATION]
 
 
 def _perturbed(camera: Camera, name: str, delta: float):
     """``(intrinsics (5,), dist5 (5,), rotation (3, 3) left factor)`` with ``name`` moved by
     ``delta`` (rotations in degrees, as in the covariance)."""
     intr, dist5, turn = camera.intrinsics.copy(), camera.dist5.copy(), np.eye(3)
-    if name in _INTRINSICS:
-        intr[list(_INTRINSICS[name])] += delta
+    if name in INTRINSIC_PARAMS:
+        intr[list(INTRINSIC_PARAMS[name])] += delta
     elif name in DIST_NAMES:
         dist5[DIST_NAMES.index(name)] += delta
     else:

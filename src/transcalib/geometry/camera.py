@@ -26,13 +26,16 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["camera_frame", "DIST_MODELS", "DIST_NAMES", "pad_dist", "Camera", "undistort", "project_camera_frame",
+__all__ = ["camera_frame", "DIST_MODELS", "DIST_NAMES", "INTRINSIC_PARAMS", "pad_dist", "Camera", "undistort", "project_camera_frame",
            "project", "pixels_to_rays", "K_from_params"]
 
 #: Distortion models: the OpenCV coefficients each one estimates (the others are 0).
 DIST_MODELS = {"none": (), "radial1": ("k1",), "radial2": ("k1", "k2"), "opencv5": ("k1", "k2", "p1", "p2", "k3")}
 #: OpenCV's order of the five coefficients.
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
+#: The intrinsic parameters a covariance names, as the entries of ``(fx, fy, cx, cy, skew)``
+#: each one moves (``f``: one focal length for square pixels).
+INTRINSIC_PARAMS = {"fx": (0,), "fy": (1,), "f": (0, 1), "cx": (2,), "cy": (3,), "skew": (4,)}
 
 
 def dist_size(model: str) -> int:

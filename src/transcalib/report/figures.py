@@ -455,16 +455,34 @@ def draw_reconstruction(d: dict):
 # --------------------------------------------------------------------------------------
 
 
-def projection_std(cal, grid=(48, 36), uv=None, *, size=None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Projection uncertainty over the image: the standard deviation (px, worst direction)
-    of where a pixel's ray lands, propagated from the covariance of the intrinsics and
-    distortion (a point on the ray at the median scene depth, kept fixed in the camera
-    frame), on a ``grid = (gw, gh)`` over the image ``size`` (default :func:`image_box`).
-    Returns ``(u (gw,), v (gh,), std (gh, gw))`` or None without a covariance."""
-    from ..geometry.camera import DIST_NAMES, project_camera_frame
+#: The frames of :func:`projection_std`: what is held fixed while the calibration varies.
+PROJECTION_FRAMES = ("camera", "robot")
 
+
+def projection_std(cal, grid=(48, 36), uv=None, *, size=None, frame: str = "camera"
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Projection uncertainty over the image: the standard deviation (px, worst direction)
+    of where a point on a pixel's ray, at the median scene depth, projects, propagated
+    from the covariance ``Sigma`` as ``J Sigma J^T`` (``J`` the pixel's derivatives), on a
+    ``grid = (gw, gh)`` over the image ``size`` (default :func:`image_box`).
+
+    ``frame="camera"``: the point is held in the camera frame, so only the intrinsics and
+    distortion move it. ``frame="robot"``: it is held in the robot's frame (the scene's),
+    as when a point given in robot coordinates is projected: the camera's orientation
+    ``rx, ry, rz`` (``x_c <- exp([w]x) x_c``) and, where all three of its directions are
+    determined, its offset in the flange ``t`` (``x_c <- x_c - R dt``) move it too, with
+    their correlations with the intrinsics (mrcal's projection uncertainty, the robot
+    frame as the reference). Neither includes a future view's own robot pose error.
+    Returns ``(u (gw,), v (gh,), std (gh, gw))`` or None without a covariance."""
+    from ..geometry.camera import DIST_NAMES, INTRINSIC_PARAMS, project_camera_frame
+
+    if frame not in PROJECTION_FRAMES:
+        raise ValueError(f"frame must be one of {PROJECTION_FRAMES}, got {frame!r}")
     names = list(cal.param_names)
-    idx = [k for k, nm in enumerate(names) if nm in ("fx", "fy", "cx", "cy", "skew") + DIST_NAMES]
+    carried = set(INTRINSIC_PARAMS) | set(DIST_NAMES)
+    if frame == "robot":
+        carried |= {"rx", "ry", "rz"} | ({"t_x", "t_y", "t_z"} if cal.hand_eye is not None else set())
+    idx = [k for k, nm in enumerate(names) if nm in carried]
     if cal.cov is None or not idx:
         return None
     w, h = size or image_box(cal, uv)
@@ -477,52 +495,88 @@ def projection_std(cal, grid=(48, 36), uv=None, *, size=None) -> tuple[np.ndarra
     depth = np.median((cal.X[some] - C[0]) @ R_cam[0, 2]) if some.size else 1.0
     xc = np.moveaxis(rays * depth, -1, 0)  # (3, gh, gw)
     p = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc, jacobian=True)
-    order = ("fx", "fy", "cx", "cy", "skew")
-    J_intr = p.intrinsic_jacobian(np.eye(5))
-    J = np.stack([J_intr[order.index(names[k])] if names[k] in order else p.J_dist[DIST_NAMES.index(names[k])]
-                  for k in idx], axis=-1)  # (2, gh, gw, p)
+    J = np.stack([_projection_derivative(p, xc, names[k], cal) for k in idx], axis=-1)  # (2, gh, gw, q)
     S = cal.cov[np.ix_(idx, idx)]
     C = np.einsum("a...p,pq,b...q->...ab", J, S, J)  # (gh, gw, 2, 2)
-    return u, v, np.sqrt(np.linalg.eigvalsh(C)[..., -1])
+    return u, v, np.sqrt(np.maximum(np.linalg.eigvalsh(C)[..., -1], 0.0))
+
+
+def _projection_derivative(p, xc: np.ndarray, name: str, cal) -> np.ndarray:
+    """``d pixel / d name`` ``(2, ...)`` of the camera-frame points ``xc (3, ...)``
+    projected as ``p`` (:class:`~transcalib.geometry.camera.Projection`); rotations per
+    degree, as in the covariance."""
+    from ..geometry.camera import DIST_NAMES, INTRINSIC_PARAMS
+
+    if name in INTRINSIC_PARAMS:
+        basis = np.zeros((5, 1))
+        basis[list(INTRINSIC_PARAMS[name])] = 1.0
+        return p.intrinsic_jacobian(basis)[0]
+    if name in DIST_NAMES:
+        return p.J_dist[DIST_NAMES.index(name)]
+    if name in ("rx", "ry", "rz"):  # d x_c = w x x_c, w along one camera axis
+        axis = np.zeros(3)
+        axis[("rx", "ry", "rz").index(name)] = np.radians(1.0)
+        move = np.cross(axis, xc, axis=0)
+    else:  # the offset t in the flange: d x_c = -R dt
+        move = -cal.hand_eye.R.T[:, ("t_x", "t_y", "t_z").index(name)].reshape((3,) + (1,) * (xc.ndim - 1))
+        move = np.broadcast_to(move, xc.shape)
+    return np.einsum("ab...,b...->a...", p.P, move)
 
 
 def uncertainty_data(cal, uv=None, n_points: int = 3000, *, size=None) -> dict | None:
-    """:func:`projection_std` and the observations of at most ``n_points`` points.
+    """:func:`projection_std` in both frames and the observations of at most ``n_points``
+    points.
 
-    Returns ``{"u": (gw,), "v": (gh,), "std": (gh, gw) px, "obs": (k, 2) px}`` or None
-    without a covariance.
+    Returns ``{"u": (gw,), "v": (gh,), "std": {frame: (gh, gw) px}, "obs": (k, 2) px}``
+    (frames :data:`PROJECTION_FRAMES`; ``"robot"`` absent when the covariance has no
+    orientation) or None without a covariance.
     """
-    result = projection_std(cal, uv=uv, size=size)
-    if result is None:
+    maps = {frame: projection_std(cal, uv=uv, size=size, frame=frame) for frame in PROJECTION_FRAMES}
+    if maps["camera"] is None:
         return None
+    if "rx" not in cal.param_names:
+        del maps["robot"]
     obs = observed_pixels(cal, uv)[:, _subsample(np.arange(cal.n_points), n_points)].reshape(-1, 2)
-    u, v, std = result
-    return {"u": u, "v": v, "std": std, "obs": obs[np.isfinite(obs[:, 0])]}
+    u, v, _ = maps["camera"]
+    return {"u": u, "v": v, "std": {frame: m[2] for frame, m in maps.items()}, "obs": obs[np.isfinite(obs[:, 0])]}
+
+
+#: Panel titles of :func:`draw_uncertainty`.
+_FRAME_TITLES = {"camera": "A point held in the camera frame\n(intrinsics and lens)",
+                 "robot": "A point held in the robot frame\n(also the camera's orientation and offset)"}
 
 
 def draw_uncertainty(d: dict | None):
-    """Figure of :func:`uncertainty_data`: colour map, contours at the 10th, 50th and
-    90th percentiles, observations overlaid (a note when there is no covariance)."""
-    fig = _figure(6.4, 4.6, margins=(0.55, 0.95, 0.4, 0.35))
-    ax = fig.add_subplot()
+    """Figure of :func:`uncertainty_data`: one panel per frame on one colour scale,
+    contours at the 10th, 50th and 90th percentiles, observations overlaid (a note when
+    there is no covariance)."""
+    panels = [] if d is None else list(d["std"])
+    width = 0.55 + 5.45 * max(len(panels), 1) + 0.95
+    fig = _figure(width, 4.8, margins=(0.55, 0.95, 0.4, 0.6))
     if d is None:
+        ax = fig.add_subplot()
         ax.text(0.5, 0.5, "no covariance (linear estimate only): no uncertainty map", ha="center", va="center")
         ax.axis("off")
         return fig
-    u, v, std = d["u"], d["v"], d["std"]
+    u, v = d["u"], d["v"]
     du, dv = (u[-1] - u[0]) / max(len(u) - 1, 1), (v[-1] - v[0]) / max(len(v) - 1, 1)
-    im = ax.imshow(std, cmap="magma", interpolation="nearest",  # one cell per grid point, as pcolormesh draws it
-                   extent=(u[0] - du / 2, u[-1] + du / 2, v[-1] + dv / 2, v[0] - dv / 2))
-    if np.ptp(std) > 0:
-        cs = ax.contour(u, v, std, levels=np.unique(np.quantile(std, [0.1, 0.5, 0.9])), colors="w", linewidths=0.7)
-        ax.clabel(cs, fontsize=_SMALL, fmt="%.3g")
-    ax.plot(d["obs"][:, 0], d["obs"][:, 1], ",", color="c", alpha=0.6)
-    ax.set_xlim(u[0], u[-1])
-    ax.set_ylim(v[-1], v[0])
-    ax.set_aspect("equal")
-    _ticks(ax)
-    _colour_scale(fig, im, (1 - 0.8 / 6.4, 0.4 / 4.6, 0.15 / 6.4, 1 - 0.75 / 4.6), "projection std [px]")
-    _title(ax, "Projection uncertainty from the intrinsics' covariance", 10)
+    top = max(float(np.max(std)) for std in d["std"].values())
+    fig.subplots_adjust(wspace=0.12)
+    for k, frame in enumerate(panels):
+        std = d["std"][frame]
+        ax = fig.add_subplot(1, len(panels), k + 1)
+        im = ax.imshow(std, cmap="magma", interpolation="nearest", vmin=0.0, vmax=top,  # one cell per grid point
+                       extent=(u[0] - du / 2, u[-1] + du / 2, v[-1] + dv / 2, v[0] - dv / 2))
+        if np.ptp(std) > 0:
+            cs = ax.contour(u, v, std, levels=np.unique(np.quantile(std, [0.1, 0.5, 0.9])), colors="w", linewidths=0.7)
+            ax.clabel(cs, fontsize=_SMALL, fmt="%.3g")
+        ax.plot(d["obs"][:, 0], d["obs"][:, 1], ",", color="c", alpha=0.6)
+        ax.set_xlim(u[0], u[-1])
+        ax.set_ylim(v[-1], v[0])
+        ax.set_aspect("equal")
+        _ticks(ax)
+        _title(ax, _FRAME_TITLES[frame], 9)
+    _colour_scale(fig, im, (1 - 0.8 / width, 0.4 / 4.8, 0.15 / width, 1 - 1.0 / 4.8), "projection std [px]")
     return fig
 
 
