@@ -213,13 +213,19 @@ def _chunks(results, jobs_list, layout):
         yield [r for r, j in zip(results, jobs_list) if j[0] == layout and j[1] == sr and j[2] == sp]
 
 
-def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def trials_cli(run_trials, out: Path, doc: str, argv=None) -> None:
+    """``--trials N --jobs J``: ``run_trials(N, J, write=...)`` rewriting ``out`` as it goes,
+    the final table printed."""
+    p = argparse.ArgumentParser(description=doc.splitlines()[0])
     p.add_argument("--trials", type=int, default=300)
     p.add_argument("--jobs", type=int, default=2)
     a = p.parse_args(argv)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    sys.stdout.write(run(a.trials, a.jobs, write=OUT.write_text))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout.write(run_trials(a.trials, a.jobs, write=out.write_text))
+
+
+def main(argv=None) -> None:
+    trials_cli(run, OUT, __doc__, argv)
 
 
 if __name__ == "__main__":

@@ -119,6 +119,9 @@ def _model(g) -> None:
     g.add_argument("--no-view-field", action="store_true",
                    help="do not test the residuals for an error field alike over each view's points (by default a "
                         "field the test finds is included in the model-based std; docs/uncertainty.md §7.1)")
+    g.add_argument("--no-session-error", action="store_true",
+                   help="do not test for a robot error common to each session's views (by default, with several "
+                        "sessions, one the test finds is included in the model-based std; docs/uncertainty.md §7.2)")
 
 
 def _robust(g) -> None:
@@ -224,6 +227,7 @@ def build_options(args, size=None):
              "robot_sigma_deg": args.robot_sigma_deg,
              "robot_error": False if args.no_robot_error else True if args.robot_error else None,
              "loss": args.loss, "uncertainty": args.uncertainty, "view_field": False if args.no_view_field else None,
+             "session_error": False if args.no_session_error else None,
              "loss_scale_px": args.loss_scale_px, "estimate_skew": args.estimate_skew or None,
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
@@ -244,6 +248,7 @@ def _check_refinement_options(args, fixed: dict) -> None:
                                         ("--robot-sigma-deg", args.robot_sigma_deg),
                                         ("--robot-error", args.robot_error),
                                         ("--uncertainty", args.uncertainty), ("--no-view-field", args.no_view_field),
+                                        ("--no-session-error", args.no_session_error),
                                         ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
                                         ("--estimate-skew", args.estimate_skew),
                                         ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]

@@ -78,7 +78,7 @@ def summary_text(cal, unit: str, truth: dict | None = None, point_ids=None, uv=N
     n_rec = int(np.isfinite(cal.X[:, 0]).sum())
     lines.append(f"Reprojection RMS: {cal.rms_px:.4f} px; {n_rec} points reconstructed [{unit}]")
     lines += robot_error_lines(cal, unit)
-    lines += uncertainty_lines(cal)
+    lines += uncertainty_lines(cal, unit)
     if cal.inliers is not None:
         tracked, inl = _counts(cal, uv)
         lines.append(f"Inliers: {inl} of {tracked} points seen in 2 or more views")
@@ -130,7 +130,7 @@ def robot_error_lines(cal, unit: str) -> list:
 _RATIO_NAMES = ("fx", "fy", "cx", "cy", "rx", "ry", "rz")
 
 
-def uncertainty_lines(cal) -> list:
+def uncertainty_lines(cal, unit: str = "units") -> list:
     """Which std the summary shows (model-based or sandwich per parameter) and the
     sandwich / model std ratios; [] without :attr:`Calibration.uncertainty`."""
     u = cal.uncertainty
@@ -139,12 +139,12 @@ def uncertainty_lines(cal) -> list:
     names = [k for k in _RATIO_NAMES if k in u.std_model and u.std_model[k] > 0 and np.isfinite(u.std_robust[k])]
     if not names:  # no sandwich (a point alone determines some parameter combination)
         return ["Uncertainty: std model-based (too few points per parameter for the sandwich check of the noise "
-                "model)"] + _view_field_lines(u.view_field)
+                "model)"] + _view_field_lines(u.view_field) + _session_error_lines(u.session_error, unit)
     ratios = ", ".join(f"{k} {u.std_robust[k] / u.std_model[k]:.2f}" for k in names)
     robust = [k for k, v in u.reported.items() if v == "robust" and not k.startswith("robot")]
     which = ("model-based" if not robust else "sandwich for " + ", ".join(robust) + ", model-based for the rest")
     return [f"Uncertainty: std {which}; sandwich / model std: {ratios} (misfit ratio {u.misfit:.2f})"] \
-        + _view_field_lines(u.view_field)
+        + _view_field_lines(u.view_field) + _session_error_lines(u.session_error, unit)
 
 
 def _view_field_lines(vf) -> list:
@@ -155,6 +155,17 @@ def _view_field_lines(vf) -> list:
         return [f"Per-view error field: not found (p = {vf.p_value:.2f})"]
     return [f"Per-view error field: {vf.rms_px:.4f} ± {vf.rms_std_px:.4f} px RMS (p = {vf.p_value:.1e}), "
             "its effect included in the model-based std"]
+
+
+def _session_error_lines(se, unit: str) -> list:
+    """One line on the robot error common to each session: found and in the std, or not."""
+    if se is None:
+        return []
+    if not se.included:
+        return [f"Robot error common to each session: not found (p = {se.p_value:.2f}, {se.n_sessions} sessions)"]
+    return [f"Robot error common to each session: rotation {se.sigma_rot_deg:.3g} deg, position {se.sigma_pos:.3g} "
+            f"{unit} per axis (p = {se.p_value:.1e}, {se.n_sessions} sessions), its effect included in the "
+            "model-based std"]
 
 
 def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:
@@ -205,4 +216,5 @@ def _uncertainty_json(u) -> dict | None:
             "p_value": keep(u.p_value), "dof": keep(u.dof), "misfit": u.misfit, "n_clusters": u.n_clusters,
             "view_field": None if u.view_field is None else {
                 "rms_px": u.view_field.rms_px, "rms_std_px": u.view_field.rms_std_px,
-                "tau_px2": u.view_field.tau_px2, "p_value": u.view_field.p_value, "included": u.view_field.included}}
+                "tau_px2": u.view_field.tau_px2, "p_value": u.view_field.p_value, "included": u.view_field.included},
+            "session_error": None if u.session_error is None else vars(u.session_error).copy()}

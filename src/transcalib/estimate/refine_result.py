@@ -14,7 +14,9 @@ from ..errors import DegenerateError
 from ..geometry.camera import DIST_MODELS, DIST_NAMES, Camera, K_from_params
 from ..geometry.rotation import matrix_to_rotvec
 from ..types import (CalibrateOptions, Calibration, CalibrationStats, HandEye, LinearEstimate, RefineOptions,
-                     RefineStats, RobotError, Uncertainty, ViewFieldEstimate, ViewRotations)
+                     RefineStats, RobotError, SessionErrorEstimate, Uncertainty, ViewFieldEstimate,
+                     ViewRotations)
+from ..types.options import SESSION_TOLERANCE_DEG
 from .bundle import all_residuals, sum_sq
 from .covariance import covariance, sandwich
 from .degeneracy import identifiability_hint
@@ -22,6 +24,7 @@ from .distributions import chi2_sf
 from .layout import Layout, State, complement
 from .robot_error import COMPONENTS
 from .robot_scales import robot_error_on
+from .session_error import session_error
 from .variance_components import MISFIT_ALPHA
 from .view_field import view_field
 
@@ -98,7 +101,8 @@ def _uncertainty(fit, lay: Layout, cv, sigma: float, opts: RefineOptions) -> tup
     names, rule = lay.names(), opts.uncertainty
     scale = np.where(lay.rotation_mask(), np.degrees(1.0), 1.0)  # rotations in degrees
     field, cov_field = _view_field(fit, lay, cv, sigma) if opts.view_field else (None, 0.0)
-    cov_model = (sigma**2 * cv.Sinv + cov_field) * scale[:, None] * scale[None, :]
+    sessions, cov_sessions = _session_error(fit, lay, cv, sigma) if opts.session_error else (None, 0.0)
+    cov_model = (sigma**2 * cv.Sinv + cov_field + cov_sessions) * scale[:, None] * scale[None, :]
     try:
         sw = sandwich(fit.last, lay, fit.data, cv.system, cv.Sinv, None if cv.ok.all() else cv.ok)
         cov_robust, dof = sw.cov * scale[:, None] * scale[None, :], sw.dof
@@ -118,7 +122,8 @@ def _uncertainty(fit, lay: Layout, cv, sigma: float, opts: RefineOptions) -> tup
         cov = cov_model * d[:, None] * d[None, :]
     named = lambda v: {nm: float(x) for nm, x in zip(names, v)}  # noqa: E731
     unc = Uncertainty(_std(cov_model, names), _std(cov_robust, names), cov_robust, named(dof), named(p_value),
-                      {nm: "robust" if r else "model" for nm, r in zip(names, robust)}, misfit, n_clusters, field)
+                      {nm: "robust" if r else "model" for nm, r in zip(names, robust)}, misfit, n_clusters, field,
+                      sessions)
     return unc, cov
 
 
@@ -133,6 +138,21 @@ def _view_field(fit, lay: Layout, cv, sigma: float) -> tuple[ViewFieldEstimate |
     vf = view_field(fit.last, lay, fit.data, cv.system, cv.Sinv, sigma, box, None if cv.ok.all() else cv.ok)
     est = ViewFieldEstimate(vf.rms_px, vf.rms_std_px, vf.tau, vf.p_value, vf.detected)
     return est, vf.covariance() if vf.detected else 0.0
+
+
+def _session_error(fit, lay: Layout, cv, sigma: float) -> tuple[SessionErrorEstimate | None, np.ndarray | float]:
+    """The robot error common to each session (:mod:`.session_error`) and its share of
+    the model's covariance (unit px^2, 0 unless the test finds it)."""
+    se = session_error(fit.last, lay, fit.data, cv.system, cv.Sinv, sigma, SESSION_TOLERANCE_DEG)
+    if se is None:
+        return None, 0.0
+    scale = {"rot": np.degrees(1.0), "pos": 1.0}
+    sd = {c: float(np.sqrt(se.tau.get(c, 0.0)) * scale[c]) for c in scale}
+    sd_std = {c: float(np.sqrt(se.tau_cov[c]) * scale[c] ** 2 / (2 * sd[c])) if sd[c] > 0 else float("nan")
+              for c in scale}
+    est = SessionErrorEstimate(sd["rot"], sd_std["rot"], sd["pos"], sd_std["pos"], se.p_value, se.n_sessions,
+                               se.detected)
+    return est, se.covariance() if se.detected else 0.0
 
 
 def _residuals(pb, fit, fitter) -> tuple[np.ndarray, float]:

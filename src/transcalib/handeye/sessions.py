@@ -16,12 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..types.options import SESSION_TOLERANCE_DEG
 from ..geometry.rotation import central_mean_rotation, rotation_angle_deg
 
 __all__ = ["SessionGrouping", "group_sessions", "SESSION_TOLERANCE_DEG"]
 
-#: Default largest angle (degrees) between two views of one session.
-SESSION_TOLERANCE_DEG = 1.0
 
 
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:

@@ -225,19 +225,26 @@ def _single_view(rng, centre, distance_mm: float, R_X, t_X, tilt_deg: float):
     return R, C - R @ t_X
 
 
-def with_robot_error(scene: SessionScene, sigma_rot_deg: float, sigma_pos: float, rng=None):
+def with_robot_error(scene: SessionScene, sigma_rot_deg: float, sigma_pos: float, rng=None, *,
+                     session_rot_deg: float = 0.0, session_pos: float = 0.0):
     """The scene taken by a robot with pose errors: the recorded poses stay the scene's (what
     the robot reports), the images become those of the true poses ``R_i exp([delta_i]x)``,
     ``T_i + eps_i`` (the reported pose times the error, :mod:`transcalib.estimate.robot_error`;
     the scene's pixel noise kept; points it does not see, or that leave the image, unseen),
     with ``delta_i`` (rad) of per-axis std ``sigma_rot_deg`` degrees and ``eps_i`` of per-axis
-    std ``sigma_pos`` (mm), independent per view. Eye-to-hand the error is the flange's (the
-    recorded robot poses). Inside one orientation the images so turn with the errors while
-    the recorded orientations agree, as on a real robot. Returns ``(scene, errors (n_views,
-    6))``."""
+    std ``sigma_pos`` (mm), independent per view, plus a part common to each session's
+    views of per-axis std ``session_rot_deg`` and ``session_pos`` (a robot whose error
+    follows its arm configuration, which a session's small moves hardly change; drawn
+    after the per-view part, so that without it a seed gives the same errors as before).
+    Eye-to-hand the error is the flange's (the recorded robot poses). Inside one
+    orientation the images so turn with the errors while the recorded orientations agree,
+    as on a real robot. Returns ``(scene, errors (n_views, 6))``."""
     from ..estimate.robot_error import perturb_poses, sample_errors
 
     errors = sample_errors(len(scene.T), sigma_rot_deg, sigma_pos, rng)
+    if session_rot_deg or session_pos:
+        sessions = np.asarray(scene.session_of_view)
+        errors = errors + sample_errors(sessions.max() + 1, session_rot_deg, session_pos, rng)[sessions]
     R_true, T_true = perturb_poses(scene.R, scene.T, errors)
     true = replace(scene, R=R_true, T=T_true)
     uv_true, unseen = _observe(scene.K, true.camera_rotations(), true.camera_centres(), scene.X, scene.dist,

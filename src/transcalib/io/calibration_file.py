@@ -209,12 +209,14 @@ def _plain_field(v):
 
 
 def _estimates_from_json(doc: dict) -> dict:
-    from ..types import HandEye, RobotError, Uncertainty, ViewFieldEstimate, ViewRotations
+    from ..types import HandEye, RobotError, SessionErrorEstimate, Uncertainty, ViewFieldEstimate, ViewRotations
 
     d = _untagged(doc)
     vr, he, re, un = d["view_rotations"], d["hand_eye"], d.get("robot_error"), d.get("uncertainty")
     if un is not None and un.get("view_field") is not None:
         un = {**un, "view_field": ViewFieldEstimate(**un["view_field"])}
+    if un is not None and un.get("session_error") is not None:
+        un = {**un, "session_error": SessionErrorEstimate(**un["session_error"])}
     return {"T_std": d["T_std"], "flange_rotations": d["flange_rotations"],
             "robot_error": None if re is None else RobotError(**re),
             "uncertainty": None if un is None else Uncertainty(**un),

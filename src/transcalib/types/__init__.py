@@ -24,9 +24,11 @@ from .options import (FIXABLE, INTRINSIC_NAMES, LOSSES, MIN_SUBSET_POINTS, SETUP
 from .poses import Poses
 from .progress import ProgressEvent, report
 from .results import (Calibration, CalibrationStats, DistortionStep, HandEye, LinearEstimate, RansacStats,
-                      RefineStats, RobotError, Uncertainty, ViewFieldEstimate, ViewRotations)
+                      RefineStats, RobotError, SessionErrorEstimate, Uncertainty, ViewFieldEstimate,
+                      ViewRotations)
 
 __all__ = ["TranscalibError", "InputError", "DegenerateError", "MirroredError", "Diagnostic", "RansacOptions",
            "RefineOptions", "CalibrateOptions", "LinearEstimate", "Calibration", "CalibrationStats", "RansacStats",
-           "RefineStats", "DistortionStep", "ViewRotations", "RobotError", "Uncertainty", "ViewFieldEstimate", "HandEye", "Poses", "SETUPS", "Camera",
+           "RefineStats", "DistortionStep", "ViewRotations", "RobotError", "Uncertainty", "ViewFieldEstimate",
+           "SessionErrorEstimate", "HandEye", "Poses", "SETUPS", "Camera",
            "ProgressEvent", "report", "INTRINSIC_NAMES", "FIXABLE", "LOSSES", "SUBSET_POINTS", "MIN_SUBSET_POINTS"]

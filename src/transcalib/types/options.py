@@ -33,6 +33,10 @@ def _positive(name: str, value, *, allow_none: bool = False) -> None:
         raise InputError(f"{name} must be a positive number, got {value!r}")
 
 
+#: Default largest angle (degrees) between the flange orientations of two views of one session.
+SESSION_TOLERANCE_DEG = 1.0
+
+
 @dataclass(frozen=True)
 class RansacOptions:
     """Options of the robust (RANSAC) stage.
@@ -144,6 +148,12 @@ class RefineOptions:
         likelihood-ratio test finds it (5 %), include its effect in the model-based
         covariance (:mod:`transcalib.estimate.view_field`; docs/uncertainty.md §7.1).
         The estimate itself does not change. False: the model without it.
+    session_error : bool
+        With several sessions and the robot error modelled per view, test for a part of
+        it common to each session's views and, where the likelihood-ratio test finds it
+        (5 %), include its effect in the model-based covariance
+        (:mod:`transcalib.estimate.session_error`; docs/uncertainty.md §7.2). The
+        estimate itself does not change. False: the model without it.
     """
 
     distortion: str = "auto"
@@ -163,10 +173,12 @@ class RefineOptions:
     robot_sigma_pos: float | None = None
     uncertainty: str = "auto"
     view_field: bool = True
+    session_error: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.view_field, (bool, np.bool_)):
-            raise InputError(f"view_field must be True or False, got {self.view_field!r}")
+        for name in ("view_field", "session_error"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if self.uncertainty not in UNCERTAINTIES:
             raise InputError(f"uncertainty must be one of {', '.join(UNCERTAINTIES)}, got {self.uncertainty!r}")
         if self.distortion not in ("auto", *DIST_MODELS):
@@ -318,7 +330,7 @@ class CalibrateOptions:
     unit: str = "units"
     subset_points: int | None = SUBSET_POINTS
     setup: str = "eye-in-hand"
-    session_tolerance_deg: float = 1.0
+    session_tolerance_deg: float = SESSION_TOLERANCE_DEG
 
     def __post_init__(self):
         if self.setup not in SETUPS:

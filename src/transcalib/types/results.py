@@ -270,6 +270,40 @@ class ViewFieldEstimate:
 
 
 @dataclass(frozen=True, eq=False)
+class SessionErrorEstimate:
+    """The robot error common to each session's views, as the per-view errors show it
+    (:mod:`transcalib.estimate.session_error`; docs/uncertainty.md §7.2).
+
+    Attributes
+    ----------
+    sigma_rot_deg, sigma_pos : float
+        Per-axis std of a session's common rotation (degrees) and position (robot
+        units) error; 0 where not found or not modelled per view.
+    sigma_rot_std_deg, sigma_pos_std : float
+        Their std (delta method; NaN at 0).
+    p_value : float
+        Likelihood-ratio test of no common error.
+    n_sessions : int
+        Sessions of two views or more.
+    included : bool
+        Whether the model-based covariance includes their effect (the test at 5 %).
+    """
+
+    sigma_rot_deg: float
+    sigma_rot_std_deg: float
+    sigma_pos: float
+    sigma_pos_std: float
+    p_value: float
+    n_sessions: int
+    included: bool
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, SessionErrorEstimate) and _same_fields(self, other)
+
+    __hash__ = None
+
+
+@dataclass(frozen=True, eq=False)
 class Uncertainty:
     """The model-based and the cluster-robust (sandwich) uncertainty of a refined
     calibration, and which one :attr:`Calibration.std` reports
@@ -302,6 +336,9 @@ class Uncertainty:
     view_field : ViewFieldEstimate or None
         The per-view error field the residuals show (None: not tested,
         ``RefineOptions.view_field=False``).
+    session_error : SessionErrorEstimate or None
+        The robot error common to each session (None: not measurable: one orientation,
+        fewer than two sessions of two views, no per-view robot error in the model).
     """
 
     std_model: Mapping
@@ -313,6 +350,7 @@ class Uncertainty:
     misfit: float
     n_clusters: int
     view_field: ViewFieldEstimate | None = None
+    session_error: SessionErrorEstimate | None = None
 
     def __post_init__(self):
         _freeze(self, arrays=("cov_robust",), mappings=("std_model", "std_robust", "dof", "p_value", "reported"))

@@ -1,0 +1,145 @@
+"""The robot's pose error common to a session's views: a variance component the covariance takes in.
+
+A robot errs by how far its arm configuration is from where it was calibrated
+(docs/uncertainty.md §1). Inside a session of small translations the configuration
+hardly changes, so much of a view's error is its session's: with several sessions the
+per-view model (:mod:`.robot_error`) takes that part for independent errors, and the
+std of the hand-eye pose covers a third of its scatter (§1: 0.1 deg / 1 mm per session
+and 0.02 deg / 0.2 mm per view, three sessions). The model ::
+
+    e_i = e'_i + b_s(i),    e'_i ~ N(0, sigma_c^2 I),   b_s ~ N(0, tau_c I)   (c = rot, pos)
+
+``b_s`` the error of session ``s`` (three rotation and three position coordinates),
+shared by its views. Only sessions of two views or more carry one (a single view's
+error is its own), and it is measured only with the per-view components in the model
+(their columns carry it: ``b_s`` moves the data as the sum of its views' errors). The
+fit does not estimate the ``b_s``; they move its estimate by ``G b``, ``G = S^-1 S_cb``,
+so ::
+
+    cov = sigma^2 S^-1 + sum_c tau_c G D_c G^T                           (1)
+
+as for the views' error fields (:mod:`.view_field`, whose likelihood this shares). With
+``A`` the sum over each session's views of their error columns, the coefficients' data
+information is ``S_bb = A^T S_d A``, ``S_cb = S_d A`` (``S_d`` the reduced information
+without the per-view errors' prior), their reduced score ``g = A^T b_d - S_cb^T S^-1 b``
+(``b_d = b + w^2 e`` the data's part of the right-hand side: the prior added ``-w^2
+e``), ``E g g^T = sigma^2 Q + sum_c tau_c Q D_c Q``, ``Q = S_bb - S_cb^T S^-1 S_cb``.
+The ``tau_c`` by maximum likelihood on ``Q``'s range, the likelihood-ratio test of
+``tau = 0`` (two components on the boundary). With one orientation there is one
+session, whose error the camera's orientation and the points' origin take up whole:
+nothing to measure, and nothing it biases beyond the camera's pose in that session.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .distributions import chi2_sf
+from .robot_error import COMPONENTS
+from .view_field import ABSORBED_SHARE, fit_components
+
+__all__ = ["SessionError", "session_error", "session_groups", "SESSION_ALPHA"]
+
+#: Level of the likelihood-ratio test that takes the sessions' errors into the covariance.
+SESSION_ALPHA = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class SessionError:
+    """The robot error common to each session (module docstring).
+
+    Attributes
+    ----------
+    tau : dict component -> float
+        Variance of each coordinate of a session's error (rad^2, unit^2).
+    tau_cov : dict component -> float
+        Its variance (inverse Fisher information; 0 at 0).
+    p_value : float
+        Likelihood-ratio test of ``tau = 0``.
+    n_sessions : int
+        Sessions of two views or more.
+    G : (p, 3 K n_sessions) float
+        ``S^-1 S_cb``: the global parameters' response to each session error coordinate.
+    """
+
+    tau: dict
+    tau_cov: dict
+    p_value: float
+    n_sessions: int
+    G: np.ndarray
+
+    @property
+    def detected(self) -> bool:
+        return bool(self.p_value < SESSION_ALPHA)
+
+    def covariance(self) -> np.ndarray:
+        """``sum_c tau_c G D_c G^T`` of eq. (1), unit px^2 like ``sigma^2 S^-1``."""
+        w = np.repeat([self.tau[c] for c in self.tau], 3 * self.n_sessions)
+        return (self.G * w) @ self.G.T
+
+
+def session_groups(F: np.ndarray, tolerance_deg: float) -> list:
+    """Views whose flange rotations ``F (V, 3, 3)`` agree within ``tolerance_deg`` (each
+    joins the first session whose first view it agrees with): the index arrays of the
+    sessions of two views or more."""
+    first, members = [], []
+    for i, Fi in enumerate(F):
+        for k, j in enumerate(first):
+            cos = np.clip(0.5 * (np.trace(F[j] @ Fi.T) - 1.0), -1.0, 1.0)
+            if np.degrees(np.arccos(cos)) < tolerance_deg:
+                members[k].append(i)
+                break
+        else:
+            first.append(i)
+            members.append([i])
+    return [np.array(m) for m in members if len(m) >= 2]
+
+
+def session_error(state, lay, data, red, Sinv: np.ndarray, sigma: float, tolerance_deg: float
+                  ) -> SessionError | None:
+    """The sessions' common errors at the solution ``state`` (module docstring), or None
+    where they cannot be measured: one orientation, fewer than two sessions of two views,
+    or no per-view robot error in the model.
+
+    Parameters
+    ----------
+    red, Sinv : the reduced system at the solution (the priors in it) and ``S^-1`` (p, p).
+    sigma : float
+        The pixel noise per coordinate (px).
+    tolerance_deg : float
+        Views whose flange rotations agree within it form a session.
+    """
+    if state.F is None or not lay.robot or not sigma > 0:
+        return None
+    groups = session_groups(state.F, tolerance_deg)
+    if len(groups) < 2:
+        return None
+    comps = [c for c in COMPONENTS if c in lay.robot]
+    A = np.zeros((lay.size, 3 * len(comps) * len(groups)))
+    S_d, b_d = red.S.copy(), red.rhs.copy()
+    for c, comp in enumerate(comps):
+        cols = lay.robot_columns(comp)  # (V, 3)
+        w2 = data.robot_weight[COMPONENTS.index(comp)] ** 2
+        S_d[cols.ravel(), cols.ravel()] -= w2  # the data's information alone
+        if state.E is not None:
+            b_d[cols.ravel()] += w2 * state.E[:, slice(0, 3) if comp == "rot" else slice(3, 6)].ravel()
+        for s, views in enumerate(groups):
+            for a in range(3):
+                A[cols[views, a], (c * len(groups) + s) * 3 + a] = 1.0
+    S_cb = S_d @ A
+    G = Sinv @ S_cb
+    g = A.T @ b_d - S_cb.T @ (Sinv @ red.rhs)
+    Q = A.T @ S_d @ A - S_cb.T @ G
+    lam, vec = np.linalg.eigh(0.5 * (Q + Q.T))
+    keep = lam > ABSORBED_SHARE * max(np.median(np.diag(A.T @ S_d @ A)), 1e-300)
+    zero = {c: 0.0 for c in comps}
+    if not keep.any():
+        return SessionError(zero, dict(zero), 1.0, len(groups), G)
+    P = vec[:, keep] * lam[keep]
+    of = np.repeat(np.arange(len(comps)), 3 * len(groups))
+    parts = [P[of == c].T @ P[of == c] for c in range(len(comps))]
+    tau, tau_cov, lr = fit_components(vec[:, keep].T @ g, lam[keep], parts, sigma**2)
+    p = float(chi2_sf(lr, 1) / 2 + (chi2_sf(lr, 2) / 4 if len(comps) == 2 else 0.0)) if lr > 0 else 1.0
+    return SessionError(dict(zip(comps, tau)), dict(zip(comps, np.diag(tau_cov))), p, len(groups), G)
