@@ -4,8 +4,8 @@ A robot errs by how far its arm configuration is from where it was calibrated
 (docs/uncertainty.md §1). Inside a session of small translations the configuration
 hardly changes, so much of a view's error is its session's: with several sessions the
 per-view model (:mod:`.robot_error`) takes that part for independent errors, and the
-std of the hand-eye pose covers a third of its scatter (§1: 0.1 deg / 1 mm per session
-and 0.02 deg / 0.2 mm per view, three sessions). The model ::
+std of the hand-eye offset covers a third to a half of its scatter (§7.2: 0.1 deg / 1 mm
+per session and 0.02 deg / 0.2 mm per view, three sessions). The model ::
 
     e_i = e'_i + b_s(i),    e'_i ~ N(0, sigma_c^2 I),   b_s ~ N(0, tau_c I)   (c = rot, pos)
 
@@ -24,8 +24,9 @@ information is ``S_bb = A^T S_d A``, ``S_cb = S_d A`` (``S_d`` the reduced infor
 without the per-view errors' prior), their reduced score ``g = A^T b_d - S_cb^T S^-1 b``
 (``b_d = b + w^2 e`` the data's part of the right-hand side: the prior added ``-w^2
 e``), ``E g g^T = sigma^2 Q + sum_c tau_c Q D_c Q``, ``Q = S_bb - S_cb^T S^-1 S_cb``.
-The ``tau_c`` by maximum likelihood on ``Q``'s range, the likelihood-ratio test of
-``tau = 0`` (two components on the boundary). With one orientation there is one
+On ``Q``'s range the likelihood-ratio test of ``tau = 0`` (two components on the
+boundary) decides; where it finds them, the ``tau_c`` in (1) are their mean over the
+likelihood (:func:`posterior_mean`), not its maximum. With one orientation there is one
 session, whose error the camera's orientation and the points' origin take up whole:
 nothing to measure, and nothing it biases beyond the camera's pose in that session.
 """
@@ -38,12 +39,14 @@ import numpy as np
 
 from .distributions import chi2_sf
 from .robot_error import COMPONENTS
-from .view_field import ABSORBED_SHARE, fit_components
+from .view_field import ABSORBED_SHARE, fit_components, log_likelihood
 
 __all__ = ["SessionError", "session_error", "session_groups", "SESSION_ALPHA"]
 
 #: Level of the likelihood-ratio test that takes the sessions' errors into the covariance.
 SESSION_ALPHA = 0.05
+#: Nodes per component of the grid :func:`posterior_mean` averages over.
+GRID_NODES = 31
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,7 +120,28 @@ def session_error(state, lay, data, red, Sinv: np.ndarray, sigma: float, toleran
     if len(groups) < 2:
         return None
     comps = [c for c in COMPONENTS if c in lay.robot]
-    A = np.zeros((lay.size, 3 * len(comps) * len(groups)))
+    G, g, Q, scale = _session_score(state, lay, data, red, Sinv, groups, comps)
+    lam, vec = np.linalg.eigh(0.5 * (Q + Q.T))
+    keep = lam > ABSORBED_SHARE * scale
+    zero = {c: 0.0 for c in comps}
+    if not keep.any():
+        return SessionError(zero, dict(zero), 1.0, len(groups), G)
+    P = vec[:, keep] * lam[keep]  # on Q's range: Cov(V^T g) = s2 diag(lam) + sum_c tau_c P^T D_c P
+    of = np.repeat(np.arange(len(comps)), 3 * len(groups))
+    parts = [P[of == c].T @ P[of == c] for c in range(len(comps))]
+    z = vec[:, keep].T @ g
+    tau, tau_cov, lr = fit_components(z, lam[keep], parts, sigma**2)
+    p = float(chi2_sf(lr, 1) / 2 + (chi2_sf(lr, 2) / 4 if len(comps) == 2 else 0.0)) if lr > 0 else 1.0
+    if p < SESSION_ALPHA:  # a few sessions' errors: the covariance averaged over the scales' likelihood
+        tau = posterior_mean(z, lam[keep], parts, sigma**2)
+    return SessionError(dict(zip(comps, tau)), dict(zip(comps, np.diag(tau_cov))), p, len(groups), G)
+
+
+def _session_score(state, lay, data, red, Sinv, groups: list, comps: list):
+    """``(G, g, Q, scale)`` of the module docstring for the sessions ``groups`` and the
+    per-view components ``comps``; ``scale`` the median information of a session error
+    coordinate before the model takes its part."""
+    A = np.zeros((lay.size, 3 * len(comps) * len(groups)))  # a session's coordinate -> its views' columns
     S_d, b_d = red.S.copy(), red.rhs.copy()
     for c, comp in enumerate(comps):
         cols = lay.robot_columns(comp)  # (V, 3)
@@ -129,17 +153,22 @@ def session_error(state, lay, data, red, Sinv: np.ndarray, sigma: float, toleran
             for a in range(3):
                 A[cols[views, a], (c * len(groups) + s) * 3 + a] = 1.0
     S_cb = S_d @ A
+    S_bb = A.T @ S_cb
     G = Sinv @ S_cb
     g = A.T @ b_d - S_cb.T @ (Sinv @ red.rhs)
-    Q = A.T @ S_d @ A - S_cb.T @ G
-    lam, vec = np.linalg.eigh(0.5 * (Q + Q.T))
-    keep = lam > ABSORBED_SHARE * max(np.median(np.diag(A.T @ S_d @ A)), 1e-300)
-    zero = {c: 0.0 for c in comps}
-    if not keep.any():
-        return SessionError(zero, dict(zero), 1.0, len(groups), G)
-    P = vec[:, keep] * lam[keep]
-    of = np.repeat(np.arange(len(comps)), 3 * len(groups))
-    parts = [P[of == c].T @ P[of == c] for c in range(len(comps))]
-    tau, tau_cov, lr = fit_components(vec[:, keep].T @ g, lam[keep], parts, sigma**2)
-    p = float(chi2_sf(lr, 1) / 2 + (chi2_sf(lr, 2) / 4 if len(comps) == 2 else 0.0)) if lr > 0 else 1.0
-    return SessionError(dict(zip(comps, tau)), dict(zip(comps, np.diag(tau_cov))), p, len(groups), G)
+    return G, g, S_bb - S_cb.T @ G, max(float(np.median(np.diag(S_bb))), 1e-300)
+
+
+def posterior_mean(z: np.ndarray, lam: np.ndarray, parts: list, s2: float, n: int = GRID_NODES) -> np.ndarray:
+    """The mean of ``tau_k = s_k^2`` over the likelihood of :func:`.view_field.fit_components`'
+    model with a flat prior on each std ``s_k >= 0``, on a grid of ``n`` nodes per
+    component up to three times the std each one alone would be fitted with. A few
+    sessions give ``tau`` from a few numbers: its likelihood is skewed, and the
+    covariance at its maximum is too small on average (R_X's std at 0.57-0.62 of its
+    scatter, 300 trials; 0.78-0.85 with the mean, docs/uncertainty.md §7.2)."""
+    alone = [fit_components(z, lam, [A], s2)[0][0] for A in parts]
+    axes = [np.linspace(0.0, 3.0 * np.sqrt(max(a, 1e-300)), n) for a in alone]
+    nodes = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+    ll = np.array([log_likelihood(z, lam, parts, s2, s**2) for s in nodes])
+    w = np.exp(ll - ll.max())
+    return (w[:, None] * nodes**2).sum(axis=0) / w.sum()

@@ -43,7 +43,8 @@ from .covariance import _prior_rows
 from .distributions import chi2_sf
 from .schur import Reduced, one_blas_thread
 
-__all__ = ["ViewField", "view_field", "fit_components", "legendre_basis", "N_BASIS", "DEGREES", "FIELD_ALPHA"]
+__all__ = ["ViewField", "view_field", "fit_components", "log_likelihood", "legendre_basis", "N_BASIS", "DEGREES",
+           "FIELD_ALPHA"]
 
 #: Basis functions per image coordinate (degree 1 and 2 in two variables) and their degrees.
 N_BASIS = 5
@@ -188,6 +189,11 @@ def fit_components(z: np.ndarray, lam: np.ndarray, parts: list, s2: float, itera
     if on.any():
         cov[np.ix_(on, on)] = np.linalg.pinv(F[np.ix_(on, on)], rcond=1e-12, hermitian=True)
     return tau, cov, max(2.0 * (ll - base), 0.0)
+
+
+def log_likelihood(z, lam, parts, s2, tau) -> float:
+    """The log-likelihood of :func:`fit_components`' model at ``tau`` (up to a constant)."""
+    return _loglik(z, lam, parts, s2, tau)[0]
 
 
 def _loglik(z, lam, parts, s2, tau):

@@ -278,9 +278,11 @@ class SessionErrorEstimate:
     ----------
     sigma_rot_deg, sigma_pos : float
         Per-axis std of a session's common rotation (degrees) and position (robot
-        units) error; 0 where not found or not modelled per view.
+        units) error: where found, the root of the variance's mean over its likelihood
+        (what the covariance takes in), else its maximum-likelihood value; 0 where
+        neither shows or the component is not modelled per view.
     sigma_rot_std_deg, sigma_pos_std : float
-        Their std (delta method; NaN at 0).
+        Their std at the maximum (Fisher information, delta method; NaN at 0).
     p_value : float
         Likelihood-ratio test of no common error.
     n_sessions : int
