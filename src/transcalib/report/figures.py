@@ -543,7 +543,7 @@ def uncertainty_data(cal, uv=None, n_points: int = 3000, *, size=None) -> dict |
 
 #: Panel titles of :func:`draw_uncertainty`.
 _FRAME_TITLES = {"camera": "A point held in the camera frame\n(intrinsics and lens)",
-                 "robot": "A point held in the robot frame\n(also the camera's orientation and offset)"}
+                 "robot": "A point held in the scene's (robot) frame\n(also the camera's orientation and offset)"}
 
 
 def draw_uncertainty(d: dict | None):
