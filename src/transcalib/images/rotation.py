@@ -304,4 +304,6 @@ def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, nam
         "tracker needs one camera orientation per session. If the robot turned the wrist between groups of "
         "views, give the flange orientations (a session per orientation): "
         "transcalib.images.track(images, T=T, rotations=R), or the poses file's orientation columns; "
-        "otherwise check that the robot did not rotate")
+        "otherwise check that the robot did not rotate. A robot whose orientation errs by ~0.2 deg per axis "
+        "turns a view by up to ~1 deg: for angles just above the tolerance, a larger one "
+        "(--session-tolerance-deg, session_tolerance_deg) takes such views in")
