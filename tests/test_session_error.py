@@ -37,26 +37,23 @@ def test_session_groups_join_views_within_the_tolerance():
 
 def test_a_common_session_error_widens_the_hand_eye_std_to_its_scatter():
     """With each session's error mostly common (0.1 deg / 1 mm per session, 0.02 deg / 0.2
-    mm per view) the per-view model's std of the hand-eye offset covers a third of its
-    scatter; the sessions' error, found by the test, widens it towards the scatter (150
-    trials, benchmarks/bench_robot_error.py: reported / empirical std 0.28-0.58 -> 0.86-1.00).
-    The pooled RMS z of t_x, t_y, t_z over the trials, both ways (the estimate the same)."""
-    z = {True: [], False: []}
-    found = 0
+    mm per view) the per-view model's std of the hand-eye offset covers a third to a half
+    of its scatter (300 trials, benchmarks/bench_session_error.py: pooled RMS z about 3);
+    the sessions' error, found by the test, widens it to the scatter or beyond (std ratio
+    1.34-1.47 there). The pooled RMS z of t_x, t_y, t_z over the trials; one trial also
+    without the component: the same estimate, a std at least 1.5 times smaller."""
+    z = []
     for seed in range(TRIALS):
-        for on in (True, False):
-            cal, sc = _fit(seed, (0.02, 0.2), (0.1, 1.0), session_error=on)
-            t_std = np.sqrt(np.diag(cal.hand_eye.t_cov))
-            z[on] += list((cal.hand_eye.t - sc.t_X) / t_std)
-            if on:
-                se = cal.uncertainty.session_error
-                found += se.included
-                assert se.n_sessions == 3
-            else:
-                assert cal.uncertainty.session_error is None
-    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in z.items()}
-    assert found >= TRIALS - 1
-    assert rms[False] > 2.5 and rms[True] < 0.6 * rms[False], rms
+        cal, sc = _fit(seed, (0.02, 0.2), (0.1, 1.0))
+        se = cal.uncertainty.session_error
+        assert se.included and se.n_sessions == 3
+        z += list((cal.hand_eye.t - sc.t_X) / np.sqrt(np.diag(cal.hand_eye.t_cov)))
+    assert float(np.sqrt(np.mean(np.square(z)))) < 1.6
+    without, _ = _fit(0, (0.02, 0.2), (0.1, 1.0), session_error=False)
+    with_, _ = _fit(0, (0.02, 0.2), (0.1, 1.0))
+    assert without.uncertainty.session_error is None
+    np.testing.assert_allclose(without.hand_eye.t, with_.hand_eye.t, atol=1e-9)
+    assert np.all(np.diag(with_.hand_eye.t_cov) > 1.5**2 * np.diag(without.hand_eye.t_cov))  # seed 0: 1.9-2.7 x
 
 
 def test_per_view_errors_alone_are_not_taken_for_a_sessions():
