@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.rotation import group_by_orientation
 from .distributions import chi2_sf
 from .robot_error import COMPONENTS
 from .view_field import ABSORBED_SHARE, fit_components, log_likelihood
@@ -84,20 +85,11 @@ class SessionError:
 
 
 def session_groups(F: np.ndarray, tolerance_deg: float) -> list:
-    """Views whose flange rotations ``F (V, 3, 3)`` agree within ``tolerance_deg`` (each
-    joins the first session whose first view it agrees with): the index arrays of the
-    sessions of two views or more."""
-    first, members = [], []
-    for i, Fi in enumerate(F):
-        for k, j in enumerate(first):
-            cos = np.clip(0.5 * (np.trace(F[j] @ Fi.T) - 1.0), -1.0, 1.0)
-            if np.degrees(np.arccos(cos)) < tolerance_deg:
-                members[k].append(i)
-                break
-        else:
-            first.append(i)
-            members.append([i])
-    return [np.array(m) for m in members if len(m) >= 2]
+    """The index arrays of the sessions of two views or more: views whose flange
+    rotations ``F (V, 3, 3)`` agree within ``tolerance_deg``, grouped as the pipeline
+    groups them (:func:`~transcalib.geometry.rotation.group_by_orientation`)."""
+    of = group_by_orientation(F, tolerance_deg)
+    return [v for v in (np.flatnonzero(of == s) for s in range(of.max() + 1)) if len(v) >= 2]
 
 
 def session_error(state, lay, data, red, Sinv: np.ndarray, sigma: float, tolerance_deg: float

@@ -19,7 +19,8 @@ import numpy as np
 from ..errors import MirroredError
 
 __all__ = ["rotvec_to_matrix", "matrix_to_rotvec", "quaternion_to_matrix", "matrix_to_quaternion",
-           "euler_zyx_to_matrix", "skew", "rotation_angle_deg", "rotation_defect", "ROTATION_TOL", "rq_decompose", "nearest_rotation", "central_mean_rotation"]
+           "euler_zyx_to_matrix", "skew", "rotation_angle_deg", "rotation_defect", "ROTATION_TOL", "rq_decompose", "nearest_rotation", "central_mean_rotation",
+           "group_by_orientation"]
 
 #: Largest ``max |R R^T - I|`` of an input matrix accepted as a rotation.
 ROTATION_TOL = 1e-6
@@ -201,6 +202,21 @@ def central_mean_rotation(R: np.ndarray, tolerance_deg: float) -> tuple[np.ndarr
     centre = int(np.argmin(np.median(angles, axis=1)))
     near = angles[centre] <= tolerance_deg
     return nearest_rotation(R[near].sum(axis=0)), near
+
+
+def group_by_orientation(R: np.ndarray, tolerance_deg: float) -> np.ndarray:
+    """``(n,)`` group of each rotation of ``R (n, 3, 3)``, greedily in order: a rotation
+    joins the group whose first member is nearest, if within ``tolerance_deg``, else it
+    opens a new group (numbered in order of their first members)."""
+    firsts, of = [], np.empty(len(R), int)
+    for i in range(len(R)):
+        angles = rotation_angle_deg(np.swapaxes(R[firsts], -1, -2) @ R[i]) if firsts else np.zeros(0)
+        k = int(np.argmin(angles)) if firsts else -1
+        if k < 0 or angles[k] > tolerance_deg:
+            firsts.append(i)
+            k = len(firsts) - 1
+        of[i] = k
+    return of
 
 
 def rotation_defect(R: np.ndarray) -> np.ndarray:

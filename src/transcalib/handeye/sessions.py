@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..types.options import SESSION_TOLERANCE_DEG
-from ..geometry.rotation import central_mean_rotation, rotation_angle_deg
+from ..geometry.rotation import central_mean_rotation, group_by_orientation, rotation_angle_deg
 
 __all__ = ["SessionGrouping", "group_sessions", "SESSION_TOLERANCE_DEG"]
 
@@ -111,15 +111,8 @@ def group_sessions(R: np.ndarray, tolerance_deg: float = SESSION_TOLERANCE_DEG, 
         labels = tuple(dict.fromkeys(session))
         of_view = np.array([labels.index(s) for s in session])
     else:
-        firsts, of_view = [], np.empty(n, int)
-        for i in range(n):
-            angles = _angle_deg(R[firsts], R[i]) if firsts else np.zeros(0)
-            k = int(np.argmin(angles)) if firsts else -1
-            if k < 0 or angles[k] > tolerance_deg:
-                firsts.append(i)
-                k = len(firsts) - 1
-            of_view[i] = k
-        labels = tuple(str(k) for k in range(len(firsts)))
+        of_view = group_by_orientation(R, tolerance_deg)
+        labels = tuple(str(k) for k in range(of_view.max() + 1 if n else 0))
     # each session's orientation: a mean that a stray view does not pull
     rotations = np.stack([central_mean_rotation(R[of_view == s], tolerance_deg)[0] for s in range(len(labels))])
     angle = _angle_deg(rotations[of_view], R)
