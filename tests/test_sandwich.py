@@ -84,13 +84,18 @@ def test_sandwich_equals_the_dense_oracle_one_session():
     assert np.abs(ratio - 1).max() > 0.1  # the data are heteroscedastic: not the model's
 
 
-def test_sandwich_with_robot_error_priors_equals_the_dense_oracle():
+@pytest.mark.parametrize("unseen", [None, 4])
+def test_sandwich_with_robot_error_priors_equals_the_dense_oracle(unseen):
     """Three sessions, robot pose errors with given scales (priors: one cluster per view,
     rows ``w I``): the sandwich of K, R_X, t_X equals the dense CR2 sandwich with every
-    point and every view's errors as parameters."""
+    point and every view's errors as parameters. With a view that sees nothing (left out)
+    its errors are its priors' alone: their sandwich is NaN (the model's std reported),
+    the others' still that of the oracle, whose CR2 factor drops a cluster of leverage 1."""
     s_rot, s_pos = 0.1, 1.0
     sc = session_scene(21, n_sessions=3, views_per_session=3, n_points=15, noise_px=0.5)
     rep, _ = with_robot_error(sc, s_rot, s_pos, rng=22)
+    if unseen is not None:
+        rep.uv[unseen] = np.nan
     flange = FlangeModel(np.transpose(rep.R, (0, 2, 1)), sc.t_X.copy(), np.eye(3))
     start = Calibration(camera=Camera(sc.K, sc.R_X.T), X=sc.X, residuals_px=np.zeros_like(sc.uv), rms_px=0.0,
                         T=rep.T)
@@ -120,6 +125,11 @@ def test_sandwich_with_robot_error_priors_equals_the_dense_oracle():
     k = [cal.param_names.index(nm) for nm in names]
     got = cal.uncertainty.cov_robust[np.ix_(k, k)]
     assert np.abs(got - oracle).max() / np.abs(oracle).max() < 1e-4
+    own = [nm for nm in cal.param_names if nm.startswith(f"robot{unseen}_")]
+    assert len(own) == (0 if unseen is None else 6)
+    assert all(np.isnan(cal.uncertainty.std_robust[nm]) and cal.uncertainty.reported[nm] == "model"
+               and np.isfinite(cal.std[nm]) for nm in own)
+    assert np.isfinite(cal.uncertainty.misfit)
 
 
 def test_noise_free_meat_is_zero_and_the_std_exact():

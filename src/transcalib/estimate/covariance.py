@@ -391,6 +391,11 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
     rows per observation of the point): O(p^2 n_obs) time (BLAS), no ``p x p`` block per
     point, O(n) memory, points :data:`SANDWICH_BLOCK` at a time.
 
+    A view without an observation that counts (left out while its orientation is in
+    doubt) has parameters its priors alone determine: no cluster replicates them, so
+    their rows and columns of ``cov`` (and their ``dof``) are NaN, and the others' come
+    from the other clusters (its columns do not couple to them in ``S``).
+
     Parameters
     ----------
     red : Reduced
@@ -411,9 +416,12 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
     blocks = [reduced_rows(state, lay, data, red.Y, lo, min(lo + SANDWICH_BLOCK, data.n_points), ok)
               for lo in range(0, data.n_points, SANDWICH_BLOCK)]
     sizes = [min(SANDWICH_BLOCK, data.n_points - lo) for lo in range(0, data.n_points, SANDWICH_BLOCK)]
+    unseen = _unseen_views(data, ok)
     prior = _prior_rows(state, lay, data)
     if prior is not None:
-        blocks.append([prior])
+        R, r, views = prior
+        R[..., unseen], r[:, unseen] = 0.0, 0.0  # determined by their priors alone: no cluster of their own
+        blocks.append([(R, r, views)])
         sizes.append(lay.n_views)
     for rows, nb in zip(blocks, sizes):
         Gs = _cr2_scores(rows, nb, Sinv)
@@ -424,7 +432,17 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
         n_clusters += int(_has_rows(rows, nb).sum())
     M = 0.5 * (M + M.T)
     dof = q1**2 / np.where(q2 > 0, q2, np.inf)
-    return Sandwich(Sinv @ M @ Sinv, M, dof, n_clusters)
+    cov = Sinv @ M @ Sinv
+    alone = np.zeros(p, bool)
+    for i in np.flatnonzero(unseen):
+        alone[lay.view_columns(i)[lay.n_common:]] = True
+    cov[alone], cov[:, alone], dof[alone] = np.nan, np.nan, np.nan
+    return Sandwich(cov, M, dof, n_clusters)
+
+
+def _unseen_views(data, ok=None) -> np.ndarray:
+    """(n_views,) bool: views without an observation of a point that counts."""
+    return np.array([not (len(pts) and (ok is None or ok[pts].any())) for pts in data.pts])
 
 
 def _cluster_sum(rows: list, n: int, p: int, term) -> np.ndarray:

@@ -106,7 +106,8 @@ def _uncertainty(fit, lay: Layout, cv, sigma: float, opts: RefineOptions) -> tup
     try:
         sw = sandwich(fit.last, lay, fit.data, cv.system, cv.Sinv, None if cv.ok.all() else cv.ok)
         cov_robust, dof = sw.cov * scale[:, None] * scale[None, :], sw.dof
-        misfit = float(np.trace(cv.Sinv @ sw.meat) / (sigma**2 * lay.size)) if sigma > 0 else np.nan
+        replicated = int(np.isfinite(np.diag(sw.cov)).sum())  # not a view's priors alone
+        misfit = float(np.trace(cv.Sinv @ sw.meat) / (sigma**2 * replicated)) if sigma > 0 else np.nan
         n_clusters = sw.n_clusters
     except DegenerateError:  # a point alone determines a parameter combination: no sandwich
         cov_robust, dof, misfit, n_clusters = np.full_like(cov_model, np.nan), np.full(lay.size, np.nan), np.nan, 0
