@@ -426,7 +426,7 @@ def sandwich(state: State, lay: Layout, data, red: Reduced, Sinv: np.ndarray, ok
     for rows, nb in zip(blocks, sizes):
         Gs = _cr2_scores(rows, nb, Sinv)
         M += Gs @ Gs.T
-        q = _cluster_sum(rows, nb, p, lambda R, r, pts: np.sum(np.einsum("pkm,pq->qkm", R, Sinv) ** 2, axis=1))
+        q = _cluster_sum(rows, nb, p, lambda R, r, pts: _squared_rows(Sinv @ R.reshape(p, -1), R.shape))
         q1 += q.sum(axis=1)
         q2 += np.sum(q * q, axis=1)
         n_clusters += int(_has_rows(rows, nb).sum())
@@ -452,6 +452,12 @@ def _cluster_sum(rows: list, n: int, p: int, term) -> np.ndarray:
     for R, r, pts in rows:
         out[:, pts] += term(R, r, pts)
     return out
+
+
+def _squared_rows(SR: np.ndarray, shape: tuple) -> np.ndarray:
+    """``(p, m)``: per cluster column the squares of ``S^-1 R`` (``(p, k m)``, one BLAS
+    product) summed over its ``k`` rows: the sandwich's effective dof terms."""
+    return np.sum(SR.reshape(shape) ** 2, axis=1)
 
 
 def _has_rows(rows: list, n: int) -> np.ndarray:
