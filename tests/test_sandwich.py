@@ -3,12 +3,14 @@ of how the refinement reports it (Calibration.uncertainty)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from transcalib import estimate_linear, simulate
 from transcalib.estimate.layout import FlangeModel
-from transcalib.estimate.refine import fit_refine, refine
+from transcalib.estimate.refine import fit_refine, fit_refine_deferred, refine
 from transcalib.estimate.robot_error import perturb_poses
 from transcalib.geometry.camera import project
 from transcalib.geometry.rotation import rotvec_to_matrix
@@ -233,3 +235,28 @@ def test_summary_without_a_sandwich_says_why_and_prints_no_nan(tmp_path, capsys)
     assert code in (0, 1)
     line = next(ln for ln in out.splitlines() if ln.startswith("Uncertainty:"))
     assert "model-based (too few points" in line and "nan" not in out.lower()
+
+
+def test_deferred_fit_completes_to_the_full_result():
+    """The pipeline's refits that may only judge the tracks defer the uncertainty: the
+    light result holds the same solution with the model's covariance alone, and completed
+    it is exactly :func:`fit_refine`'s (sandwich, views' fields, sessions' error)."""
+    sc = session_scene(5, n_sessions=3, views_per_session=4, n_points=40, noise_px=0.5)
+    rep, _ = with_robot_error(sc, 0.1, 1.0, rng=6)
+    flange = FlangeModel(np.transpose(rep.R, (0, 2, 1)), sc.t_X.copy(), np.eye(3))
+    start = Calibration(camera=Camera(sc.K, sc.R_X.T), X=sc.X, residuals_px=np.zeros_like(sc.uv), rms_px=0.0,
+                        T=rep.T)
+    opts = RefineOptions(distortion="none")
+    full = fit_refine(rep.uv, rep.T, start, opts, flange=flange)
+    later = fit_refine_deferred(rep.uv, rep.T, start, opts, flange=flange)
+    done = later.complete()
+    assert full.robot_error is not None and full.uncertainty.std_robust["fx"] > 0
+    assert later.light.uncertainty is None
+    for a, b in ((later.light.K, full.K), (later.light.X, full.X), (done.cov, full.cov),
+                 (done.uncertainty.cov_robust, full.uncertainty.cov_robust),
+                 (later.light.robot_error.pos, full.robot_error.pos)):
+        np.testing.assert_array_equal(a, b)
+    assert done.std == full.std
+    plain = replace(opts, uncertainty="model", view_field=False, session_error=False)
+    model = fit_refine(rep.uv, rep.T, start, plain, flange=flange)  # sigma^2 S^-1 alone
+    np.testing.assert_allclose(later.light.cov, model.cov, rtol=1e-12, atol=0)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -36,7 +37,8 @@ from .robot_scales import (DROP_FRACTION, DROP_REDUNDANCY, RobotFit, RobotStart,
 from .solvers import gauss_newton, levenberg_marquardt
 from .variance_components import GATE_ALPHA, MAX_ROUNDS, MISFIT_ALPHA, RTOL, JointScore, redundancy, score_test
 
-__all__ = ["refine", "fit_refine", "climb_distortion", "FlangeModel", "crlb", "with_robot_scales"]
+__all__ = ["refine", "fit_refine", "fit_refine_deferred", "Deferred", "climb_distortion", "FlangeModel", "crlb",
+           "with_robot_scales"]
 
 from .covariance import crlb  # noqa: E402  (re-exported: refine and its bound live together)
 
@@ -122,10 +124,41 @@ def fit_refine(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions, prog
     flange = flange if flange is not None else FlangeModel.of(initial)
     if opts.distortion == "auto":
         return _fit_auto(uv, T, initial, opts, progress, flange)
+    return result(*_solved(uv, T, initial, opts, progress, flange, near_solution))
+
+
+class Deferred(NamedTuple):
+    """A refinement whose uncertainty waits until asked for: ``light`` is its Calibration
+    with the model's covariance ``sigma^2 S^-1`` alone (``uncertainty`` None), and
+    ``complete()`` the one :func:`fit_refine` returns (the same solution, with the
+    sandwich, the views' error fields and the sessions' error)."""
+
+    light: Calibration
+    complete: Callable[[], Calibration]
+
+
+def fit_refine_deferred(uv: np.ndarray, T: np.ndarray, initial, opts: RefineOptions,
+                        flange: FlangeModel | None = None) -> Deferred:
+    """:func:`fit_refine` for the pipeline's refits that may only judge the tracks: the
+    uncertainty of all but the last of them, a third of a 12-view calibration's time,
+    is never computed. With ``distortion="auto"`` both are the full result."""
+    flange = flange if flange is not None else FlangeModel.of(initial)
+    if opts.distortion == "auto":
+        cal = _fit_auto(uv, T, initial, opts, None, flange)
+        return Deferred(cal, lambda: cal)
+    pb, fitter, fit, initial, t_start = _solved(uv, T, initial, opts, None, flange)
+    light, waited = result(pb, fitter, fit, initial, t_start, full=False), time.perf_counter()
+    # the time until asked for is not the refinement's
+    return Deferred(light, lambda: result(pb, fitter, fit, initial, t_start + time.perf_counter() - waited))
+
+
+def _solved(uv, T, initial, opts: RefineOptions, progress, flange, near_solution: bool = False) -> tuple:
+    """``(problem, fitter, fit, initial, start time)`` of a refinement with a fixed lens
+    model: what :func:`~.refine_result.result` takes."""
     t_start = time.perf_counter()
     pb = _problem(uv, T, initial, opts, flange)
     fitter = _Fitter(pb, progress, near_solution)
-    return result(pb, fitter, _fit(pb, fitter), initial, t_start)
+    return pb, fitter, _fit(pb, fitter), initial, t_start
 
 
 def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = None) -> _Problem:

@@ -37,19 +37,25 @@ __all__ = ["result", "SANDWICH_ALPHA"]
 SANDWICH_ALPHA = 0.05
 
 
-def result(pb, fitter, fit, initial, t_start) -> Calibration:
+def result(pb, fitter, fit, initial, t_start, full: bool = True) -> Calibration:
     """Covariance at the solution and the :class:`Calibration` of a refinement: ``pb`` its
     problem, ``fitter`` the fitter its stages ran (the cost, reason, iterations, threshold
     and Gauss-Newton system of the last), ``fit`` their outcome, ``initial`` the start
     (its camera's image size, linear estimate and hand-eye record are kept), ``t_start``
-    :func:`time.perf_counter` at the start."""
+    :func:`time.perf_counter` at the start. ``full=False``: the model's ``sigma^2 S^-1``
+    alone, ``uncertainty`` None (no sandwich, views' error fields or sessions' error;
+    :func:`~transcalib.estimate.refine.fit_refine_deferred`)."""
     lay, n_views, n_points = fit.lay, *pb.uv.shape[:2]
     cv = covariance(fit.last, lay, fit.data, hint=lambda names: identifiability_hint(names, pb.T),
                     system=fitter.system)
     var_X, ok = cv.var_X, cv.ok
     dof_fit = lay.residual_dof(int(fit.mask[:, fit.idx].sum()), len(fit.idx))
     sigma = _sigma(pb, fit, fitter.cost, dof_fit)
-    uncertainty, cov = _uncertainty(fit, lay, cv, sigma, pb.opts)
+    if full:
+        uncertainty, cov = _uncertainty(fit, lay, cv, sigma, pb.opts)
+    else:
+        d = _degrees(lay)
+        uncertainty, cov = None, sigma**2 * cv.Sinv * np.outer(d, d)
     std = _std(cov, lay.names())
     names = lay.names()
     X_std = np.full((n_points, 3), np.nan)
@@ -78,6 +84,11 @@ def result(pb, fitter, fit, initial, t_start) -> Calibration:
         stats=CalibrationStats(stages=("refine",), refine=_stats(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)))
 
 
+def _degrees(lay: Layout) -> np.ndarray:
+    """(p,) the factor of each parameter into the reported units: rotations in degrees."""
+    return np.where(lay.rotation_mask(), np.degrees(1.0), 1.0)
+
+
 def _std(cov: np.ndarray, names: tuple) -> dict:
     """``sqrt(diag(cov))`` by name; with square pixels ``f`` also as ``fx``, ``fy``."""
     std = {nm: float(np.sqrt(cov[k, k])) for k, nm in enumerate(names)}
@@ -99,7 +110,7 @@ def _uncertainty(fit, lay: Layout, cv, sigma: float, opts: RefineOptions) -> tup
     semi-definite); with "robust" the sandwich itself.
     """
     names, rule = lay.names(), opts.uncertainty
-    scale = np.where(lay.rotation_mask(), np.degrees(1.0), 1.0)  # rotations in degrees
+    scale = _degrees(lay)
     field, cov_field = _view_field(fit, lay, cv, sigma) if opts.view_field else (None, 0.0)
     sessions, cov_sessions = _session_error(fit, lay, cv, sigma) if opts.session_error else (None, 0.0)
     cov_model = (sigma**2 * cv.Sinv + cov_field + cov_sessions) * scale[:, None] * scale[None, :]

@@ -15,7 +15,7 @@ import numpy as np
 from ..check.common import camera_poses
 from ..estimate.layout import FlangeModel, complement
 from ..estimate.noise import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
-from ..estimate.refine import climb_distortion, fit_refine, with_robot_scales
+from ..estimate.refine import climb_distortion, fit_refine, fit_refine_deferred, with_robot_scales
 from ..geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from ..geometry.triangulate import triangulate
 from ..types import INTRINSIC_NAMES, CalibrateOptions, Calibration, CalibrationStats, HandEye, LinearEstimate, report
@@ -129,12 +129,13 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     k = np.isfinite(uv[..., 0]).sum(axis=0)
     refit, verdict = chosen, None  # the refits' options (a misfit's judge's scales given); that fit's robot error
     lens_set = 0 if inliers is None else int(inliers.sum())  # the tracks the lens was chosen on
+    last = None  # the last refit, its uncertainty computed only if it stays the result
     for _ in range(REJUDGE_ROUNDS if inliers is not None else 0):  # until the inlier set settles
         scales, judge = _misfit_scales(cal), cal
         if scales is not None:  # the lens is chosen again too: a misfit's fit chose it
             verdict = cal.robot_error
             given = dict(robot_sigma_deg=scales[0], robot_sigma_pos=scales[1])
-            judge = fit_refine(masked(uv, inliers), T, cal, replace(opts.refinement, **given))
+            judge = fit_refine_deferred(masked(uv, inliers), T, cal, replace(opts.refinement, **given)).light
             chosen = replace(chosen, distortion=judge.dist_model)
             refit = replace(chosen, **given)
         X_all = triangulated(uv, judge)
@@ -150,11 +151,14 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
             selection, lens_set = cal.stats.distortion_selection, int(again.sum())
             stages.append("reclassify+refine (lens chosen again)")
             continue
-        cal = fit_refine(masked(uv, inliers), T, start, refit)
+        last = fit_refine_deferred(masked(uv, inliers), T, start, refit)
+        cal = last.light
         stages.append("reclassify+refine" if refit == chosen else "reclassify+refine (scales held)")
     if refit != chosen:  # the scales estimated again, on the inliers the given ones settled
         cal = fit_refine(masked(uv, inliers), T, _held_as_start(cal, verdict), chosen)
         stages.append("refine (scales estimated)")
+    elif last is not None and cal is last.light:
+        cal = last.complete()
     if opts.refinement.distortion == "auto" and stages[-1] != "refine":  # more tracks: more distortion?
         cal = climb_distortion(masked(uv, inliers), T, cal, opts.refinement)
         cal = replace(cal, stats=replace(cal.stats, distortion_selection=selection + cal.stats.distortion_selection))
