@@ -58,7 +58,7 @@ import numpy as np
 from ..errors import DegenerateError, Diagnostic
 from ..estimate.covariance import linearise, profile_step
 from ..estimate.distributions import chi2_ppf, f_sf
-from ..estimate.refine import refine, with_robot_scales
+from ..estimate.refine import fit_refine_deferred, refine, with_robot_scales
 from ..types import Calibration, RefineOptions
 from .common import fmt_list, inlier_uv
 
@@ -288,8 +288,8 @@ def _one_view_as_robot_error(uv, T, calibration: Calibration, alpha: float) -> d
     opts = replace(calibration.options.refinement, distortion=calibration.dist_model)
     uv = inlier_uv(uv, calibration)
     try:
-        exact = refine(uv, T, calibration, options=replace(opts, robot_error=False, robot_sigma_deg=None,
-                                                           robot_sigma_pos=None))
+        exact = fit_refine_deferred(uv, T, calibration, replace(opts, robot_error=False, robot_sigma_deg=None,
+                                                                robot_sigma_pos=None)).light  # its solution alone
         test = view_rotation_test(uv, T, exact, alpha=alpha)
         if not test["flagged"]:
             return None
