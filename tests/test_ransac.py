@@ -8,7 +8,7 @@ import pytest
 
 from transcalib.estimate.distributions import chi2_ppf
 from transcalib.estimate.noise import SIGMA_FLOOR_PX
-from transcalib.estimate.ransac import lo_ransac, trials_needed
+from transcalib.estimate.ransac import least_singular_vector, lo_ransac, trials_needed
 
 
 class LineProblem:
@@ -177,3 +177,15 @@ def test_trials_needed_formula():
     w, s = 0.4, 3
     assert trials_needed(400_000, 1_000_000, s, 0.999) == pytest.approx(math.log(0.001) / math.log(1 - w**s),
                                                                         rel=1e-5)
+
+
+@pytest.mark.parametrize("rows", [8, 12, 2000])
+def test_least_singular_vector_minimises_the_residual(rows):
+    """Tall (thin SVD) and wide (full SVD) systems: the unit vector of ``A``'s smallest
+    singular value, against the eigenvector of ``A^T A``'s smallest eigenvalue."""
+    A = np.random.default_rng(rows).normal(size=(3, rows, 9))
+    x = least_singular_vector(A)
+    w, v = np.linalg.eigh(np.einsum("brc,brd->bcd", A, A))
+    oracle = v[:, :, 0]
+    assert x.shape == (3, 9)
+    np.testing.assert_allclose(np.abs(np.einsum("bc,bc->b", x, oracle)), 1.0, atol=1e-9)

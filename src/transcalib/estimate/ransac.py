@@ -42,7 +42,7 @@ import numpy as np
 from ..types import report
 from .noise import chi2_inliers, chi2_quantiles, median_sigma, truncated_sigma
 
-__all__ = ["RansacResult", "lo_ransac"]
+__all__ = ["RansacResult", "lo_ransac", "least_singular_vector"]
 
 #: Samples of the first batch; each further batch doubles, up to :data:`MAX_BATCH`.
 FIRST_BATCH = 16
@@ -123,6 +123,14 @@ class RansacResult:
     @property
     def n_inliers(self) -> int:
         return int(self.inliers.sum())
+
+
+def least_singular_vector(A: np.ndarray) -> np.ndarray:
+    """``(B, c)``: per batch the unit ``x`` minimising ``|A x|`` (``A (B, r, c)``), the
+    right singular vector of the smallest singular value: a DLT's solution. Tall systems
+    (a refit on every inlier) take the thin SVD: the full one forms ``U`` of ``r x r``
+    (0.24 s against 0.002 s for 1000 points)."""
+    return np.linalg.svd(A, full_matrices=A.shape[-2] < A.shape[-1])[2][:, -1]
 
 
 def trials_needed(n_inliers: int, n_samplable: int, sample_size: int, confidence: float) -> float:

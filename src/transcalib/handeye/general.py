@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DegenerateError
-from ..estimate.ransac import lo_ransac
+from ..estimate.ransac import least_singular_vector, lo_ransac
 from ..geometry.rotation import matrix_to_rotvec, nearest_rotation, rotation_angle_deg, skew
 from ..geometry.triangulate import triangulate
 from .join import spread_limits
@@ -371,7 +371,7 @@ class _EightPoint(_TwoViews):
         """Batched eight-point (m >= 8) on normalised coordinates ``(B, m, 3)``, rank 2
         enforced, returned in pixels with unit norm: ``(B, 9)`` and validity."""
         A = (q2[:, :, :, None] * q1[:, :, None, :]).reshape(q1.shape[0], q1.shape[1], 9)
-        Fn = np.linalg.svd(A)[2][:, -1].reshape(-1, 3, 3)
+        Fn = least_singular_vector(A).reshape(-1, 3, 3)
         U, s, Vt = np.linalg.svd(Fn)
         s[:, 2] = 0.0
         F = self.N2.T @ (U * s[:, None, :]) @ Vt @ self.N1
@@ -402,7 +402,7 @@ class _FourPoint(_TwoViews):
         A[:, 0::2, 6:9] = q2[..., 1:2] * q1
         A[:, 1::2, 0:3] = q2[..., 2:3] * q1
         A[:, 1::2, 6:9] = -q2[..., 0:1] * q1
-        Hn = np.linalg.svd(A)[2][:, -1].reshape(-1, 3, 3)
+        Hn = least_singular_vector(A).reshape(-1, 3, 3)
         H = np.linalg.inv(self.N2) @ Hn @ self.N1
         H /= np.linalg.norm(H, axis=(1, 2))[:, None, None]
         return H.reshape(-1, 9), np.all(np.isfinite(H), axis=(1, 2))

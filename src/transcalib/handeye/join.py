@@ -35,7 +35,7 @@ import numpy as np
 
 from ..estimate.distributions import chi2_ppf
 from ..estimate.noise import SIGMA_FLOOR_PX
-from ..estimate.ransac import lo_ransac
+from ..estimate.ransac import least_singular_vector, lo_ransac
 from ..geometry.camera import pixels_to_rays
 from ..geometry.rotation import central_mean_rotation, matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 
@@ -233,7 +233,7 @@ def _dlt(x: np.ndarray, X: np.ndarray):
     A[:, 0::2, 8:12] = x[..., :1] * h
     A[:, 1::2, 4:8] = -h
     A[:, 1::2, 8:12] = x[..., 1:2] * h
-    M = np.linalg.svd(A)[2][:, -1].reshape(B, 3, 4)  # lam [s R | R mu + t], det(lam s R) = (lam s)^3
+    M = least_singular_vector(A).reshape(B, 3, 4)  # lam [s R | R mu + t], det(lam s R) = (lam s)^3
     M = M * np.where(np.linalg.det(M[:, :, :3]) < 0, -1.0, 1.0)[:, None, None]  # lam > 0
     U, sv, Vt = np.linalg.svd(M[:, :, :3])
     R = U @ Vt  # the rotation nearest to M's left block (det +1 when det M > 0)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..estimate.noise import chi2_inliers, sigma_from_distance_threshold, truncated_sigma
-from ..estimate.ransac import lo_ransac
+from ..estimate.ransac import least_singular_vector, lo_ransac
 from ..validate import COPLANAR_RTOL
 from .local import detrended
 
@@ -392,7 +392,7 @@ def _fit_A_batch(E: np.ndarray, B: np.ndarray, scale: float) -> np.ndarray:
     ex[..., 0, 1], ex[..., 0, 2], ex[..., 1, 2] = -en[..., 2], en[..., 1], -en[..., 0]
     ex = ex - np.swapaxes(ex, -1, -2)
     rows = np.einsum("hpra,hpc->hprac", ex, B).reshape(h, n * 3, 3 * k)
-    M = np.linalg.svd(rows)[2][:, -1].reshape(h, 3, k)
+    M = least_singular_vector(rows).reshape(h, 3, k)
     return M / Hn[None, :, None]  # back to pixels: e = Hn^-1 M_n b
 
 
