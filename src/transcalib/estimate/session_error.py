@@ -11,10 +11,11 @@ per session and 0.02 deg / 0.2 mm per view, three sessions). The model ::
 
 ``b_s`` the error of session ``s`` (three rotation and three position coordinates),
 shared by its views. Only sessions of two views or more carry one (a single view's
-error is its own), and it is measured only with the per-view components in the model
-(their columns carry it: ``b_s`` moves the data as the sum of its views' errors). The
-fit does not estimate the ``b_s``; they move its estimate by ``G b``, ``G = S^-1 S_cb``,
-so ::
+error is its own). ``b_s`` moves the data as the sum of its views' per-view error
+columns, so it is measured on them, for both components, whether or not the fit found
+a component's per-view part (one it left out, ``sigma_c = 0``, has its columns added
+with the data's information alone). The fit does not estimate the ``b_s``; they move
+its estimate by ``G b``, ``G = S^-1 S_cb``, so ::
 
     cov = sigma^2 S^-1 + sum_c tau_c G D_c G^T                           (1)
 
@@ -96,8 +97,8 @@ def session_groups(F: np.ndarray, tolerance_deg: float) -> list:
 def session_error(state, lay, data, red, Sinv: np.ndarray, sigma: float, tolerance_deg: float
                   ) -> SessionError | None:
     """The sessions' common errors at the solution ``state`` (module docstring), or None
-    where they cannot be measured: one orientation, fewer than two sessions of two views,
-    or no per-view robot error in the model.
+    where they cannot be measured: one orientation or fewer than two sessions of two
+    views.
 
     Parameters
     ----------

@@ -339,8 +339,8 @@ class Uncertainty:
         The per-view error field the residuals show (None: not tested,
         ``RefineOptions.view_field=False``).
     session_error : SessionErrorEstimate or None
-        The robot error common to each session (None: not measurable: one orientation,
-        fewer than two sessions of two views, no per-view robot error in the model).
+        The robot error common to each session (None: not measurable: one orientation
+        or fewer than two sessions of two views).
     """
 
     std_model: Mapping
