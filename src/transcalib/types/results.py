@@ -278,9 +278,9 @@ class SessionErrorEstimate:
     ----------
     sigma_rot_deg, sigma_pos : float
         Per-axis std of a session's common rotation (degrees) and position (robot
-        units) error: where found, the root of the variance's mean over its likelihood
-        (what the covariance takes in), else its maximum-likelihood value; 0 where
-        neither shows or the component is not modelled per view.
+        units) error: where found, the std's mean over its likelihood (its square is
+        what the covariance takes in), else its maximum-likelihood value; 0 where
+        neither shows.
     sigma_rot_std_deg, sigma_pos_std : float
         Their std at the maximum (Fisher information, delta method; NaN at 0).
     p_value : float
