@@ -27,9 +27,10 @@ without the per-view errors' prior), their reduced score ``g = A^T b_d - S_cb^T 
 e``), ``E g g^T = sigma^2 Q + sum_c tau_c Q D_c Q``, ``Q = S_bb - S_cb^T S^-1 S_cb``.
 On ``Q``'s range the likelihood-ratio test of ``tau = 0`` (two components on the
 boundary) decides; where it finds them, the ``tau_c`` in (1) are the squares of the
-stds' mean over the likelihood (:func:`posterior_mean`), not its maximum. With one orientation there is one
-session, whose error the camera's orientation and the points' origin take up whole:
-nothing to measure, and nothing it biases beyond the camera's pose in that session.
+stds' mean over the likelihood (:func:`mean_std_squared`), not its maximum. With one
+orientation there is one session, whose error the camera's orientation and the points'
+origin take up whole: nothing to measure, and nothing it biases beyond the camera's pose
+in that session.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ __all__ = ["SessionError", "session_error", "session_groups", "SESSION_ALPHA"]
 
 #: Level of the likelihood-ratio test that takes the sessions' errors into the covariance.
 SESSION_ALPHA = 0.05
-#: Nodes per component of the grid :func:`posterior_mean` averages over.
+#: Nodes per component of the grid :func:`mean_std_squared` averages over.
 GRID_NODES = 31
 
 
@@ -127,7 +128,7 @@ def session_error(state, lay, data, red, Sinv: np.ndarray, sigma: float, toleran
     tau, tau_cov, lr = fit_components(z, lam[keep], parts, sigma**2)
     p = float(chi2_sf(lr, 1) / 2 + (chi2_sf(lr, 2) / 4 if len(comps) == 2 else 0.0)) if lr > 0 else 1.0
     if p < SESSION_ALPHA:  # a few sessions' errors: the covariance averaged over the scales' likelihood
-        tau = posterior_mean(z, lam[keep], parts, sigma**2)
+        tau = mean_std_squared(z, lam[keep], parts, sigma**2)
     return SessionError(dict(zip(comps, tau)), dict(zip(comps, np.diag(tau_cov))), p, len(groups), G)
 
 
@@ -172,7 +173,7 @@ def _session_score(state, lay, data, red, index, Sinv, rhs, groups: list):
     return G, g, S_bb - S_cb.T @ G, max(float(np.median(np.diag(S_bb))), 1e-300)
 
 
-def posterior_mean(z: np.ndarray, lam: np.ndarray, parts: list, s2: float, n: int = GRID_NODES) -> np.ndarray:
+def mean_std_squared(z: np.ndarray, lam: np.ndarray, parts: list, s2: float, n: int = GRID_NODES) -> np.ndarray:
     """``tau_k = E[s_k]^2``: the square of each std's mean over the likelihood of
     :func:`.view_field.fit_components`' model with a flat prior on each std ``s_k >= 0``,
     on a grid of ``n`` nodes per component up to three times the std each one alone
