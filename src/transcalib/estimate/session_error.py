@@ -166,8 +166,9 @@ def _session_score(state, lay, data, red, index, Sinv, rhs, groups: list):
         for s, views in enumerate(groups):
             for a in range(3):
                 A[cols[views, a], (c * len(groups) + s) * 3 + a] = 1.0
-    S_cb = (S_d @ A)[index]  # the fit's parameters' rows
-    S_bb = A.T @ S_d @ A
+    S_dA = S_d @ A
+    S_cb = S_dA[index]  # the fit's parameters' rows
+    S_bb = A.T @ S_dA
     G = Sinv @ S_cb
     g = A.T @ b_d - S_cb.T @ (Sinv @ rhs)
     return G, g, S_bb - S_cb.T @ G, max(float(np.median(np.diag(S_bb))), 1e-300)
