@@ -1,5 +1,6 @@
 """The session tracker with small per-view rotations (the robot's orientation error, issues 21, 22)."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -117,5 +118,10 @@ def test_rotation_beyond_tolerance_refused():
     delta = np.zeros((6, 3))
     delta[2] = [0.0, 1.2, -1.6]
     r = _session(delta)
-    with pytest.raises(RotatedViewsError, match=r"view\(s\) 2 \((1\.\d\d|2\.\d\d) deg\)"):
+    with pytest.raises(RotatedViewsError, match=r"view\(s\) 2 \((1\.\d\d|2\.\d\d) deg\)") as err:
         track(r.images, T=r.T)
+    angle = float(re.search(r"view\(s\) 2 \((\d\.\d\d) deg\)", str(err.value)).group(1))
+    wider = float(re.search(r"--session-tolerance-deg (\d+(?:\.\d+)?)", str(err.value)).group(1))
+    assert angle < wider <= angle + 0.75 and 2 * wider == round(2 * wider)  # the option that takes it in
+    tr = track(r.images, T=r.T, session_tolerance_deg=wider)
+    assert tr.n_points > 800

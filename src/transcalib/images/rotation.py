@@ -305,5 +305,15 @@ def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, nam
         "views, give the flange orientations (a session per orientation): "
         "transcalib.images.track(images, T=T, rotations=R), or the poses file's orientation columns; "
         "otherwise check that the robot did not rotate. A robot whose orientation errs by ~0.2 deg per axis "
-        "turns a view by up to ~1 deg: for angles just above the tolerance, a larger one "
-        "(--session-tolerance-deg, session_tolerance_deg) takes such views in")
+        f"turns a view by up to ~1 deg: for angles just above the tolerance, a larger one takes such views in "
+        f"({_wider_tolerance(test)})")
+
+
+def _wider_tolerance(test: RotationTest) -> str:
+    """The option that takes the rotated views of ``test`` in: the largest estimated
+    angle plus a quarter degree, rounded up to half a degree."""
+    if not test.angles_deg:
+        return "--session-tolerance-deg, session_tolerance_deg"
+    turned = max(test.angles_deg[v] for v in test.rotated_views)
+    wider = np.ceil(2.0 * (turned + 0.25)) / 2.0
+    return f"--session-tolerance-deg {wider:g}, session_tolerance_deg={wider:g}"
