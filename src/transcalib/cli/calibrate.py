@@ -121,7 +121,8 @@ def _model(g) -> None:
                         "field the test finds is included in the model-based std; docs/uncertainty.md §7.1)")
     g.add_argument("--no-session-error", action="store_true",
                    help="do not test for a robot error common to each session's views (by default, with several "
-                        "sessions, one the test finds is included in the model-based std; docs/uncertainty.md §7.2)")
+                        "sessions, one the test finds is included in the std, model-based or sandwich; "
+                        "docs/uncertainty.md §7.2)")
 
 
 def _robust(g) -> None:

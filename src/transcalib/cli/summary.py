@@ -165,7 +165,7 @@ def _session_error_lines(se, unit: str) -> list:
         return [f"Robot error common to each session: not found (p = {se.p_value:.2f}, {se.n_sessions} sessions)"]
     return [f"Robot error common to each session: rotation {se.sigma_rot_deg:.3g} deg, position {se.sigma_pos:.3g} "
             f"{unit} per axis (p = {se.p_value:.1e}, {se.n_sessions} sessions), its effect included in the "
-            "model-based std"]
+            "std (model-based or sandwich)"]
 
 
 def summary_json(cal, unit: str, truth: dict | None = None, point_ids=None, uv=None) -> dict:

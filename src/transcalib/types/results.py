@@ -316,19 +316,23 @@ class Uncertainty:
     std_model : mapping of str to float
         ``sigma sqrt(diag S^-1)``: exact when the model (white pixel noise of one scale,
         the robot error model) is right; the Cramér-Rao bound at the truth. With
-        ``view_field.included`` the views' error fields' share added.
+        ``view_field.included`` the views' error fields' share added, with
+        ``session_error.included`` the sessions' common robot error's.
     std_robust : mapping of str to float
         ``sqrt(diag(S^-1 M S^-1))`` with ``M`` the CR2-corrected outer products of each
         point's (and each view's priors') score: valid when pixel errors are correlated
-        along a track or heteroscedastic across points, i.e. under model misfit.
+        along a track or heteroscedastic across points, i.e. under model misfit. With
+        ``session_error.included`` the sessions' share added: the fit's robot error
+        columns take a session's error out of the residuals, so no cluster holds it.
     cov_robust : (p, p) float
-        The sandwich covariance (names and units as :attr:`Calibration.cov`).
+        The sandwich covariance, with the sessions' share (names and units as
+        :attr:`Calibration.cov`).
     dof : mapping of str to float
         Effective degrees of freedom of each robust variance (its relative std is
         ``sqrt(2 / dof)``).
     p_value : mapping of str to float
-        ``P(chi2(dof)/dof >= (std_robust/std_model)^2)``: small when the model-based std
-        is too small for that parameter.
+        ``P(chi2(dof)/dof >= (std_robust/std_model)^2)``, both without the sessions'
+        share: small when the model-based std is too small for that parameter.
     reported : mapping of str to str
         ``"model"`` or ``"robust"``: which one :attr:`Calibration.std` / ``cov`` use.
     misfit : float
