@@ -28,8 +28,8 @@ import argparse
 import os
 import sys
 import time
-from dataclasses import replace
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -63,8 +63,10 @@ def trial(args):
     rng = np.random.default_rng(seed)
     sc = _scene("3 sessions", rng)
     rep, _ = with_robot_error(sc, case[0], case[1], rng, session_rot_deg=case[2], session_pos=case[3])
-    if noise != "white":
-        rep = (_corner_noise if noise == "corners" else _track_noise)(rep, rng)
+    if noise == "corners":
+        rep = _corner_noise(rep)
+    elif noise == "track":
+        rep = _track_noise(rep, rng)
     start, flange, R_true = _start(sc, rep, rng)
     out = {}
     for name, on in (("with", True), ("without", False)):
@@ -96,7 +98,7 @@ def _track_noise(scene, rng):
     return replace(scene, uv=scene.uv_true + (white + shared) / np.sqrt(2))
 
 
-def _corner_noise(scene, rng=None):
+def _corner_noise(scene):
     """``scene`` with its pixel noise scaled by ``1 + 3 (r / r_c)^2`` (``r`` the distance of
     the exact pixel from the image centre, ``r_c`` a corner's), to the same RMS."""
     centre = np.asarray(scene.image_size, float) / 2
@@ -130,11 +132,11 @@ def _table(results, trials, jobs, elapsed, noise: str = "white") -> str:
              + ("" if len(results) == len(CASES) else
                 " --cases " + ",".join(str(CASES.index(c) + 1) for c in results))
              + f"` ({elapsed:.0f} s, {jobs} processes). "
-             f"Three sessions of 6 views, 60 points, {noise_text}; per view a flange rotation and position error and a part "
-             "common to each session; the refinement with the scales estimated. Per parameter: reported / empirical "
-             "std and coverage of the nominal 95 % interval, without the sessions' error -> with it (the default; "
-             "the same estimates). found: share of trials where the test (5 %) found it; its median scales where "
-             "found. sandwich: share of the trials (with) whose t_x std is the sandwich's.\n",
+             f"Three sessions of 6 views, 60 points, {noise_text}; per view a flange rotation and position error "
+             "and a part common to each session; the refinement with the scales estimated. Per parameter: "
+             "reported / empirical std and coverage of the nominal 95 % interval, without the sessions' error -> "
+             "with it (the default; the same estimates). found: share of trials where the test (5 %) found it; its "
+             "median scales where found. sandwich: share of the trials (with) whose t_x std is the sandwich's.\n",
              "| per view deg / mm | per session deg / mm | fails | " + " | ".join(KEYS)
              + " | found | rot deg | pos mm | sandwich |",
              "|" + "---|" * (len(KEYS) + 7)]

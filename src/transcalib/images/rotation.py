@@ -305,7 +305,7 @@ def check_pure_translation(xy: dict, n_views: int, threshold_px: float, rng, nam
         "views, give the flange orientations (a session per orientation): "
         "transcalib.images.track(images, T=T, rotations=R), or the poses file's orientation columns; "
         "otherwise check that the robot did not rotate. A robot whose orientation errs by ~0.2 deg per axis "
-        f"turns a view by up to ~1 deg: for angles just above the tolerance, a larger one takes such views in "
+        "turns a view by up to ~1 deg: for angles just above the tolerance, a larger one takes such views in "
         f"({_wider_tolerance(test)})")
 
 
