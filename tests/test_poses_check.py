@@ -8,6 +8,7 @@ import csv
 import json
 import re
 
+import numpy as np
 import pytest
 
 from transcalib.cli.main import main
@@ -65,25 +66,69 @@ def test_orientation_columns_no_format_reads_are_refused(scene, capsys, tmp_path
     assert code == 2 and "--rotation-format" in err and "roll,pitch,yaw" in err and "Traceback" not in err
 
 
+def _without_view(scene, tmp_path, view: str):
+    """The scene's tracks and poses without ``view``: what a user dropping it would give."""
+    for name in ("tracks", "poses"):
+        rows = _rows(scene / "scene" / f"{name}.csv")
+        _write(tmp_path / f"drop_{name}.csv", rows[:1] + [r for r in rows[1:] if r[0] != view])
+    return tmp_path / "drop_tracks.csv", tmp_path / "drop_poses.csv"
+
+
+def _K(out):
+    return np.array(json.load(open(out / "calibration.json"))["K"])
+
+
 def test_repeated_pose_names_both_views(scene, capsys, tmp_path):
     rows = _rows(scene / "scene" / "poses.csv")
     rows[4][1:4] = rows[3][1:4]  # view 3 given view 2's position
-    code, summary, _ = _calibrate(capsys, scene, _write(tmp_path / "dup.csv", rows))
+    code, summary, _ = _calibrate(capsys, scene, _write(tmp_path / "dup.csv", rows), "--keep-pose-outliers")
     msg = _codes(summary)
     assert code == 4 and "view 2 and view 3 have the same recorded pose" in msg["pose_repeated"]
     assert "view 3" in msg["pose_outlier"]  # and which of the two is wrong
 
 
+def test_repeated_pose_left_out_as_a_copied_row(scene, capsys, tmp_path):
+    """By default the wrong view of the two is left out, named as a copy of the other's row,
+    and the calibration is the one without it (its noise 0.5 px again, not 32 px)."""
+    rows = _rows(scene / "scene" / "poses.csv")
+    rows[4][1:4] = rows[3][1:4]
+    code, summary, _ = _calibrate(capsys, scene, _write(tmp_path / "dup.csv", rows))
+    msg = _codes(summary)
+    assert code == 4 and set(msg) == {"pose_left_out"}, msg
+    assert "view 3: its recorded position is off by about" in msg["pose_left_out"]
+    assert "its recorded pose is that of view 2 (a copied row?)" in msg["pose_left_out"]
+    assert abs(summary["sigma_px"] - 0.5) < 0.05
+
+
 def test_30mm_typo_named_as_30mm_in_that_view(scene, capsys, tmp_path):
+    """Kept in (--keep-pose-outliers), the typo is named with its size; by default the view
+    is left out and the calibration is that of the input without the view (the oracle: a
+    user who drops it), to the last digits, where kept it is 46 px off in fx."""
     tracks, rows = _renamed(scene, tmp_path)
     rows[5][1] = str(float(rows[5][1]) + 30.0)
-    code, summary, _ = _calibrate(capsys, scene, _write(tmp_path / "typo.csv", rows), tracks=tracks)
+    typo = _write(tmp_path / "typo.csv", rows)
+    code, summary, _ = _calibrate(capsys, scene, typo, "--keep-pose-outliers", tracks=tracks)
     msg = _codes(summary)
     assert code == 4 and "view_rotation" not in msg
     size = float(re.search(r"view cam4: its recorded position is off by about ([\d.]+) mm", msg["pose_outlier"])[1])
     assert 27.0 < size < 33.0, msg["pose_outlier"]
     dx = float(re.search(r"x, y, z \(([-+\d.]+),", msg["pose_outlier"])[1])
     assert 27.0 < dx < 33.0
+    kept = _K(typo.parent / "typo_out")
+
+    code, summary, _ = _calibrate(capsys, scene, typo, "--force", tracks=tracks)
+    msg = _codes(summary)
+    assert code == 4 and set(msg) == {"pose_left_out"}, msg
+    assert re.search(r"view cam4: its recorded position is off by about 29\.\d mm", msg["pose_left_out"])
+    assert "view(s) left out (pose)" in summary["stages"][-1]
+    left_out = _K(typo.parent / "typo_out")
+    code, _, _ = _calibrate(capsys, scene, _without_view(scene, tmp_path, "4")[1],
+                            tracks=_without_view(scene, tmp_path, "4")[0])
+    assert code == 0
+    dropped = _K(tmp_path / "drop_poses_out")
+    np.testing.assert_allclose(left_out, dropped, rtol=0, atol=1e-5)  # px; the std is 0.8 px
+    truth = np.array(json.load(open(scene / "scene" / "truth.json"))["K"])
+    assert abs(left_out[0, 0] - truth[0, 0]) < 3.0 < abs(kept[0, 0] - truth[0, 0])
 
 
 def test_metres_given_as_mm(scene, capsys, tmp_path):
@@ -136,14 +181,21 @@ def test_right_fix_passes(scene, capsys):
 def test_typo_that_wrecks_the_robust_stage_is_resected(setup):
     """Sessions 60 mm apart per step: a 30 mm typo makes RANSAC drop most tracks, the
     typo'd view's among them; its camera resected from the other views' points names it
-    (measured: view 7, 30.0 mm eye-in-hand, 31.6 mm eye-to-hand)."""
+    (measured: view 7, 30.0 mm eye-in-hand, 31.6 mm eye-to-hand). Kept in, it is named;
+    by default it is left out and the tracks come back (18 % inliers kept in, all left out)."""
     import transcalib as tc
     from transcalib.handeye.simulate import session_scene
 
     sc = session_scene(2, n_sessions=3, views_per_session=5, n_points=80, noise_px=0.5, single_views=2, setup=setup)
     T = sc.T.copy()
     T[7, 1] += 30.0
-    cal = tc.calibrate(sc.uv, tc.Poses.of(T, sc.R), setup=setup, rng=0)
-    msg = {d.code: str(d) for d in cal.diagnostics}["pose_outlier"]
+    kept = tc.calibrate(sc.uv, tc.Poses.of(T, sc.R), setup=setup, rng=0, keep_pose_outliers=True)
+    msg = {d.code: str(d) for d in kept.diagnostics}["pose_outlier"]
     size = float(re.search(r"view 7: its recorded position is off by about ([\d.]+) ", msg)[1])
     assert 25.0 < size < 35.0, msg
+    cal = tc.calibrate(sc.uv, tc.Poses.of(T, sc.R), setup=setup, rng=0)
+    msg = {d.code: str(d) for d in cal.diagnostics}
+    assert "pose_outlier" not in msg and "view 7: its recorded position is off by about" in msg["pose_left_out"]
+    assert np.mean(cal.inliers) > 0.95 > 0.5 > np.mean(kept.inliers)
+    z = (cal.K[0, 0] - sc.K[0, 0]) / cal.std["fx"]
+    assert abs(z) < 4.0, z

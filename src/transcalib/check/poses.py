@@ -30,7 +30,7 @@ that the robust stage drops the view's tracks leaves this test nothing to see:
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,8 +42,9 @@ from ..types import Calibration
 from .common import camera_poses, fmt_vec, inlier_uv
 from .rotation import _refinement
 
-__all__ = ["pose_test", "check_pose_outliers", "check_repeated_poses", "check_unit", "truth_mismatch",
-           "POSE_ALPHA", "REPEATED_ALPHA", "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
+__all__ = ["pose_test", "find_pose_outliers", "describe_pose_outlier", "PoseOutlier", "check_pose_outliers",
+           "check_repeated_poses", "check_unit", "truth_mismatch", "POSE_ALPHA", "REPEATED_ALPHA",
+           "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
 
 #: Family-wise false-alarm rate of the outlying-pose test on correct poses (Bonferroni over views).
 POSE_ALPHA = 1e-3
@@ -258,43 +259,69 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
     return out
 
 
-def check_pose_outliers(uv, T, calibration: Calibration, *, view_ids=None, unit: str = "units",
-                        setup: str = "eye-in-hand", R_model=None, alpha: float = POSE_ALPHA) -> list:
-    """``pose_outlier`` naming each view whose recorded position its image contradicts,
-    with the size of the error in robot units (and the orientation's in degrees).
+@dataclass(frozen=True)
+class PoseOutlier:
+    """A view whose image contradicts its recorded pose.
 
-    Parameters
+    Attributes
     ----------
-    uv, T, calibration, alpha
-        As :func:`pose_test`.
-    view_ids : sequence of str, optional
-        The user's view ids (default the indices).
-    unit : str
-        Length unit of the poses.
-    setup : {"eye-in-hand", "eye-to-hand"}
-        Eye-to-hand the model's positions are the inverted poses: the error is turned
-        back into the robot's terms.
-    R_model : (n_views, 3, 3) float, optional
-        The model's flange rotations (eye-to-hand: inverted), for that.
+    view : int
+        Index of the view.
+    dT : (3,) float
+        Recorded minus implied position, in the model's frame (robot units).
+    angle_deg : float
+        Angle of the orientation's error (degrees).
+    p_value : float
+        Of the test that named it (the score test, or the resection's).
     """
+
+    view: int
+    dT: np.ndarray
+    angle_deg: float
+    p_value: float
+
+
+def find_pose_outliers(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA) -> list:
+    """The views whose recorded position their images contradict, most significant first:
+    :func:`pose_test`, each named view's pose refitted for the size of its error; when it
+    names none, :func:`resection_test` (a view whose tracks the robust stage dropped).
+
+    ``uv``, ``T``, ``calibration``, ``alpha`` as :func:`pose_test`. Returns a list of
+    :class:`PoseOutlier`."""
     res = pose_test(uv, T, calibration, alpha=alpha)
     views = res["flagged"]
     if views:
         fit = _refit(uv, T, calibration, views)
         dT = -res["step"][views, :3] if fit is None else -fit[0]  # recorded minus implied
         ang = np.degrees(np.linalg.norm(res["step"][views, 3:], axis=1)) if fit is None else fit[1]
-    else:  # a view whose tracks the robust stage dropped: resected from the others' points
+    else:
         res = resection_test(uv, T, calibration, alpha=alpha)
         views = res["flagged"]
-        if not views:
-            return []
         dT, ang = res["dC"][views], res["angle_deg"][views]
-    parts = []
-    for k, i in enumerate(views):
-        d = _robot_frame(dT[k], i, setup, R_model)
-        parts.append(f"{view_name(view_ids, i)}: its recorded position is off by about {np.linalg.norm(d):.3g} "
-                     f"{unit} ({'x, y, z' if setup == 'eye-in-hand' else 'robot base x, y, z'} {fmt_vec(d)} {unit}) "
-                     f"and its orientation by {ang[k]:.2g} deg (p = {res['p_value'][i]:.1e})")
+    return [PoseOutlier(int(i), np.asarray(dT[k], float), float(ang[k]), float(res["p_value"][i]))
+            for k, i in enumerate(views)]
+
+
+def describe_pose_outlier(o: PoseOutlier, *, view_ids=None, unit: str = "units", setup: str = "eye-in-hand",
+                          R_model=None) -> str:
+    """``view <id>: its recorded position is off by about ... and its orientation by ...``
+    in the robot's terms (eye-to-hand the model's positions are the inverted poses: the
+    error is turned back; ``R_model (n_views, 3, 3)`` the model's flange rotations)."""
+    d = _robot_frame(o.dT, o.view, setup, R_model)
+    axes = "x, y, z" if setup == "eye-in-hand" else "robot base x, y, z"
+    return (f"{view_name(view_ids, o.view)}: its recorded position is off by about {np.linalg.norm(d):.3g} {unit} "
+            f"({axes} {fmt_vec(d)} {unit}) and its orientation by {o.angle_deg:.2g} deg (p = {o.p_value:.1e})")
+
+
+def check_pose_outliers(uv, T, calibration: Calibration, *, view_ids=None, unit: str = "units",
+                        setup: str = "eye-in-hand", R_model=None, alpha: float = POSE_ALPHA) -> list:
+    """``pose_outlier`` naming each view whose recorded position its image contradicts,
+    with the size of the error in robot units (and the orientation's in degrees):
+    :func:`find_pose_outliers`, described by :func:`describe_pose_outlier`."""
+    found = find_pose_outliers(uv, T, calibration, alpha=alpha)
+    if not found:
+        return []
+    parts = [describe_pose_outlier(o, view_ids=view_ids, unit=unit, setup=setup, R_model=R_model) for o in found]
     return [Diagnostic(
         "pose_outlier",
         f"the image of some view(s) contradicts the recorded pose: {'; '.join(parts)}. The calibration is biased: "

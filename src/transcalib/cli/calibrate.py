@@ -123,6 +123,10 @@ def _model(g) -> None:
                    help="do not test for a robot error common to each session's views (by default, with several "
                         "sessions, one the test finds is included in the std, model-based or sandwich; "
                         "docs/uncertainty.md §7.2)")
+    g.add_argument("--keep-pose-outliers", action="store_true",
+                   help="keep a view whose image contradicts its recorded pose in the fit, named by a pose_outlier "
+                        "warning (default: such views are left out and the calibration refitted without them, at "
+                        "most a quarter of the views; pose_left_out names each with the size of its error)")
 
 
 def _robust(g) -> None:
@@ -233,7 +237,7 @@ def build_options(args, size=None):
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
-                               unit=args.unit, subset_points=args.subset_points, setup=args.setup,
+                               keep_pose_outliers=args.keep_pose_outliers, unit=args.unit, subset_points=args.subset_points, setup=args.setup,
                                session_tolerance_deg=args.session_tolerance_deg)
     if args.target and not (args.images or args.bag):
         raise OptionError("--target", "applies to --images or --bag only")
@@ -250,6 +254,7 @@ def _check_refinement_options(args, fixed: dict) -> None:
                                         ("--robot-error", args.robot_error),
                                         ("--uncertainty", args.uncertainty), ("--no-view-field", args.no_view_field),
                                         ("--no-session-error", args.no_session_error),
+                                        ("--keep-pose-outliers", args.keep_pose_outliers),
                                         ("--loss", args.loss), ("--loss-scale-px", args.loss_scale_px),
                                         ("--estimate-skew", args.estimate_skew),
                                         ("--square-pixels", args.square_pixels), ("--fix", fixed)) if value]
@@ -532,7 +537,8 @@ def _work(args, plan, folder, progress: Progress, t_start: float, worker) -> dic
     cal = calibrate(uv, plan["poses"], setup=opts.setup, session_tolerance_deg=opts.session_tolerance_deg,
                     refine=opts.refine, robust=opts.robust, ransac=opts.ransac,
                     refinement=opts.refinement if opts.refine else None, image_size=plan["image_size"],
-                    unit=args.unit, subset_points=opts.subset_points, rng=args.seed, progress=progress)
+                    keep_pose_outliers=opts.keep_pose_outliers, unit=args.unit, subset_points=opts.subset_points,
+                    rng=args.seed, progress=progress)
     t_write = time.perf_counter()
     memory["after_calibrate"] = _peak_rss_gib()
     inputs = {"tracks": None if args.tracks is None else str(args.tracks),

@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
 from ..check import diagnose, skipped
+from ..check.fixed import check_fixed
+from ..check.poses import find_pose_outliers
 from ..check.prediction import LOO_MIN_VIEWS, leave_one_view_out
 from ..errors import DegenerateError, InputError
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
@@ -30,9 +33,21 @@ from .motion import Motion, motion_of
 from .result import with_motion
 from .stages import all_residuals, extend_to_all_tracks, from_linear, masked, refine_and_rejudge
 from .start import explain_motion, initial_estimate
-from .views_off import left_out_mask, orientation_off, rejudge_views
+from .views_off import max_left_out, orientation_off, pose_left_out, rejudge_views
 
 __all__ = ["calibrate"]
+
+
+class _Fitted(NamedTuple):
+    """A refined fit: the calibration, its inlier tracks, the stages run, their clocks, and
+    ``rotation_data`` ``(uv, calibration)`` the subset's fit (with a subset; else None),
+    which the tests of the poses run on."""
+
+    cal: Calibration
+    inliers: np.ndarray | None
+    stages: list
+    timings: dict
+    rotation_data: tuple | None
 
 
 def calibrate(
@@ -50,6 +65,7 @@ def calibrate(
     ransac: RansacOptions | None = None,
     refinement: RefineOptions | None = None,
     check_rotation: bool = True,
+    keep_pose_outliers: bool = False,
     image_size=None,
     unit: str = "units",
     subset_points: int | None = SUBSET_POINTS,
@@ -101,7 +117,13 @@ def calibrate(
         Options of the refinement; the keywords above override their fields.
     check_rotation : bool
         Test for views where the camera turned otherwise than the poses say (model
-        violation); needs ``refine``.
+        violation), and whether each view's image agrees with its recorded pose; needs
+        ``refine``.
+    keep_pose_outliers : bool
+        Name a view whose image contradicts its recorded pose (``pose_outlier``) but keep
+        it in the fit. Default: such views are left out, the most significant first, and
+        the calibration refitted without them (at most a quarter of the views;
+        ``pose_left_out`` names each with the size of its error).
     image_size : (width, height), optional
         Recorded in the result's camera.
     unit : str
@@ -133,30 +155,37 @@ def calibrate(
     motion = motion_of(poses, setup, session_tolerance_deg)
     uv, _ = as_uv_T(uv, motion.T, **({} if motion.constant else {"min_views": 2}))
     opts = _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement,
-                    check_rotation, unit, subset_points, setup, session_tolerance_deg)
+                    check_rotation, keep_pose_outliers, unit, subset_points, setup, session_tolerance_deg)
     t0 = time.perf_counter()
     span = explain_motion(motion, opts)  # degeneracy first: raises naming what the motion cannot determine
     subset = _fit_subset(uv, opts, rng)
     start = initial_estimate(uv if subset is None else uv[:, subset], motion, opts, rng, progress,
                              coplanar=span is not None, image_size=image_size)
-    cal, inliers, stages, timings, rotation_data = _fit(_without(uv, start.off_views), motion.T, subset, start, opts,
-                                                        progress)
+    fitted = _fit(_without(uv, _views(start.off_views)), motion.T, subset, start, opts, progress)
     if start.off_views and opts.refine:  # judged again with the refined lens: those that agree come back
-        off = rejudge_views(uv, motion, cal, start.off_views, rng)
+        off = rejudge_views(uv, motion, fitted.cal, start.off_views, rng)
         if len(off) < len(start.off_views):
             report(progress, "views re-admitted", views=len(start.off_views) - len(off))
             start = replace(start, off_views=off)
-            cal, inliers, stages, more_timings, rotation_data = _fit(_without(uv, off), motion.T, subset, start, opts,
-                                                                     progress)
-            timings = {**more_timings, "start_s": timings["start_s"]}
-    left_out = left_out_mask(start.off_views, motion.n_views)
-    uv = _without(uv, start.off_views)
+            fitted = _refitted(fitted, _fit(_without(uv, _views(off)), motion.T, subset, start, opts, progress))
+    pose_off = []
+    if opts.refine and opts.check_rotation and not opts.keep_pose_outliers:
+        pose_off, fitted = _leave_out_pose_outliers(uv, motion, start, fitted, subset, opts, progress)
+    off_views = _views(start.off_views) + [o.view for o in pose_off]
+    left_out = np.isin(np.arange(motion.n_views), off_views)
+    uv = _without(uv, off_views)
+    cal, inliers, stages, timings, rotation_data = fitted
+    if pose_off:
+        stages = stages + [f"{len(pose_off)} view(s) left out (pose)"]
     timings = {f"{start.stages[0]}_s": timings.pop("start_s") - t0, **timings}
     result = replace(cal, camera=replace(cal.camera, image_size=image_size), inliers=inliers,
                      residuals_px=all_residuals(uv, cal, inliers), options=opts, diagnostics=(),
                      stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=start.ransac))
     t2 = time.perf_counter()
-    found = [orientation_off(v, deg, motion.grouping.tolerance_deg) for v, deg in start.off_views] + diagnose(
+    found = [orientation_off(v, deg, motion.grouping.tolerance_deg) for v, deg in start.off_views]
+    if pose_off:
+        found.append(pose_left_out(pose_off, motion, view_ids=getattr(poses, "views", None), unit=unit))
+    found += diagnose(
         uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
         unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
         views_left_out=left_out, view_ids=getattr(poses, "views", None), setup=setup)
@@ -175,9 +204,45 @@ def calibrate(
     return with_motion(result, motion, start.notes)
 
 
-def _without(uv: np.ndarray, off_views) -> np.ndarray:
-    """``uv`` without the observations of the views ``off_views`` ((view, degrees), ...)."""
-    return np.where(left_out_mask(off_views, uv.shape[0])[:, None, None], np.nan, uv) if off_views else uv
+def _views(off_views) -> list:
+    """The view indices of ``off_views`` ((view, degrees), ...)."""
+    return [v for v, _ in off_views]
+
+
+def _without(uv: np.ndarray, views) -> np.ndarray:
+    """``uv`` without the observations of ``views`` (indices)."""
+    return np.where(np.isin(np.arange(uv.shape[0]), views)[:, None, None], np.nan, uv) if len(views) else uv
+
+
+def _leave_out_pose_outliers(uv, motion: Motion, start, fitted: _Fitted, subset, opts: CalibrateOptions, progress):
+    """Views whose image contradicts their recorded pose, left out one at a time, the most
+    significant first, refitting without each (at most :func:`.views_off.max_left_out`;
+    a refit the motion left cannot make keeps the view): ``(found, fitted)``, ``found`` a
+    list of :class:`~transcalib.check.poses.PoseOutlier`. Not with a fixed parameter the
+    data contradict: its residuals would be blamed on the poses."""
+    found, cap = [], max_left_out(motion.n_views)
+    while len(found) < cap:
+        fit_uv = _without(uv, _views(start.off_views) + [o.view for o in found])
+        data = fitted.rotation_data or (fit_uv, replace(fitted.cal, inliers=fitted.inliers))  # as diagnose()
+        try:
+            if not found and opts.refinement.fix and any(
+                    d.code == "fix_contradicted" for d in check_fixed(data[0], motion.T, data[1])):
+                break
+            new = find_pose_outliers(data[0], motion.T, data[1])[:1]
+            if not new:
+                break
+            report(progress, "view left out (its image contradicts its pose)", view=new[0].view)
+            fitted = _refitted(fitted, _fit(_without(fit_uv, [new[0].view]), motion.T, subset, start, opts,
+                                            progress))
+        except DegenerateError:
+            break
+        found += new
+    return found, fitted
+
+
+def _refitted(old: _Fitted, new: _Fitted) -> _Fitted:
+    """``new`` with the clock of ``old``'s start (the first fit's)."""
+    return new._replace(timings={**new.timings, "start_s": old.timings["start_s"]})
 
 
 def _prediction(fit, motion: Motion, opts: CalibrateOptions, view_ids) -> dict:
@@ -194,25 +259,25 @@ def _prediction(fit, motion: Motion, opts: CalibrateOptions, view_ids) -> dict:
 
 def _fit(uv, T, subset, start, opts: CalibrateOptions, progress):
     """Refinement and re-judging on the fit's tracks, then every track (with a subset):
-    ``(cal, inliers, stages, timings, rotation data)``; ``timings["start_s"]`` the clock
-    at the start's end."""
+    a :class:`_Fitted`; ``timings["start_s"]`` the clock at the start's end."""
     uv_sub = uv if subset is None else uv[:, subset]
     timings, stages, inliers = {"start_s": time.perf_counter()}, list(start.stages), start.inliers
     if not opts.refine:
-        return (replace(from_linear(masked(uv, inliers), T, start.linear, start.flange), linear=start.linear),
-                inliers, stages, timings, None)
+        return _Fitted(replace(from_linear(masked(uv, inliers), T, start.linear, start.flange), linear=start.linear),
+                       inliers, stages, timings, None)
     t1 = time.perf_counter()
     cal, inliers, more = refine_and_rejudge(uv_sub, T, start.linear, inliers, opts, progress, start.flange)
     stages += more
     timings["refine_s"] = time.perf_counter() - t1
     if subset is None:
-        return cal, inliers, stages, timings, None
+        return _Fitted(cal, inliers, stages, timings, None)
     t1 = time.perf_counter()
     rotation_data = (masked(uv_sub, inliers), cal)  # the rotation test runs on the subset's fit
     cal, inliers = extend_to_all_tracks(uv, T, cal, inliers, opts, progress)
     stages.append("all tracks")
     timings["all_tracks_s"] = time.perf_counter() - t1
-    return replace(cal, linear=_widened(start.linear, subset, uv.shape[1])), inliers, stages, timings, rotation_data
+    return _Fitted(replace(cal, linear=_widened(start.linear, subset, uv.shape[1])), inliers, stages, timings,
+                   rotation_data)
 
 
 def _fit_subset(uv: np.ndarray, opts: CalibrateOptions, rng) -> np.ndarray | None:
@@ -243,7 +308,7 @@ def _widened(linear: LinearEstimate, subset: np.ndarray, n_points: int) -> Linea
 
 
 def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, refinement, check_rotation,
-             unit, subset_points, setup, session_tolerance_deg) -> CalibrateOptions:
+             keep_pose_outliers, unit, subset_points, setup, session_tolerance_deg) -> CalibrateOptions:
     """The :class:`CalibrateOptions` of a call; keywords override ``refinement``'s fields."""
     r = refinement if refinement is not None else RefineOptions()
     overrides = {k: v for k, v in (("distortion", distortion), ("sigma_T", sigma_T), ("fix", fix),
@@ -255,7 +320,8 @@ def _options(refine, robust, distortion, sigma_T, fix, square_pixels, ransac, re
     if refine:
         check_fixed_distortion(r)
     return CalibrateOptions(refine=bool(refine), robust=robust, ransac=ransac or RansacOptions(), refinement=r,
-                            check_rotation=bool(check_rotation), unit=str(unit), subset_points=subset_points,
+                            check_rotation=bool(check_rotation), keep_pose_outliers=bool(keep_pose_outliers),
+                            unit=str(unit), subset_points=subset_points,
                             setup=setup, session_tolerance_deg=float(session_tolerance_deg))
 
 

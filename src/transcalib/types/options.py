@@ -305,7 +305,12 @@ class CalibrateOptions:
     ransac : RansacOptions
     refinement : RefineOptions
     check_rotation : bool
-        Test for views where the robot rotated (needs ``refine``).
+        Test for views where the robot rotated, and whether each view's image agrees with
+        its recorded pose (needs ``refine``).
+    keep_pose_outliers : bool
+        Keep a view whose image contradicts its recorded pose in the fit (named by
+        ``pose_outlier``); default: left out and the calibration refitted
+        (``pose_left_out``).
     unit : str
         Name of the length unit of the translations (messages and files).
     subset_points : int or None
@@ -327,6 +332,7 @@ class CalibrateOptions:
     ransac: RansacOptions = field(default_factory=RansacOptions)
     refinement: RefineOptions = field(default_factory=RefineOptions)
     check_rotation: bool = True
+    keep_pose_outliers: bool = False
     unit: str = "units"
     subset_points: int | None = SUBSET_POINTS
     setup: str = "eye-in-hand"
