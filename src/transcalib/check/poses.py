@@ -42,12 +42,17 @@ from ..types import Calibration
 from .common import camera_poses, fmt_vec, inlier_uv
 from .rotation import _refinement
 
-__all__ = ["pose_test", "find_pose_outliers", "describe_pose_outlier", "PoseOutlier", "check_pose_outliers",
+__all__ = ["pose_test", "robot_error_test", "find_pose_outliers", "describe_pose_outlier", "PoseOutlier", "check_pose_outliers",
            "check_repeated_poses", "check_unit", "truth_mismatch", "POSE_ALPHA", "REPEATED_ALPHA",
            "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
 
 #: Family-wise false-alarm rate of the outlying-pose test on correct poses (Bonferroni over views).
 POSE_ALPHA = 1e-3
+#: A view's estimated robot error that stands out at this level (family-wise) is tested by
+#: refitting without it (:func:`robot_error_test`): it sets only how often that refit runs.
+ROBOT_GATE = 0.05
+#: The median of chi-square(1).
+CHI2_1_MEDIAN = 0.4549364231195724
 #: Practical significance: the position error must move the view's points by at least
 #: this much (RMS, px) beyond what a rotation explains.
 MIN_POSITION_SHIFT_PX = 0.1
@@ -212,10 +217,6 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
         ``flagged`` (views), ``dC (n_views, 3)`` (recorded minus fitted centre, model
         frame), ``angle_deg (n_views,)``, ``p_value (n_views,)``.
     """
-    from ..geometry.camera import project
-    from ..geometry.rotation import rotvec_to_matrix
-    from ..geometry.triangulate import triangulate
-
     n = uv.shape[0]
     out = {"flagged": [], "dC": np.zeros((n, 3)), "angle_deg": np.zeros(n), "p_value": np.ones(n)}
     if calibration.inliers is None or not calibration.sigma_px:
@@ -223,40 +224,80 @@ def resection_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA
     seen = np.isfinite(uv[..., 0])
     R_cam, C = camera_poses(calibration, T)
     R_cam = np.broadcast_to(R_cam, (n, 3, 3))
-    sigma, inl = calibration.sigma_px, np.asarray(calibration.inliers, bool)
+    inl = np.asarray(calibration.inliers, bool)
     multi = seen.sum(axis=0) >= 3
     fraction = np.array([inl[seen[v] & multi].mean() if (seen[v] & multi).any() else 1.0 for v in range(n)])
     for v in np.flatnonzero(fraction < 0.5 * min(1.0, np.median(fraction))):
-        others = np.delete(np.arange(n), v)
-        tracks = seen[v] & (seen[others].sum(axis=0) >= 2)
-        if tracks.sum() < min_points:
+        fit = _resect(uv, calibration, R_cam, C, v, min_points)
+        if fit is None:
             continue
-        X = triangulate(calibration.K @ R_cam[others], uv[others][:, tracks], C[others], K=calibration.K,
-                        dist=calibration.dist)
-
-        def residuals(p, X=X, v=v, tracks=tracks):
-            x = project(calibration.K, rotvec_to_matrix(p[:3]) @ R_cam[v], np.nan_to_num(X), (C[v] + p[3:])[None],
-                        calibration.dist)[0]
-            return (uv[v, tracks] - x).ravel()
-
-        ok = np.isfinite(X[:, 0])
-        from scipy.optimize import least_squares  # here: a tenth of a second, rarely needed
-
-        fit = least_squares(lambda p: np.nan_to_num(residuals(p)[np.repeat(ok, 2)], nan=1e6), np.zeros(6),
-                            loss="soft_l1", f_scale=3 * sigma, x_scale="jac")
-        r = fit.fun.reshape(-1, 2)
-        keep = np.repeat(np.hypot(r[:, 0], r[:, 1]) < 3 * sigma * 2.5, 2)
-        if keep.sum() < 2 * min_points:
-            continue
-        J = fit.jac[keep]
-        cov = sigma**2 * np.linalg.pinv(J.T @ J)[3:, 3:]
-        d = fit.x[3:]
-        stat = float(d @ np.linalg.pinv(cov) @ d)
-        out["dC"][v], out["angle_deg"][v], out["p_value"][v] = -d, np.degrees(np.linalg.norm(fit.x[:3])), \
+        x, cov = fit
+        stat = float(x[3:] @ np.linalg.pinv(cov[3:, 3:]) @ x[3:])
+        out["dC"][v], out["angle_deg"][v], out["p_value"][v] = -x[3:], np.degrees(np.linalg.norm(x[:3])), \
             float(chi2_sf(stat, 3))
     best = int(np.argmin(out["p_value"]))
     out["flagged"] = [best] if out["p_value"][best] < alpha / n else []  # the one view that stands out
     return out
+
+
+def _resect(uv, calibration: Calibration, R_cam, C, v: int, min_points: int = 6, K=None):
+    """View ``v``'s camera refitted to its tracks triangulated from the other views
+    (cameras ``R_cam (n, 3, 3)``, centres ``C (n, 3)``, intrinsics ``K`` or the
+    calibration's): ``(x, cov)``, ``x = (w, d)`` the rotation vector (rad; the camera
+    becomes ``exp([w]x) R_cam[v]``) and the centre's move, ``cov (6, 6)`` = ``sigma^2 (J^T
+    J)^-1`` from the observations kept within 7.5 sigma (soft-L1 at 3 sigma); None with
+    fewer than ``min_points`` tracks."""
+    from scipy.optimize import least_squares  # here: a tenth of a second, rarely needed
+
+    from ..geometry.camera import project
+    from ..geometry.rotation import rotvec_to_matrix
+    from ..geometry.triangulate import triangulate
+
+    seen = np.isfinite(uv[..., 0])
+    others = np.delete(np.arange(uv.shape[0]), v)
+    tracks = seen[v] & (seen[others].sum(axis=0) >= 2)
+    if tracks.sum() < min_points:
+        return None
+    K = calibration.K if K is None else K
+    dist, sigma = calibration.dist, calibration.sigma_px
+    X = triangulate(K @ R_cam[others], uv[others][:, tracks], C[others], K=K, dist=dist)
+    ok = np.repeat(np.isfinite(X[:, 0]), 2)
+
+    def residuals(p):
+        x = project(K, rotvec_to_matrix(p[:3]) @ R_cam[v], np.nan_to_num(X), (C[v] + p[3:])[None], dist)[0]
+        return np.nan_to_num((uv[v, tracks] - x).ravel()[ok], nan=1e6)
+
+    fit = least_squares(residuals, np.zeros(6), loss="soft_l1", f_scale=3 * sigma, x_scale="jac")
+    r = fit.fun.reshape(-1, 2)
+    keep = np.repeat(np.hypot(r[:, 0], r[:, 1]) < 3 * sigma * 2.5, 2)
+    if keep.sum() < 2 * min_points:
+        return None
+    J = fit.jac[keep]
+    return fit.x, sigma**2 * np.linalg.pinv(J.T @ J)
+
+
+def _resect_predictive(uv, calibration: Calibration, R_cam, C, v: int):
+    """:func:`_resect` with the intrinsics' uncertainty in its covariance: ``cov + B C_K
+    B^T``, ``C_K`` the covariance of fx, fy, cx, cy and ``B (6, 4)`` the resection's
+    change per unit of each (the points triangulated again), by differences of one std;
+    None as :func:`_resect`."""
+    fit = _resect(uv, calibration, R_cam, C, v)
+    if fit is None or calibration.cov is None:
+        return fit
+    names = list(calibration.param_names)
+    where = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+    free = [k for k in where if k in names]
+    idx = [names.index(k) for k in free]
+    C_K = np.asarray(calibration.cov, float)[np.ix_(idx, idx)]
+    B = np.zeros((6, len(free)))
+    for a, k in enumerate(free):
+        step = np.sqrt(C_K[a, a])
+        K = np.array(calibration.K, float)
+        K[where[k]] += step
+        moved = _resect(uv, calibration, R_cam, C, v, K=K) if step > 0 else None
+        if moved is not None:
+            B[:, a] = (moved[0] - fit[0]) / step
+    return fit[0], fit[1] + B @ C_K @ B.T
 
 
 @dataclass(frozen=True)
@@ -281,10 +322,93 @@ class PoseOutlier:
     p_value: float
 
 
+def robot_error_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA) -> dict:
+    """A view whose recorded pose the robot's pose error does not explain, with the
+    robot error in the model (:attr:`Calibration.robot_error` estimated).
+
+    There a wrong pose is absorbed as that view's error, the error's scale inflated and
+    part of it spread over the calibration: the score test sees nothing. The candidate is
+    the view whose estimated error stands out most from the others' (per axis ``e^2`` over
+    the median of all views' ``e^2``, as chi-square(1)); when it stands out at
+    ``ROBOT_GATE`` (Bonferroni over the axes), the calibration is refitted without the
+    view (the robot error's scales estimated again) and the view's camera resected from
+    the points the other views triangulate (:func:`_resect`). Its recorded pose is
+    contradicted when the centre's move ``d`` or the rotation ``w`` exceeds what the
+    refit's robot error predicts, the resection's own covariance added::
+
+        d^T (C_d + (sigma_pos^2 + sigma_rot^2 |l|^2) I)^-1 d ~ chi-square(3)
+        w^T (C_w + sigma_rot^2 I)^-1 w ~ chi-square(3)
+
+    ``l`` the rotation error's lever (the camera's offset from the flange; eye-to-hand the
+    camera centre in the model frame; zero for one orientation, where the position error
+    is the camera centre's). The smaller p-value, times ``2 n_views``, below ``alpha``
+    names the view.
+
+    Returns
+    -------
+    dict
+        ``flagged`` (at most one view), ``dC (n_views, 3)`` (recorded minus resected
+        centre, model frame), ``angle_deg (n_views,)``, ``p_value (n_views,)``.
+    """
+    n = uv.shape[0]
+    out = {"flagged": [], "dC": np.zeros((n, 3)), "angle_deg": np.zeros(n), "p_value": np.ones(n)}
+    v = _robot_error_candidate(calibration.robot_error)
+    if v is None:
+        return out
+    others = np.where((np.arange(n) == v)[:, None, None], np.nan, inlier_uv(uv, calibration))
+    opts = replace(calibration.options.refinement if calibration.options is not None else _refinement(calibration),
+                   distortion=calibration.dist_model)
+    try:
+        loo = refine(others, T, calibration, options=opts)
+    except DegenerateError:
+        return out
+    R_cam, C = camera_poses(loo, T)
+    R_cam = np.array(np.broadcast_to(R_cam, (n, 3, 3)))
+    Ri = loo.flange_rotations
+    R_cam[v], C[v] = (x[0] for x in loo.camera_poses(T[[v]], None if Ri is None else np.asarray(Ri)[[v]]))
+    fit = _resect_predictive(uv, loo, R_cam, C, v)
+    if fit is None:
+        return out
+    x, cov = fit
+    re = loo.robot_error
+    s_rot, s_pos = (0.0, 0.0) if re is None else (np.radians(re.sigma_rot_deg), re.sigma_pos)
+    r_rot, r_pos = (0.0, 0.0) if re is None else re.redundancy
+    lever = 0.0 if Ri is None else float(np.linalg.norm(C[v] - (T[v] if loo.hand_eye.setup == "eye-in-hand" else 0)))
+    p_pos = _predictive_p(x[3:], cov[3:, 3:], s_pos**2 + (s_rot * lever) ** 2, r_pos if s_pos > 0 else r_rot)
+    p_rot = _predictive_p(x[:3], cov[:3, :3], s_rot**2, r_rot)
+    out["dC"][v], out["angle_deg"][v] = -x[3:], np.degrees(np.linalg.norm(x[:3]))
+    out["p_value"][v] = min(1.0, 2 * n * min(p_pos, p_rot))
+    out["flagged"] = [v] if out["p_value"][v] < alpha else []
+    return out
+
+
+def _predictive_p(x: np.ndarray, cov: np.ndarray, prior_var: float, dof: float) -> float:
+    """p-value of ``x (3,)`` against ``N(0, cov + prior_var I)``: chi-square(3), or with a
+    prior variance estimated on ``dof`` degrees of freedom F(3, dof) (its own scatter)."""
+    d = float(x @ np.linalg.solve(cov + prior_var * np.eye(3), x))
+    return float(f_sf(d / 3.0, 3, dof)) if prior_var > 0 and dof > 0 else float(chi2_sf(d, 3))
+
+
+def _robot_error_candidate(re) -> int | None:
+    """The view whose estimated robot error stands out most (:func:`robot_error_test`),
+    or None when none stands out at ``ROBOT_GATE`` or no component is estimated."""
+    if re is None:
+        return None
+    z2 = [np.asarray(e, float) ** 2 / max(np.median(np.asarray(e, float) ** 2) / CHI2_1_MEDIAN, 1e-300)
+          for e, source in ((re.rot_deg, re.source[0]), (re.pos, re.source[1])) if source == "estimated"]
+    if not z2:
+        return None
+    z2 = np.hstack(z2)
+    worst = z2.max(axis=1)
+    v = int(np.argmax(worst))
+    return v if z2.size * chi2_sf(worst[v], 1) < ROBOT_GATE else None
+
+
 def find_pose_outliers(uv, T, calibration: Calibration, *, alpha: float = POSE_ALPHA) -> list:
     """The views whose recorded position their images contradict, most significant first:
     :func:`pose_test`, each named view's pose refitted for the size of its error; when it
-    names none, :func:`resection_test` (a view whose tracks the robust stage dropped).
+    names none, :func:`robot_error_test` (the robot error in the model absorbed the wrong
+    pose), then :func:`resection_test` (a view whose tracks the robust stage dropped).
 
     ``uv``, ``T``, ``calibration``, ``alpha`` as :func:`pose_test`. Returns a list of
     :class:`PoseOutlier`."""
@@ -295,7 +419,10 @@ def find_pose_outliers(uv, T, calibration: Calibration, *, alpha: float = POSE_A
         dT = -res["step"][views, :3] if fit is None else -fit[0]  # recorded minus implied
         ang = np.degrees(np.linalg.norm(res["step"][views, 3:], axis=1)) if fit is None else fit[1]
     else:
-        res = resection_test(uv, T, calibration, alpha=alpha)
+        for test in (robot_error_test, resection_test):
+            res = test(uv, T, calibration, alpha=alpha)
+            if res["flagged"]:
+                break
         views = res["flagged"]
         dT, ang = res["dC"][views], res["angle_deg"][views]
     return [PoseOutlier(int(i), np.asarray(dT[k], float), float(ang[k]), float(res["p_value"][i]))

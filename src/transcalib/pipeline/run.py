@@ -143,8 +143,10 @@ def calibrate(
     -------
     Calibration
         With ``diagnostics``, ``inliers`` (robust runs), ``cov``/``std``/``X_std``
-        (refined runs), ``hand_eye`` (with orientations in the poses), ``options`` and
-        ``stats`` (stages, timings, the robust stage, the refinement).
+        (refined runs), ``hand_eye`` (with orientations in the poses), ``options``,
+        ``stats`` (stages, timings, the robust stage, the refinement) and ``info``
+        (``"views_left_out"``: the views whose images contradict their poses, each
+        ``{"view": index, "why": "orientation" | "pose"}``; ``"leave_one_view_out"``).
 
     Raises
     ------
@@ -159,25 +161,22 @@ def calibrate(
     t0 = time.perf_counter()
     span = explain_motion(motion, opts)  # degeneracy first: raises naming what the motion cannot determine
     subset = _fit_subset(uv, opts, rng)
-    start = initial_estimate(uv if subset is None else uv[:, subset], motion, opts, rng, progress,
-                             coplanar=span is not None, image_size=image_size)
-    fitted = _fit(_without(uv, _views(start.off_views)), motion.T, subset, start, opts, progress)
-    if start.off_views and opts.refine:  # judged again with the refined lens: those that agree come back
-        off = rejudge_views(uv, motion, fitted.cal, start.off_views, rng)
-        if len(off) < len(start.off_views):
-            report(progress, "views re-admitted", views=len(start.off_views) - len(off))
-            start = replace(start, off_views=off)
-            fitted = _refitted(fitted, _fit(_without(uv, _views(off)), motion.T, subset, start, opts, progress))
+    def run(data):  # the start and the refinement of the data ``data`` (every view's, or fewer)
+        return _start_and_fit(data, motion, opts, subset, span is not None, image_size, rng, progress)
+
+    start, fitted = run(uv)
     pose_off = []
     if opts.refine and opts.check_rotation and not opts.keep_pose_outliers:
-        pose_off, fitted = _leave_out_pose_outliers(uv, motion, start, fitted, subset, opts, progress)
+        pose_off, start, fitted = _leave_out_pose_outliers(uv, motion, opts, start, fitted, run, progress)
     off_views = _views(start.off_views) + [o.view for o in pose_off]
     left_out = np.isin(np.arange(motion.n_views), off_views)
     uv = _without(uv, off_views)
     cal, inliers, stages, timings, rotation_data = fitted
+    begin = timings.pop("begin_s")
+    timings = {f"{start.stages[0]}_s": timings.pop("start_s") - begin, **timings}
     if pose_off:
         stages = stages + [f"{len(pose_off)} view(s) left out (pose)"]
-    timings = {f"{start.stages[0]}_s": timings.pop("start_s") - t0, **timings}
+        timings["earlier_fits_s"] = begin - t0
     result = replace(cal, camera=replace(cal.camera, image_size=image_size), inliers=inliers,
                      residuals_px=all_residuals(uv, cal, inliers), options=opts, diagnostics=(),
                      stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=start.ransac))
@@ -200,7 +199,7 @@ def calibrate(
     report(progress, "prediction", **({} if not info else {"rms_px": info["leave_one_view_out"]["rms_px"]}))
     timings = {**result.stats.timings_s, "diagnostics_s": t3 - t2, "prediction_s": time.perf_counter() - t3}
     result = replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings),
-                     info={**result.info, **info})
+                     info={**result.info, **info, "views_left_out": _left_out_info(start.off_views, pose_off)})
     return with_motion(result, motion, start.notes)
 
 
@@ -209,17 +208,43 @@ def _views(off_views) -> list:
     return [v for v, _ in off_views]
 
 
+def _left_out_info(off_views, pose_off) -> list:
+    """``Calibration.info["views_left_out"]``: ``{"view": index, "why": "orientation" |
+    "pose"}`` for each view left out of the fit (the diagnostics say by how much)."""
+    return [{"view": int(v), "why": "orientation"} for v in _views(off_views)] + [
+        {"view": o.view, "why": "pose"} for o in pose_off]
+
+
 def _without(uv: np.ndarray, views) -> np.ndarray:
     """``uv`` without the observations of ``views`` (indices)."""
     return np.where(np.isin(np.arange(uv.shape[0]), views)[:, None, None], np.nan, uv) if len(views) else uv
 
 
-def _leave_out_pose_outliers(uv, motion: Motion, start, fitted: _Fitted, subset, opts: CalibrateOptions, progress):
+def _start_and_fit(uv, motion: Motion, opts: CalibrateOptions, subset, coplanar: bool, image_size, rng,
+                   progress) -> tuple:
+    """The start on ``uv`` (the subset's tracks), the refinement without the single views
+    whose orientation the start found off, and again with those the refined lens takes
+    back: ``(start, fitted)``; ``fitted.timings["begin_s"]`` the clock at the beginning."""
+    begin = time.perf_counter()
+    start = initial_estimate(uv if subset is None else uv[:, subset], motion, opts, rng, progress,
+                             coplanar=coplanar, image_size=image_size)
+    fitted = _fit(_without(uv, _views(start.off_views)), motion.T, subset, start, opts, progress)
+    if start.off_views and opts.refine:  # judged again with the refined lens: those that agree come back
+        off = rejudge_views(uv, motion, fitted.cal, start.off_views, rng)
+        if len(off) < len(start.off_views):
+            report(progress, "views re-admitted", views=len(start.off_views) - len(off))
+            start = replace(start, off_views=off)
+            fitted = _refitted(fitted, _fit(_without(uv, _views(off)), motion.T, subset, start, opts, progress))
+    return start, fitted._replace(timings={"begin_s": begin, **fitted.timings})
+
+
+def _leave_out_pose_outliers(uv, motion: Motion, opts: CalibrateOptions, start, fitted: _Fitted, run, progress):
     """Views whose image contradicts their recorded pose, left out one at a time, the most
-    significant first, refitting without each (at most :func:`.views_off.max_left_out`;
-    a refit the motion left cannot make keeps the view): ``(found, fitted)``, ``found`` a
-    list of :class:`~transcalib.check.poses.PoseOutlier`. Not with a fixed parameter the
-    data contradict: its residuals would be blamed on the poses."""
+    significant first, the whole fit ``run(data)`` run again without each (at most
+    :func:`.views_off.max_left_out`; one that leaves a motion the fit cannot use is kept):
+    ``(found, start, fitted)``, ``found`` a list of :class:`~transcalib.check.poses.PoseOutlier`.
+    Not with a fixed parameter the data contradict: its residuals would be blamed on the
+    poses."""
     found, cap = [], max_left_out(motion.n_views)
     while len(found) < cap:
         fit_uv = _without(uv, _views(start.off_views) + [o.view for o in found])
@@ -232,12 +257,11 @@ def _leave_out_pose_outliers(uv, motion: Motion, start, fitted: _Fitted, subset,
             if not new:
                 break
             report(progress, "view left out (its image contradicts its pose)", view=new[0].view)
-            fitted = _refitted(fitted, _fit(_without(fit_uv, [new[0].view]), motion.T, subset, start, opts,
-                                            progress))
+            start, fitted = run(_without(uv, [o.view for o in found + new]))
         except DegenerateError:
             break
         found += new
-    return found, fitted
+    return found, start, fitted
 
 
 def _refitted(old: _Fitted, new: _Fitted) -> _Fitted:

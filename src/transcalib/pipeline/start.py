@@ -201,10 +201,15 @@ def _start_model(opts: CalibrateOptions) -> str:
 
 def _track_inliers(inliers: np.ndarray, uv: np.ndarray, grouping) -> np.ndarray:
     """Per track ``(n_points,)``: kept in every session in which it was judged (seen in
-    >= 2 of its views), from the per-(session, point) verdicts ``(n_sessions, n_points)``."""
+    >= 2 of its views), from the per-(session, point) verdicts ``(n_sessions, n_points)``.
+    A session that kept less than half the median share of the tracks it judged does not
+    judge: one wrong pose among its views makes every track there look wrong (the
+    refinement and the test of the poses then find the view)."""
     seen = np.isfinite(uv[..., 0])
     judged = np.stack([seen[grouping.session_of_view == s].sum(axis=0) >= 2 for s in range(grouping.n_sessions)])
-    return np.all(inliers | ~judged, axis=0) & judged.any(axis=0)
+    share = np.array([inliers[s][judged[s]].mean() if judged[s].any() else 1.0 for s in range(len(judged))])
+    trusted = share >= 0.5 * np.median(share)
+    return np.all(inliers | ~(judged & trusted[:, None]), axis=0) & judged.any(axis=0)
 
 
 def _from_general_motion(uv, motion: Motion, opts: CalibrateOptions, robust: bool, rng, progress) -> Start:
