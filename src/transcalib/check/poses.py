@@ -42,7 +42,7 @@ from ..types import Calibration
 from .common import camera_poses, fmt_vec, inlier_uv
 from .rotation import _refinement
 
-__all__ = ["pose_test", "robot_error_test", "find_pose_outliers", "describe_pose_outlier", "PoseOutlier", "check_pose_outliers",
+__all__ = ["pose_test", "robot_error_test", "pose_contradiction", "find_pose_outliers", "describe_pose_outlier", "PoseOutlier", "check_pose_outliers",
            "check_repeated_poses", "check_unit", "truth_mismatch", "POSE_ALPHA", "REPEATED_ALPHA",
            "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
 
@@ -331,18 +331,8 @@ def robot_error_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALP
     the view whose estimated error stands out most from the others' (per axis ``e^2`` over
     the median of all views' ``e^2``, as chi-square(1)); when it stands out at
     ``ROBOT_GATE`` (Bonferroni over the axes), the calibration is refitted without the
-    view (the robot error's scales estimated again) and the view's camera resected from
-    the points the other views triangulate (:func:`_resect`). Its recorded pose is
-    contradicted when the centre's move ``d`` or the rotation ``w`` exceeds what the
-    refit's robot error predicts, the resection's own covariance added::
-
-        d^T (C_d + (sigma_pos^2 + sigma_rot^2 |l|^2) I)^-1 d ~ chi-square(3)
-        w^T (C_w + sigma_rot^2 I)^-1 w ~ chi-square(3)
-
-    ``l`` the rotation error's lever (the camera's offset from the flange; eye-to-hand the
-    camera centre in the model frame; zero for one orientation, where the position error
-    is the camera centre's). The smaller p-value, times ``2 n_views``, below ``alpha``
-    names the view.
+    view (the robot error's scales estimated again) and :func:`pose_contradiction` tests
+    the view's recorded pose against that fit.
 
     Returns
     -------
@@ -359,27 +349,64 @@ def robot_error_test(uv, T, calibration: Calibration, *, alpha: float = POSE_ALP
     opts = replace(calibration.options.refinement if calibration.options is not None else _refinement(calibration),
                    distortion=calibration.dist_model)
     try:
-        loo = refine(others, T, calibration, options=opts)
+        found = pose_contradiction(uv, T, refine(others, T, calibration, options=opts), v)
     except DegenerateError:
         return out
-    R_cam, C = camera_poses(loo, T)
+    if found is not None:
+        out["dC"][v], out["angle_deg"][v], out["p_value"][v] = found.dT, found.angle_deg, found.p_value
+        out["flagged"] = [v] if found.p_value < alpha else []
+    return out
+
+
+def pose_contradiction(uv, T, calibration: Calibration, v: int):
+    """View ``v``'s recorded pose tested against a calibration fitted without it: its
+    camera resected from the points the other views triangulate (:func:`_resect`), the
+    intrinsics' uncertainty included (:func:`_resect_predictive`). The recorded pose is
+    contradicted when the centre's move ``d`` or the rotation ``w`` exceeds what the
+    calibration's robot error predicts::
+
+        d^T (C_d + (sigma_pos^2 + sigma_rot^2 |l|^2) I)^-1 d,    w^T (C_w + sigma_rot^2 I)^-1 w
+
+    each chi-square(3), or F(3, r) with a scale estimated on ``r`` degrees of freedom
+    (its redundancy); ``l`` the rotation error's lever (the camera's offset from the
+    flange; eye-to-hand the camera centre in the model frame; zero for one orientation,
+    where the position error is the camera centre's). The view was chosen among
+    ``n_views``: the smaller p-value times ``2 n_views``.
+
+    Parameters
+    ----------
+    uv : (n_views, n_points, 2) float
+        Every observation, view ``v``'s included.
+    T : (n_views, 3) float
+        Flange positions as the calibration's model uses them.
+    calibration : Calibration
+        Fitted without view ``v``'s observations.
+
+    Returns
+    -------
+    PoseOutlier or None
+        ``dT`` recorded minus resected centre (model frame), the rotation's angle and the
+        p-value; None when the view has too few tracks the others see.
+    """
+    n = uv.shape[0]
+    R_cam, C = camera_poses(calibration, T)
     R_cam = np.array(np.broadcast_to(R_cam, (n, 3, 3)))
-    Ri = loo.flange_rotations
-    R_cam[v], C[v] = (x[0] for x in loo.camera_poses(T[[v]], None if Ri is None else np.asarray(Ri)[[v]]))
-    fit = _resect_predictive(uv, loo, R_cam, C, v)
+    C = np.array(C, float)
+    Ri = calibration.flange_rotations
+    R_cam[v], C[v] = (x[0] for x in calibration.camera_poses(T[[v]], None if Ri is None else np.asarray(Ri)[[v]]))
+    fit = _resect_predictive(uv, calibration, R_cam, C, v)
     if fit is None:
-        return out
+        return None
     x, cov = fit
-    re = loo.robot_error
+    re = calibration.robot_error
     s_rot, s_pos = (0.0, 0.0) if re is None else (np.radians(re.sigma_rot_deg), re.sigma_pos)
     r_rot, r_pos = (0.0, 0.0) if re is None else re.redundancy
-    lever = 0.0 if Ri is None else float(np.linalg.norm(C[v] - (T[v] if loo.hand_eye.setup == "eye-in-hand" else 0)))
+    eye_in_hand = calibration.hand_eye is None or calibration.hand_eye.setup == "eye-in-hand"
+    lever = 0.0 if Ri is None else float(np.linalg.norm(C[v] - (T[v] if eye_in_hand else 0.0)))
     p_pos = _predictive_p(x[3:], cov[3:, 3:], s_pos**2 + (s_rot * lever) ** 2, r_pos if s_pos > 0 else r_rot)
     p_rot = _predictive_p(x[:3], cov[:3, :3], s_rot**2, r_rot)
-    out["dC"][v], out["angle_deg"][v] = -x[3:], np.degrees(np.linalg.norm(x[:3]))
-    out["p_value"][v] = min(1.0, 2 * n * min(p_pos, p_rot))
-    out["flagged"] = [v] if out["p_value"][v] < alpha else []
-    return out
+    return PoseOutlier(int(v), -x[3:], float(np.degrees(np.linalg.norm(x[:3]))),
+                       float(min(1.0, 2 * n * min(p_pos, p_rot))))
 
 
 def _predictive_p(x: np.ndarray, cov: np.ndarray, prior_var: float, dof: float) -> float:

@@ -158,7 +158,21 @@ def _solved(uv, T, initial, opts: RefineOptions, progress, flange, near_solution
     t_start = time.perf_counter()
     pb = _problem(uv, T, initial, opts, flange)
     fitter = _Fitter(pb, progress, near_solution)
-    return pb, fitter, _fit(pb, fitter), initial, t_start
+    fit = _fit(pb, fitter)
+    _check_converged_camera(fit.state.intr)
+    return pb, fitter, fit, initial, t_start
+
+
+def _check_converged_camera(intr) -> None:
+    """A refinement that ran away to no camera (a focal length not positive or not finite)
+    raises :class:`DegenerateError` saying what usually causes it."""
+    fx, fy = float(intr[0]), float(intr[1])
+    if np.all(np.isfinite(intr)) and fx > 0 and fy > 0:
+        return
+    raise DegenerateError(
+        f"the refinement diverged (it reached fx = {fx:.3g}, fy = {fy:.3g} px): the images and the poses disagree "
+        "too much for one camera. Most often a pose was typed wrong or belongs to another run, or most tracks are "
+        "wrong; check the poses (a view far off its neighbours), then the tracks.")
 
 
 def _problem(uv, T, initial, opts: RefineOptions, flange: FlangeModel | None = None) -> _Problem:

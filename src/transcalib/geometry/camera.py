@@ -319,7 +319,9 @@ def project(K: np.ndarray, R: np.ndarray, X: np.ndarray, T: np.ndarray, dist=())
     """
     xc = camera_frame(R, X, T)
     intr = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]])
-    return np.moveaxis(project_camera_frame(intr, pad_dist(dist), xc).pred, 0, -1)
+    centre = xc[2] == 0  # a point at a camera's centre has no image: NaN
+    pred = project_camera_frame(intr, pad_dist(dist), xc, valid=~centre).pred
+    return np.moveaxis(np.where(centre, np.nan, pred), 0, -1)
 
 
 def pixels_to_rays(K: np.ndarray, uv: np.ndarray, dist=()) -> np.ndarray:

@@ -227,7 +227,7 @@ def track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
     for lo in range(0, uv.shape[1], TRACK_BLOCK):
         b = slice(lo, lo + TRACK_BLOCK)
         xc = camera_frame(R_cam, np.nan_to_num(X[b]), C)
-        pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc).pred
+        pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc, valid=xc[2] > 0).pred  # behind: inf
         seen = np.isfinite(uv[:, b, 0])
         du, dv = uv[:, b, 0] - pred[0], uv[:, b, 1] - pred[1]
         sse = np.sum(du * du + dv * dv, axis=0, where=seen)
