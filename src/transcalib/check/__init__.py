@@ -22,6 +22,7 @@ code                       meaning
 ``pose_orientation_off``   a single view whose recorded orientation its image contradicts (left out)
 ``fix_contradicted``       a known parameter held fixed (``fix``, CLI ``--fix``) that the data contradict
 ``pose_outlier``           a view whose recorded position its image contradicts, with the size of the error
+``pose_left_out``          such views left out by ``calibrate`` (the fit without them), each with its error
 ``pose_repeated``          two views at the same recorded pose whose images differ (a row copied)
 ``unit_implausible``       the scene's distance or the robot's moves are implausible in the unit given
 ``static_tracks``          tracks that do not move at all (left out)

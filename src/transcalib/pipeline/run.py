@@ -21,10 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..check import diagnose, skipped
-from ..check.fixed import check_fixed
-from ..check.poses import POSE_ALPHA, find_pose_outliers, pose_contradiction
 from ..check.prediction import LOO_MIN_VIEWS, leave_one_view_out
-from ..check.tracks import MIN_INLIER_FRACTION
 from ..errors import DegenerateError, InputError
 from ..handeye.sessions import SESSION_TOLERANCE_DEG
 from ..types import SUBSET_POINTS, CalibrateOptions, Calibration, LinearEstimate, RansacOptions, RefineOptions, report
@@ -34,7 +31,8 @@ from .motion import Motion, motion_of
 from .result import with_motion
 from .stages import all_residuals, extend_to_all_tracks, from_linear, masked, refine_and_rejudge
 from .start import explain_motion, initial_estimate
-from .views_off import max_left_out, orientation_off, pose_left_out, rejudge_views
+from .views_off import (leave_out_pose_outliers, orientation_off, pose_left_out, rejudge_views, view_indices,
+                        without_views)
 
 __all__ = ["calibrate"]
 
@@ -162,16 +160,20 @@ def calibrate(
     t0 = time.perf_counter()
     span = explain_motion(motion, opts)  # degeneracy first: raises naming what the motion cannot determine
     subset = _fit_subset(uv, opts, rng)
-    def run(data, start_only=False):  # the start and the refinement of ``data`` (every view's, or fewer)
-        return _start_and_fit(data, motion, opts, subset, span is not None, image_size, rng, progress, start_only)
+    def run(data):  # the start and the refinement of ``data`` (every view's, or fewer)
+        return _start_and_fit(data, motion, opts, subset, span is not None, image_size, rng, progress)
+
+    def start_of(data):  # the start alone, quietly
+        return initial_estimate(data if subset is None else data[:, subset], motion, opts, rng, None,
+                                coplanar=span is not None, image_size=image_size)
 
     if opts.refine and opts.check_rotation and not opts.keep_pose_outliers:
-        pose_off, start, fitted = _leave_out_pose_outliers(uv, motion, opts, run, progress)
+        pose_off, start, fitted = leave_out_pose_outliers(uv, motion, opts, run, start_of, progress)
     else:
         pose_off, (start, fitted) = [], run(uv)
-    off_views = _views(start.off_views) + [o.view for o in pose_off]
+    off_views = view_indices(start.off_views) + [o.view for o in pose_off]
     left_out = np.isin(np.arange(motion.n_views), off_views)
-    uv = _without(uv, off_views)
+    uv = without_views(uv, off_views)
     cal, inliers, stages, timings, rotation_data = fitted
     begin = timings.pop("begin_s")
     timings = {f"{start.stages[0]}_s": timings.pop("start_s") - begin, **timings}
@@ -204,136 +206,29 @@ def calibrate(
     return with_motion(result, motion, start.notes)
 
 
-def _views(off_views) -> list:
-    """The view indices of ``off_views`` ((view, degrees), ...)."""
-    return [v for v, _ in off_views]
-
-
 def _left_out_info(off_views, pose_off) -> list:
     """``Calibration.info["views_left_out"]``: ``{"view": index, "why": "orientation" |
     "pose"}`` for each view left out of the fit (the diagnostics say by how much)."""
-    return [{"view": int(v), "why": "orientation"} for v in _views(off_views)] + [
+    return [{"view": int(v), "why": "orientation"} for v in view_indices(off_views)] + [
         {"view": o.view, "why": "pose"} for o in pose_off]
 
 
-def _without(uv: np.ndarray, views) -> np.ndarray:
-    """``uv`` without the observations of ``views`` (indices)."""
-    return np.where(np.isin(np.arange(uv.shape[0]), views)[:, None, None], np.nan, uv) if len(views) else uv
-
-
 def _start_and_fit(uv, motion: Motion, opts: CalibrateOptions, subset, coplanar: bool, image_size, rng,
-                   progress, start_only: bool = False):
+                   progress):
     """The start on ``uv`` (the subset's tracks), the refinement without the single views
     whose orientation the start found off, and again with those the refined lens takes
-    back: ``(start, fitted)``; ``fitted.timings["begin_s"]`` the clock at the beginning.
-    ``start_only``: the robust start's noise estimate (px) and number of inliers (NaN
-    without a robust start)."""
+    back: ``(start, fitted)``; ``fitted.timings["begin_s"]`` the clock at the beginning."""
     begin = time.perf_counter()
     start = initial_estimate(uv if subset is None else uv[:, subset], motion, opts, rng, progress,
                              coplanar=coplanar, image_size=image_size)
-    if start_only:
-        return (np.nan, np.nan) if start.ransac is None else (start.ransac.sigma_px, start.ransac.n_inliers)
-    fitted = _fit(_without(uv, _views(start.off_views)), motion.T, subset, start, opts, progress)
+    fitted = _fit(without_views(uv, view_indices(start.off_views)), motion.T, subset, start, opts, progress)
     if start.off_views and opts.refine:  # judged again with the refined lens: those that agree come back
         off = rejudge_views(uv, motion, fitted.cal, start.off_views, rng)
         if len(off) < len(start.off_views):
             report(progress, "views re-admitted", views=len(start.off_views) - len(off))
             start = replace(start, off_views=off)
-            fitted = _refitted(fitted, _fit(_without(uv, _views(off)), motion.T, subset, start, opts, progress))
+            fitted = _refitted(fitted, _fit(without_views(uv, view_indices(off)), motion.T, subset, start, opts, progress))
     return start, fitted._replace(timings={"begin_s": begin, **fitted.timings})
-
-
-def _leave_out_pose_outliers(uv, motion: Motion, opts: CalibrateOptions, run, progress):
-    """The fit ``run(uv)``, and views whose image contradicts their recorded pose left out
-    one at a time, the most significant first, the whole fit run again without each (at
-    most :func:`.views_off.max_left_out`; one that leaves a motion the fit cannot use is
-    kept, and so is one whose fit keeps fewer than half of the tracks where the fit with it
-    kept more): ``(found, start, fitted)``, ``found`` a list of
-    :class:`~transcalib.check.poses.PoseOutlier`. First a view that breaks the fit
-    (:func:`_view_breaking_the_fit`). Not with a fixed parameter the data contradict: its
-    residuals would be blamed on the poses."""
-    try:
-        start, fitted = run(uv)
-    except DegenerateError as exc:
-        start, fitted, failed = None, None, exc
-    found = []
-    broke = _view_breaking_the_fit(uv, motion, start, fitted, run)
-    if broke is not None:
-        report(progress, "view left out (its image contradicts its pose)", view=broke[0][0].view)
-        found, start, fitted = broke
-    elif fitted is None:
-        raise failed
-    while len(found) < max_left_out(motion.n_views):
-        fit_uv = _without(uv, _views(start.off_views) + [o.view for o in found])
-        data = fitted.rotation_data or (fit_uv, replace(fitted.cal, inliers=fitted.inliers))  # as diagnose()
-        try:
-            if not found and opts.refinement.fix and any(
-                    d.code == "fix_contradicted" for d in check_fixed(data[0], motion.T, data[1])):
-                break
-            new = find_pose_outliers(data[0], motion.T, data[1])[:1]
-            if not new:
-                break
-            again = run(_without(uv, [o.view for o in found + new]))
-        except DegenerateError:
-            break
-        if _share(again[1].inliers, uv) < min(_share(fitted.inliers, uv), MIN_INLIER_FRACTION):
-            break  # the fit without it keeps fewer than half of the tracks: that view was not the wrong one
-        report(progress, "view left out (its image contradicts its pose)", view=new[0].view)
-        (start, fitted), found = again, found + new
-    return found, start, fitted
-
-
-def _view_breaking_the_fit(uv, motion: Motion, start, fitted, run):
-    """When the fit failed (``fitted`` None), kept fewer than half of the tracks or ended
-    with a noise estimate over twice the robust start's: the view without which the
-    robust start fits best, and its recorded pose contradicted
-    (:func:`~transcalib.check.poses.pose_contradiction`) by the whole fit run again without
-    it: ``([PoseOutlier], start, fitted)``; else None.
-
-    One wrong pose makes every track misfit in its view: the start's noise estimate grows
-    (one orientation) or its session keeps few tracks (sessions), the refinement then
-    keeps only the few tracks that fit, or none, and the score test has too few left to
-    name the view. The candidates are the view without which the start's noise estimate
-    is lowest, if below half the median of those without each view, and the one without
-    which it keeps the most tracks, if half again the median: these only spare refits
-    where no view stands out; the test of the pose decides."""
-    if motion.n_views < LOO_MIN_VIEWS or (fitted is not None and not _broken(start, fitted, uv)):
-        return None
-    fits = np.full((motion.n_views, 2), np.nan)  # (noise estimate, tracks kept) without each view
-    for v in range(motion.n_views):
-        try:
-            fits[v] = run(_without(uv, [v]), start_only=True)
-        except DegenerateError:
-            continue
-    if not np.isfinite(fits[:, 0]).any():
-        return None
-    sigma, kept = fits.T
-    candidates = [int(np.nanargmin(sigma))] if np.nanmin(sigma) < 0.5 * np.nanmedian(sigma) else []
-    candidates += [int(np.nanargmax(kept))] if np.nanmax(kept) > 1.5 * np.nanmedian(kept) else []
-    for v in dict.fromkeys(candidates):
-        try:
-            start, again = run(_without(uv, [v]))
-            found = pose_contradiction(_without(uv, _views(start.off_views)), motion.T,
-                                       replace(again.cal, inliers=again.inliers), v)
-        except DegenerateError:
-            continue
-        if found is not None and found.p_value < POSE_ALPHA:
-            return [found], start, again
-    return None
-
-
-def _broken(start, fitted: _Fitted, uv: np.ndarray) -> bool:
-    """The fit kept fewer than half of the tracks, or its pixel noise is over twice the
-    robust start's (which without the lens and with the robot's error in it is larger)."""
-    noisier = start.ransac is not None and fitted.cal.sigma_px > 2 * start.ransac.sigma_px
-    return noisier or _share(fitted.inliers, uv) < MIN_INLIER_FRACTION
-
-
-def _share(inliers, uv: np.ndarray) -> float:
-    """The share of ``inliers`` among the tracks of ``uv`` seen in two views or more (1
-    without a robust stage)."""
-    tracked = np.isfinite(uv[..., 0]).sum(axis=0) >= 2
-    return 1.0 if inliers is None else float(np.sum(inliers & tracked) / max(tracked.sum(), 1))
 
 
 def _refitted(old: _Fitted, new: _Fitted) -> _Fitted:
