@@ -22,10 +22,15 @@ poses are then refitted (:func:`transcalib.refine` with their translations free 
 their rotations estimated) for the size of each error in robot units and degrees.
 
 A 30 mm typo in one view's x (8 views, 200 points, 0.5 px: ``tests/test_poses_check.py``)
-is named as a position error of 29.3 mm in that view, x +29.3 mm. A pose error so large
-that the robust stage drops the view's tracks leaves this test nothing to see:
-:func:`resection_test` names that view instead (30.0 mm of a 30 mm typo, with sessions of
-60 mm steps).
+is named as a position error of 29.3 mm in that view, x +29.3 mm.
+
+**With the robot error in the model** a wrong pose is absorbed as that view's error:
+:func:`robot_error_test` refits without the view whose estimated error stands out and
+:func:`pose_contradiction` tests its recorded pose against that fit, its camera resected
+from the points the other views triangulate. **A pose error so large that the robust
+stage drops the view's tracks** leaves the score test nothing to see:
+:func:`resection_test` names the view with the fewest inliers. :func:`find_pose_outliers`
+runs the three in turn; ``transcalib.pipeline.views_off`` leaves the views named out.
 """
 
 from __future__ import annotations
@@ -42,8 +47,8 @@ from ..types import Calibration
 from .common import camera_poses, fmt_vec, inlier_uv
 from .rotation import _refinement
 
-__all__ = ["pose_test", "robot_error_test", "pose_contradiction", "find_pose_outliers", "describe_pose_outlier", "PoseOutlier", "check_pose_outliers",
-           "check_repeated_poses", "check_unit", "truth_mismatch", "POSE_ALPHA", "REPEATED_ALPHA",
+__all__ = ["pose_test", "robot_error_test", "pose_contradiction", "find_pose_outliers", "describe_pose_outlier",
+           "PoseOutlier", "check_pose_outliers", "check_repeated_poses", "check_unit", "truth_mismatch", "POSE_ALPHA", "REPEATED_ALPHA",
            "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
 
 #: Family-wise false-alarm rate of the outlying-pose test on correct poses (Bonferroni over views).
