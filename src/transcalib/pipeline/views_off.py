@@ -157,9 +157,8 @@ def _view_breaking_the_fit(uv, motion: Motion, start, fitted, run, start_of, pro
     (one orientation) or its session keeps few tracks (sessions), the refinement then
     keeps only the few tracks that fit, or none, and the score test has too few left to
     name the view. The candidates are the view without which the start's noise estimate
-    is lowest, if below half the median of those without each view, and the one without
-    which it keeps the most tracks, if half again the median: these only spare refits
-    where no view stands out; the test of the pose decides."""
+    is lowest and the one without which it keeps the most tracks; the fit without the
+    candidate must not be broken itself, and the test of its pose decides."""
     if motion.n_views < LOO_MIN_VIEWS or (fitted is not None and not _broken(start, fitted, uv)):
         return None
     report(progress, "the fit broke: the start without each view", views=motion.n_views)
@@ -174,11 +173,11 @@ def _view_breaking_the_fit(uv, motion: Motion, start, fitted, run, start_of, pro
     if not np.isfinite(fits[:, 0]).any():
         return None
     sigma, kept = fits.T
-    candidates = [int(np.nanargmin(sigma))] if np.nanmin(sigma) < 0.5 * np.nanmedian(sigma) else []
-    candidates += [int(np.nanargmax(kept))] if np.nanmax(kept) > 1.5 * np.nanmedian(kept) else []
-    for v in dict.fromkeys(candidates):
+    for v in dict.fromkeys((int(np.nanargmin(sigma)), int(np.nanargmax(kept)))):
         try:
             start, again = run(without_views(uv, [v]))
+            if _broken(start, again, without_views(uv, [v])):
+                continue  # not the view that broke it
             found = pose_contradiction(without_views(uv, view_indices(start.off_views)), motion.T,
                                        replace(again.cal, inliers=again.inliers), v)
         except DegenerateError:
