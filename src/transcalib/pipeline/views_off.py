@@ -41,6 +41,9 @@ __all__ = ["rejudge_views", "orientation_off", "leave_out_pose_outliers", "max_l
 
 #: At most this fraction of the views (at least one) is left out for contradicting its pose.
 MAX_LEFT_OUT_FRACTION = 0.25
+#: A start without one view fits better than those without each other view by this many
+#: robust standard deviations of theirs: the view may have broken the fit (then tested).
+OUTLYING_Z = 3.0
 
 
 def rejudge_views(uv: np.ndarray, motion: Motion, cal, off_views, rng=None) -> tuple:
@@ -157,8 +160,10 @@ def _view_breaking_the_fit(uv, motion: Motion, start, fitted, run, start_of, pro
     (one orientation) or its session keeps few tracks (sessions), the refinement then
     keeps only the few tracks that fit, or none, and the score test has too few left to
     name the view. The candidates are the view without which the start's noise estimate
-    is lowest and the one without which it keeps the most tracks; the fit without the
-    candidate must not be broken itself, and the test of its pose decides."""
+    is lowest and the one without which it keeps the most tracks, each when it stands out
+    of the starts without the other views (:func:`_standing_out` on the logarithms: a
+    misfit of the model is alike without every view); the fit without the candidate must not be broken
+    itself, and the test of its pose decides."""
     if motion.n_views < LOO_MIN_VIEWS or (fitted is not None and not _broken(start, fitted, uv)):
         return None
     report(progress, "the fit broke: the start without each view", views=motion.n_views)
@@ -173,7 +178,9 @@ def _view_breaking_the_fit(uv, motion: Motion, start, fitted, run, start_of, pro
     if not np.isfinite(fits[:, 0]).any():
         return None
     sigma, kept = fits.T
-    for v in dict.fromkeys((int(np.nanargmin(sigma)), int(np.nanargmax(kept)))):
+    with np.errstate(divide="ignore"):  # on a log scale: a start's noise and tracks vary by factors
+        candidates = _standing_out(-np.log(sigma)) + _standing_out(np.log(kept))
+    for v in dict.fromkeys(candidates):
         try:
             start, again = run(without_views(uv, [v]))
             if _broken(start, again, without_views(uv, [v])):
@@ -185,6 +192,18 @@ def _view_breaking_the_fit(uv, motion: Motion, start, fitted, run, start_of, pro
         if found is not None and found.p_value < POSE_ALPHA:
             return [found], start, again
     return None
+
+
+def _standing_out(x: np.ndarray) -> list:
+    """``[argmax x]`` when the largest of ``x`` stands out of the others (more than
+    ``OUTLYING_Z`` robust standard deviations, MAD, above their median), else ``[]``."""
+    v = int(np.nanargmax(x))
+    rest = np.delete(x, v)
+    rest = rest[np.isfinite(rest)]
+    if rest.size < 2:
+        return []
+    scale = 1.4826 * np.median(np.abs(rest - np.median(rest)))
+    return [v] if x[v] - np.median(rest) > OUTLYING_Z * max(scale, 1e-12 * abs(np.median(rest))) else []
 
 
 def _broken(start, fitted, uv: np.ndarray) -> bool:
