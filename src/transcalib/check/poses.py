@@ -48,8 +48,8 @@ from .common import camera_poses, fmt_vec, inlier_uv
 from .rotation import _refinement
 
 __all__ = ["pose_test", "robot_error_test", "pose_contradiction", "find_pose_outliers", "describe_pose_outlier",
-           "PoseOutlier", "check_pose_outliers", "check_repeated_poses", "check_unit", "truth_mismatch", "POSE_ALPHA", "REPEATED_ALPHA",
-           "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
+           "PoseOutlier", "check_pose_outliers", "check_repeated_poses", "check_unit", "truth_mismatch",
+           "POSE_ALPHA", "REPEATED_ALPHA", "SCENE_DISTANCE_M", "ROBOT_SPAN_M"]
 
 #: Family-wise false-alarm rate of the outlying-pose test on correct poses (Bonferroni over views).
 POSE_ALPHA = 1e-3

@@ -237,7 +237,8 @@ def build_options(args, size=None):
              "square_pixels": args.square_pixels or None, "fix": fixed or None}
     refinement = RefineOptions(**{k: v for k, v in given.items() if v is not None})
     options = CalibrateOptions(refine=not args.no_refine, robust=args.robust, ransac=ransac, refinement=refinement,
-                               keep_pose_outliers=args.keep_pose_outliers, unit=args.unit, subset_points=args.subset_points, setup=args.setup,
+                               keep_pose_outliers=args.keep_pose_outliers, unit=args.unit,
+                               subset_points=args.subset_points, setup=args.setup,
                                session_tolerance_deg=args.session_tolerance_deg)
     if args.target and not (args.images or args.bag):
         raise OptionError("--target", "applies to --images or --bag only")

@@ -227,7 +227,8 @@ def _start_and_fit(uv, motion: Motion, opts: CalibrateOptions, subset, coplanar:
         if len(off) < len(start.off_views):
             report(progress, "views re-admitted", views=len(start.off_views) - len(off))
             start = replace(start, off_views=off)
-            fitted = _refitted(fitted, _fit(without_views(uv, view_indices(off)), motion.T, subset, start, opts, progress))
+            again = _fit(without_views(uv, view_indices(off)), motion.T, subset, start, opts, progress)
+            fitted = _refitted(fitted, again)
     return start, fitted._replace(timings={"begin_s": begin, **fitted.timings})
 
 
