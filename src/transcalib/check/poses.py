@@ -42,6 +42,7 @@ import numpy as np
 from ..errors import DegenerateError, Diagnostic
 from ..estimate.covariance import linearise, profile_step
 from ..estimate.distributions import chi2_sf, f_sf
+from ..estimate.noise import median_sigma
 from ..estimate.refine import refine
 from ..types import Calibration
 from .common import camera_poses, fmt_vec, inlier_uv
@@ -56,8 +57,6 @@ POSE_ALPHA = 1e-3
 #: A view's estimated robot error that stands out at this level (family-wise) is tested by
 #: refitting without it (:func:`robot_error_test`): it sets only how often that refit runs.
 ROBOT_GATE = 0.05
-#: The median of chi-square(1).
-CHI2_1_MEDIAN = 0.4549364231195724
 #: Practical significance: the position error must move the view's points by at least
 #: this much (RMS, px) beyond what a rotation explains.
 MIN_POSITION_SHIFT_PX = 0.1
@@ -426,7 +425,7 @@ def _robot_error_candidate(re) -> int | None:
     or None when none stands out at ``ROBOT_GATE`` or no component is estimated."""
     if re is None:
         return None
-    z2 = [np.asarray(e, float) ** 2 / max(np.median(np.asarray(e, float) ** 2) / CHI2_1_MEDIAN, 1e-300)
+    z2 = [np.asarray(e, float) ** 2 / median_sigma(np.asarray(e, float) ** 2, 1, floor=1e-150) ** 2
           for e, source in ((re.rot_deg, re.source[0]), (re.pos, re.source[1])) if source == "estimated"]
     if not z2:
         return None
