@@ -35,7 +35,8 @@ from .refine_result import result
 from .robot_scales import (DROP_FRACTION, DROP_REDUNDANCY, RobotFit, RobotStart, RunAway, check_growth,
                            component_sigma, extrapolated, robot_error_on, robot_weights)
 from .solvers import gauss_newton, levenberg_marquardt
-from .variance_components import GATE_ALPHA, MAX_ROUNDS, MISFIT_ALPHA, RTOL, JointScore, redundancy, score_test
+from .variance_components import (GATE_ALPHA, MAX_ROUNDS, MISFIT_ALPHA, RTOL, JointScore, moment_noise, redundancy,
+                                  score_test)
 
 __all__ = ["refine", "fit_refine", "fit_refine_deferred", "Deferred", "climb_distortion", "FlangeModel", "crlb",
            "with_robot_scales"]
@@ -532,9 +533,15 @@ class _Fitter:
             for k, t in tests.items():
                 scores.setdefault(k, float(np.sqrt(t.sigma2)))
             c = min(tests, key=lambda k: tests[k].p_value)
-            if not (tests[c].p_value < GATE_ALPHA and tests[c].sigma2 > 0):
+            if tests[c].p_value < GATE_ALPHA and tests[c].sigma2 > 0:
+                sig[c] = float(np.sqrt(tests[c].sigma2))
+            elif state.F is None and "rot" in sig and "pos" in tests:
+                # one orientation: the flange's rotation error moves the camera centre by its
+                # lever arm, which the model folds into the centre's error: estimated with it
+                c = "pos"
+                sig[c] = float(np.sqrt(max(tests[c].sigma2, moment_noise(joint.block(c)[1], sigma_px))))
+            else:
                 break
-            sig[c] = float(np.sqrt(tests[c].sigma2))
             tried.add(c)  # tested once: a component the rounds drop again is not tried twice
             before = (out, self.lay, self.robot)
             at_zero = zero[0]  # the scores the scales are checked against

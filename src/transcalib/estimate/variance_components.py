@@ -58,7 +58,7 @@ import numpy as np
 from .distributions import chi2_cdf, chi2_sf
 
 __all__ = ["GATE_ALPHA", "MISFIT_ALPHA", "MAX_ROUNDS", "RTOL", "JointScore", "ScoreTest", "score_test",
-           "redundancy"]
+           "redundancy", "moment_noise"]
 
 #: False-alarm rate of the score test that switches a robot error component on.
 GATE_ALPHA = 0.01
@@ -124,6 +124,13 @@ def _moments(g: np.ndarray, info: np.ndarray, s2: float) -> ScoreTest:
     q = float(g @ g)
     c, nu = tr2 / tr1, tr1**2 / tr2
     return ScoreTest(float(chi2_sf(q / (s2 * c), nu)), max((q - s2 * tr1) / tr2, 0.0))
+
+
+def moment_noise(info: np.ndarray, sigma_px: float) -> float:
+    """Std of the moment estimate ``sigma_k^2`` (module docstring) at ``sigma_k = 0``:
+    ``Var(|g|^2) = 2 sigma_px^4 tr I^2``, so ``sigma_px^2 sqrt(2 / tr I^2)`` (unit^2 or rad^2)."""
+    tr2 = float(np.sum(info * info))
+    return sigma_px**2 * np.sqrt(2.0 / tr2) if tr2 > 0 else 0.0
 
 
 def redundancy(Sinv: np.ndarray, cols: np.ndarray, weight: float) -> float:
