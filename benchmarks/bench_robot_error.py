@@ -27,7 +27,11 @@ compared. Targets (issue 22): ratio within 20 %, coverage 90-98 %, median sigmas
 25 % where identifiable, perfect robot RMS within 5 % of today's.
 
 Run ``python benchmarks/bench_robot_error.py`` (``--trials N``, default 300; ``--jobs``
-processes). Writes ``benchmarks/results/robot_error.md``.
+processes). Writes ``benchmarks/results/robot_error.md``. ``--lens``: the camera has a
+two-coefficient lens (k1 = -0.06, k2 = 0.02, the renders' ``PRESET_DIST``), 300 points at
+0.3 px, and the lens model is chosen from the data (``distortion="auto"``, as the command
+does); the grid's first three cases; the table, ``robot_error_lens.md``, also counts the
+models chosen.
 """
 
 from __future__ import annotations
@@ -51,17 +55,22 @@ from transcalib.handeye.simulate import session_scene, with_robot_error  # noqa:
 from transcalib.types import Calibration, Camera, RefineOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "results" / "robot_error.md"
+OUT_LENS = OUT.with_name("robot_error_lens.md")
 NOISE_PX = 0.5
+#: ``--lens``: the renders' lens, and a scene that determines it (points, pixel noise).
+LENS_DIST, LENS_POINTS, LENS_NOISE_PX = (-0.06, 0.02, 0.0, 0.0, 0.0), 300, 0.3
 #: (sigma_rot deg, sigma_pos mm): a representative grid of the issue's {0, 0.02, 0.1, 0.2} x {0, 0.2, 1, 2}
 #: (the perfect robot, errors growing together, the smallest, each component alone).
 GRID = ((0.0, 0.0), (0.1, 1.0), (0.2, 2.0), (0.02, 0.2), (0.1, 0.0), (0.0, 1.0))
 LAYOUTS = ("one session", "3 sessions")
 
 
-def _scene(layout: str, rng):
+def _scene(layout: str, rng, lens: bool = False):
+    kw = dict(n_points=LENS_POINTS, noise_px=LENS_NOISE_PX, dist=LENS_DIST) if lens else dict(n_points=60,
+                                                                                              noise_px=NOISE_PX)
     if layout == "one session":
-        return session_scene(rng, n_sessions=1, views_per_session=12, n_points=60, noise_px=NOISE_PX)
-    return session_scene(rng, n_sessions=3, views_per_session=6, n_points=60, noise_px=NOISE_PX)
+        return session_scene(rng, n_sessions=1, views_per_session=12, **kw)
+    return session_scene(rng, n_sessions=3, views_per_session=6, **kw)
 
 
 def _start(sc, rep, rng):
@@ -86,14 +95,15 @@ def _start(sc, rep, rng):
 
 def trial(args):
     """One trial: ``dict`` of errors, reported stds and robot scales (None if it failed)."""
-    layout, s_rot, s_pos, seed, today = args
+    layout, s_rot, s_pos, seed, today, lens = args
     rng = np.random.default_rng(seed)
-    sc = _scene(layout, rng)
+    sc = _scene(layout, rng, lens)
+    distortion = "auto" if lens else "none"
     rep, _ = with_robot_error(sc, s_rot, s_pos, rng)
     start, flange, R_true = _start(sc, rep, rng)
     out = {}
-    for name, opts in (("new", RefineOptions(distortion="none", robot_error=True)),
-                       ("today", RefineOptions(distortion="none", robot_error=False))):
+    for name, opts in (("new", RefineOptions(distortion=distortion, robot_error=True)),
+                       ("today", RefineOptions(distortion=distortion, robot_error=False))):
         if name == "today" and not today:
             continue
         try:
@@ -117,6 +127,7 @@ def trial(args):
             row["check_p"] = (float(np.nanmin(re.consistency_p)) if np.isfinite(re.consistency_p).any() else np.nan,
                               0.0)
         row["sigma_px"] = (cal.sigma_px, 0.0)
+        row["lens"] = cal.dist_model
         out[name] = row
     return out
 
@@ -134,27 +145,30 @@ def _summary(rows: list, keys) -> dict:
     return res
 
 
-def run(trials: int, jobs: int, seed0: int = 22000, write=None) -> str:
+def run(trials: int, jobs: int, seed0: int = 22000, write=None, lens: bool = False) -> str:
     """Every case in turn (the grid by layout, interleaved), the table rewritten after each."""
-    cases = [(layout, sr, sp) for g, (sr, sp) in enumerate(GRID) for layout in LAYOUTS]
+    grid = GRID[:3] if lens else GRID  # with the lens: the perfect robot and the errors growing together
+    cases = [(layout, sr, sp) for sr, sp in grid for layout in LAYOUTS]
     jobs_list, results = [], []
     t0 = time.perf_counter()
     with ProcessPoolExecutor(jobs) as pool:
         for layout, sr, sp in cases:
             g = GRID.index((sr, sp))
-            part = [(layout, sr, sp, seed0 + 1000 * g + k, sr == 0 and sp == 0) for k in range(trials)]
+            part = [(layout, sr, sp, seed0 + 1000 * g + k, sr == 0 and sp == 0, lens) for k in range(trials)]
             results += list(pool.map(trial, part, chunksize=4))
             jobs_list += part
-            text = _tables(results, jobs_list, trials, jobs, time.perf_counter() - t0)
+            text = _tables(results, jobs_list, trials, jobs, time.perf_counter() - t0, lens)
             if write is not None:
                 write(text)
     return text
 
 
-def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
+def _tables(results, jobs_list, trials, jobs, elapsed, lens=False) -> str:
+    scene = (f"A lens (k1, k2 = {LENS_DIST[0]}, {LENS_DIST[1]}) chosen from the data (distortion auto; lens: the "
+             f"models chosen), {LENS_POINTS} points at {LENS_NOISE_PX} px" if lens else f"{NOISE_PX} px pixel noise")
     lines = ["# Robot pose error: Monte Carlo (issue 22)\n",
-             f"`python benchmarks/bench_robot_error.py --trials {trials}` ({elapsed:.0f} s, {jobs} processes). "
-             f"{NOISE_PX} px pixel noise; per view a flange rotation error (per-axis std sigma_rot) and position "
+             f"`python benchmarks/bench_robot_error.py --trials {trials}{' --lens' if lens else ''}` ({elapsed:.0f} s, "
+             f"{jobs} processes). {scene}; per view a flange rotation error (per-axis std sigma_rot) and position "
              "error (per-axis std sigma_pos), fresh every trial; the refinement with robot_error=True (scales "
              "estimated). ratio = RMS reported std / empirical std; cover = share of trials with |error| < 1.96 "
              "reported std (nominal 95 %). Targets: ratio 0.8-1.2, cover 90-98 %. sigma est: the median estimated scale "
@@ -166,7 +180,8 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
         lines.append(f"\n## {layout}\n")
         head = "| sigma_rot deg | sigma_pos mm | fails | " + " | ".join(f"{k} ratio / cover" for k in keys) + \
-               " | sigma_rot est (med ± std) (on) | sigma_pos est (med ± std) (on) | sigma_px | misfit | check p |"
+               " | sigma_rot est (med ± std) (on) | sigma_pos est (med ± std) (on) | sigma_px | misfit | check p |" + \
+               (" lens |" if lens else "")
         lines += [head, "|" + "---|" * (head.count("|") - 1)]
         today_lines = []
         for (sr, sp), chunk in zip(GRID, _chunks(results, jobs_list, layout)):
@@ -183,7 +198,7 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
             lines.append(f"| {sr} | {sp} | {fails} | " + " | ".join(cells) +
                          f" | {med['sigma_rot'][0]:.4f} ± {med['sigma_rot'][1]:.4f} ({on['sigma_rot']:.0f} %) | "
                          f"{med['sigma_pos'][0]:.3f} ± {med['sigma_pos'][1]:.3f} ({on['sigma_pos']:.0f} %) | {px:.3f} | "
-                         f"{_check_cells(ok)} |")
+                         f"{_check_cells(ok)} |" + (f" {_lens_cell(ok)} |" if lens else ""))
             if sr == 0 and sp == 0:
                 today = [r["today"] for r in chunk if "failed" not in r.get("today", {"failed": 1})]
                 st = _summary(today, ["fx", "cx"])
@@ -195,6 +210,12 @@ def _tables(results, jobs_list, trials, jobs, elapsed) -> str:
                                    f"switched on in {100 * detected:.1f} % of the trials (score test at 1 % each).")
         lines += [""] + today_lines
     return "\n".join(lines) + "\n"
+
+
+def _lens_cell(rows) -> str:
+    """How often each lens model was chosen."""
+    models = [r["lens"] for r in rows]
+    return ", ".join(f"{m} {models.count(m)}" for m in sorted(set(models)))
 
 
 def _check_cells(rows) -> str:
@@ -213,19 +234,17 @@ def _chunks(results, jobs_list, layout):
         yield [r for r, j in zip(results, jobs_list) if j[0] == layout and j[1] == sr and j[2] == sp]
 
 
-def trials_cli(run_trials, out: Path, doc: str, argv=None) -> None:
-    """``--trials N --jobs J``: ``run_trials(N, J, write=...)`` rewriting ``out`` as it goes,
-    the final table printed."""
-    p = argparse.ArgumentParser(description=doc.splitlines()[0])
+def main(argv=None) -> None:
+    """``--trials N --jobs J [--lens]``: :func:`run` rewriting its table as it goes, the
+    final table printed."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--trials", type=int, default=300)
     p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--lens", action="store_true", help="a lens, chosen from the data")
     a = p.parse_args(argv)
+    out = OUT_LENS if a.lens else OUT
     out.parent.mkdir(parents=True, exist_ok=True)
-    sys.stdout.write(run_trials(a.trials, a.jobs, write=out.write_text))
-
-
-def main(argv=None) -> None:
-    trials_cli(run, OUT, __doc__, argv)
+    sys.stdout.write(run(a.trials, a.jobs, write=out.write_text, lens=a.lens))
 
 
 if __name__ == "__main__":

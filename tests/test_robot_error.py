@@ -111,6 +111,7 @@ from dataclasses import replace  # noqa: E402
 
 from transcalib import Poses, calibrate  # noqa: E402
 from transcalib.estimate.layout import FlangeModel  # noqa: E402
+from transcalib.estimate import refine as refine_module  # noqa: E402
 from transcalib.estimate.refine import fit_refine  # noqa: E402
 from transcalib.handeye.simulate import session_scene, with_robot_error  # noqa: E402
 from transcalib.types import Calibration, Camera, InputError, RefineOptions  # noqa: E402
@@ -154,6 +155,26 @@ def test_both_components_fitted_together_where_either_alone_runs_away():
     assert re.source == ("estimated", "estimated")
     assert re.sigma_rot_deg == pytest.approx(0.1, rel=0.3) and re.sigma_pos == pytest.approx(1.0, rel=0.3)
     assert abs(cal.K[0, 0] - sc.K[0, 0]) < 3 * cal.std["fx"] and cal.sigma_px < 0.06
+
+
+def test_the_lens_is_chosen_again_with_the_robot_error_held(monkeypatch):
+    """One orientation, a two-coefficient lens (k1, k2), 0.1 deg / 1 mm: chosen with exact
+    poses the climb takes opencv5 (the per-view pose errors look like tangential and k3
+    terms to the score test; 26 of 40 such seeds); with the robot error's scales held the
+    climb stops at the truth's radial2, and that climb is recorded."""
+    sc = session_scene(50000, n_sessions=1, views_per_session=12, n_points=300, noise_px=0.3,
+                       dist=(-0.06, 0.02, 0.0, 0.0, 0.0))
+    rep, _ = with_robot_error(sc, 0.1, 1.0, rng=50001)
+    start = Calibration(camera=Camera(sc.K, (sc.R[0] @ sc.R_X).T), X=sc.X - sc.R[0] @ sc.t_X,
+                        residuals_px=np.zeros_like(sc.uv), rms_px=0.0, T=rep.T)
+    opts = RefineOptions(distortion="auto", robot_error=True)
+    cal = fit_refine(rep.uv, rep.T, start, opts)
+    assert cal.dist_model == "radial2" and cal.robot_error.source == ("estimated", "estimated")
+    held = [s for s in cal.stats.distortion_selection if s.robot_error_held]
+    assert [(s.model, s.chosen) for s in held] == [("radial2", True), ("opencv5", False)]
+    assert abs(cal.K[0, 0] - sc.K[0, 0]) < 3 * cal.std["fx"]
+    monkeypatch.setattr(refine_module, "_lens_with_robot_error", lambda uv, T, full, opts, progress: (full, ()))
+    assert fit_refine(rep.uv, rep.T, start, opts).dist_model == "opencv5"  # the first climb's choice
 
 
 def test_zero_robot_error_leaves_the_result_unchanged():

@@ -28,7 +28,7 @@ from .session_error import session_error
 from .variance_components import MISFIT_ALPHA
 from .view_field import view_field
 
-__all__ = ["result", "SANDWICH_ALPHA"]
+__all__ = ["result", "diverged", "SANDWICH_ALPHA"]
 
 #: Level of the per-parameter test with which ``uncertainty="auto"`` reports the sandwich
 #: (its variance significantly above the model's). 5 %: with the model right the reported
@@ -56,8 +56,11 @@ def result(pb, fitter, fit, initial, t_start, full: bool = True) -> Calibration:
     else:
         d = _degrees(lay)
         uncertainty, cov = None, sigma**2 * cv.Sinv * np.outer(d, d)
-    std = _std(cov, lay.names())
     names = lay.names()
+    negative = [nm for nm, v in zip(names, np.diag(cov)) if not v >= 0]
+    if negative:  # no minimum: the information is not positive there
+        raise diverged(fit.state.intr, f"where {', '.join(negative)} would have a negative variance")
+    std = _std(cov, names)
     X_std = np.full((n_points, 3), np.nan)
     X_std[fit.idx[ok]] = sigma * np.sqrt(var_X[ok])
     X = np.full((n_points, 3), np.nan)
@@ -82,6 +85,17 @@ def result(pb, fitter, fit, initial, t_start, full: bool = True) -> Calibration:
         robot_error=_robot_error(pb, fit, cov), uncertainty=uncertainty,
         options=CalibrateOptions(robust=False, refinement=pb.opts),
         stats=CalibrationStats(stages=("refine",), refine=_stats(pb, fitter, dof_fit, int(np.sum(~ok)), t_start)))
+
+
+def diverged(intr, where: str = "") -> DegenerateError:
+    """The error of a refinement that ran away (intrinsics ``intr``: fx, fy, cx, cy, ...;
+    ``where``: what else shows it), saying what usually causes it."""
+    fx, fy, cx, cy = (float(v) for v in intr[:4])
+    return DegenerateError(
+        f"the refinement diverged (it reached fx = {fx:.3g}, fy = {fy:.3g}, cx = {cx:.3g}, cy = {cy:.3g} px"
+        f"{', ' + where if where else ''}): the images and the poses disagree too much for one camera. Most often "
+        "a pose was typed wrong or belongs to another run, or most tracks are wrong; check the poses (a view far off "
+        "its neighbours), then the tracks.")
 
 
 def _degrees(lay: Layout) -> np.ndarray:

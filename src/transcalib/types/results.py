@@ -162,7 +162,9 @@ class RefineStats:
 class DistortionStep:
     """One step of the distortion choice (``distortion="auto"``): the score test of the
     coefficients ``model`` adds, ``F`` and its ``p_value`` against the level ``alpha``,
-    whether the model was taken and, if not although the test asked for it, why."""
+    whether the model was taken and, if not although the test asked for it, why;
+    ``robot_error_held``: a step of the climb made again with the robot error's scales
+    held (it decides the model)."""
 
     model: str
     F: float
@@ -170,6 +172,7 @@ class DistortionStep:
     alpha: float
     chosen: bool
     reason: str = ""
+    robot_error_held: bool = False
 
 
 @dataclass(frozen=True)
