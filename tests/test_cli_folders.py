@@ -226,6 +226,28 @@ class Interrupter:
         signal.signal(signal.SIGINT, self.previous)
 
 
+def test_ctrl_c_while_the_temporary_folder_is_made_leaves_nothing(tmp_path, monkeypatch):
+    """A Ctrl-C that arrives while the temporary folder is being created (deferred, raised
+    once it exists) removes it: before, the folder was made but never named, so it stayed."""
+    import transcalib.io.folders as folders
+
+    made = []
+
+    def mkdtemp_then_ctrl_c(**kw):
+        made.append(real_mkdtemp(**kw))
+        os.kill(os.getpid(), signal.SIGINT)
+        return made[-1]
+
+    real_mkdtemp = folders.tempfile.mkdtemp
+    monkeypatch.setattr(folders.tempfile, "mkdtemp", mkdtemp_then_ctrl_c)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        with output_folder(out, command="test"):
+            pytest.fail("the run must not start after the Ctrl-C")
+    assert len(made) == 1 and not Path(made[0]).exists()
+    assert leftovers(out) == [] and not out.exists()
+
+
 #: (formats, trigger): 10 moments at fractions of an uninterrupted run's time (checks,
 #: tracking, calibrating, the first files), 13 by the files already in the temporary
 #: folder (the writing, the last part of every run); the last 3 with the report, drawn by

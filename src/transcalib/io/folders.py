@@ -239,14 +239,17 @@ def output_folder(out, *, command: str, force: bool = False, inputs=(), info: di
     out = check_output_folder(out, force=force, inputs=inputs)
     parent = out.parent if str(out.parent) else Path(".")
     parent.mkdir(parents=True, exist_ok=True)
-    tmp = uninterrupted(lambda: Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=parent)))
+    made = []  # the temporary folder, recorded before a Ctrl-C deferred meanwhile is raised
     try:
+        uninterrupted(lambda: made.append(Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=parent))))
+        tmp = made[0]
         yield OutputFolder(path=tmp, final=out)
         _write_manifest(tmp, command, info or {})
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
         uninterrupted(lambda: _swap_into_place(tmp, out))
     except BaseException:
-        uninterrupted(lambda: _remove(tmp))
+        if made:
+            uninterrupted(lambda: _remove(made[0]))
         raise
 
 
