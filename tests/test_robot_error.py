@@ -160,8 +160,9 @@ def test_both_components_fitted_together_where_either_alone_runs_away():
 def test_the_lens_is_chosen_again_with_the_robot_error_held(monkeypatch):
     """One orientation, a two-coefficient lens (k1, k2), 0.1 deg / 1 mm: chosen with exact
     poses the climb takes opencv5 (the per-view pose errors look like tangential and k3
-    terms to the score test; 26 of 40 such seeds); with the robot error's scales held the
-    climb stops at the truth's radial2, and that climb is recorded."""
+    terms to the score test; 61 of 100 seeds in bench_robot_error.py --lens); with the
+    robot error's scales held the climb stops at the truth's radial2, and that climb is
+    recorded."""
     sc = session_scene(50000, n_sessions=1, views_per_session=12, n_points=300, noise_px=0.3,
                        dist=(-0.06, 0.02, 0.0, 0.0, 0.0))
     rep, _ = with_robot_error(sc, 0.1, 1.0, rng=50001)
