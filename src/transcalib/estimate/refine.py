@@ -294,9 +294,10 @@ def _fit_auto(uv, T, initial, opts: RefineOptions, progress, flange=None) -> Cal
     The lens comes first: the climb runs with the robot error components whose scales
     are estimated left out (:func:`_lens_first`), then the chosen model is fitted with
     them (their score tests decide), and the climb is made again with the scales they
-    settled at held (:func:`_lens_with_robot_error`). A handful of lens coefficients shared by every view
-    cannot absorb independent per-view pose errors, but ``3 n_views`` per-view errors
-    can absorb much of an unmodelled lens, and trade with the focal length doing it.
+    settled at held (:func:`_lens_with_robot_error`). A handful of lens coefficients
+    shared by every view cannot absorb independent per-view pose errors, but
+    ``3 n_views`` per-view errors can absorb much of an unmodelled lens, and trade with
+    the focal length doing it.
     """
     lens = _lens_first(opts)
     cal = fit_refine(uv, T, initial, replace(lens, distortion=AUTO_CHAIN[0]), progress, flange)
