@@ -157,6 +157,27 @@ def test_both_components_fitted_together_where_either_alone_runs_away():
     assert abs(cal.K[0, 0] - sc.K[0, 0]) < 3 * cal.std["fx"] and cal.sigma_px < 0.06
 
 
+def test_one_orientation_estimates_the_centre_error_with_the_rotation(monkeypatch):
+    """One orientation, a flange rotation error alone (0.1 deg): its lever arm (130 mm)
+    moves the camera centre by ~0.19 mm per axis, which the position test alone misses
+    here (78 % of such seeds). With the rotation switched on the centre's error is
+    estimated too, near the lever's scale, and cx's std grows by its share."""
+    sc = session_scene(5, n_sessions=1, views_per_session=12, n_points=60, noise_px=0.5)
+    rep, _ = with_robot_error(sc, 0.1, 0.0, rng=6)
+    lever = np.sqrt(2 / 3) * np.radians(0.1) * np.linalg.norm(sc.t_X)  # the centre's std per axis
+    start = Calibration(camera=Camera(sc.K, (sc.R[0] @ sc.R_X).T), X=sc.X - sc.R[0] @ sc.t_X,
+                        residuals_px=np.zeros_like(sc.uv), rms_px=0.0, T=rep.T)
+    opts = RefineOptions(distortion="none", robot_error=True)
+    cal = fit_refine(rep.uv, rep.T, start, opts)
+    assert cal.robot_error.source == ("estimated", "estimated")
+    assert 0.5 * lever < cal.robot_error.sigma_pos < 2 * lever
+    rule = refine_module._next_component
+    monkeypatch.setattr(refine_module, "_next_component", lambda t, j, s, one, px: rule(t, j, s, False, px))
+    alone = fit_refine(rep.uv, rep.T, start, opts)
+    assert alone.robot_error.source == ("estimated", "not detected")
+    assert cal.std["cx"] > 1.1 * alone.std["cx"]
+
+
 def test_the_lens_is_chosen_again_with_the_robot_error_held(monkeypatch):
     """One orientation, a two-coefficient lens (k1, k2), 0.1 deg / 1 mm: chosen with exact
     poses the climb takes opencv5 (the per-view pose errors look like tangential and k3
