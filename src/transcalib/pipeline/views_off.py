@@ -32,6 +32,7 @@ from ..check.poses import (POSE_ALPHA, describe_pose_outlier, find_pose_outliers
 from ..check.prediction import LOO_MIN_VIEWS
 from ..check.tracks import MIN_INLIER_FRACTION
 from ..errors import DegenerateError, Diagnostic
+from ..estimate.noise import mad_sigma
 from ..handeye.join import judge_orientations, view_pose
 from ..types import CalibrateOptions, report
 from .motion import Motion
@@ -202,8 +203,9 @@ def _standing_out(x: np.ndarray) -> list:
     rest = rest[np.isfinite(rest)]
     if rest.size < 2:
         return []
-    scale = 1.4826 * np.median(np.abs(rest - np.median(rest)))
-    return [v] if x[v] - np.median(rest) > OUTLYING_Z * max(scale, 1e-12 * abs(np.median(rest))) else []
+    centre = np.median(rest)
+    scale = mad_sigma(rest - centre, 0, floor=1e-12 * abs(centre))
+    return [v] if x[v] - centre > OUTLYING_Z * scale else []
 
 
 def _broken(start, fitted, uv: np.ndarray) -> bool:
