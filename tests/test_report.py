@@ -231,6 +231,24 @@ def test_worker_that_dies_or_hangs_is_an_error(tmp_path):
     assert not list(tmp_path.rglob("*.tmp"))
 
 
+def test_ctrl_c_while_the_worker_starts_is_ignored_there():
+    """Ctrl-C reaches the whole process group; one that lands while the worker's
+    interpreter is still starting (before it can ignore it) is dropped there: no traceback
+    on the command's stderr, and the worker still comes up."""
+    import subprocess
+    import sys
+
+    script = ("import os, signal, sys\n"
+              "from transcalib.report.worker import ReportWorker\n"
+              "with ReportWorker() as w:\n"
+              "    os.kill(w._process.pid, signal.SIGINT)\n"
+              "    w.wait_ready()\n"
+              "print('ready')\n")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "ready", run.stderr
+    assert "Traceback" not in run.stderr, run.stderr
+
+
 # --------------------------------------------------------------------------------------
 # the 3-D view
 # --------------------------------------------------------------------------------------

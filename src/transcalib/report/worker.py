@@ -18,10 +18,30 @@ none of this: :func:`~transcalib.report.write_report` draws in the calling proce
 
 from __future__ import annotations
 
+import signal
 import time
 from pathlib import Path
 
 __all__ = ["ReportWorker"]
+
+
+def _started(process) -> None:
+    """Start ``process`` with Ctrl-C ignored from its birth: the group's SIGINT otherwise
+    lands in its interpreter's start-up, before ``_serve`` can ignore it, and prints a
+    traceback on the command's stderr. An ignored signal stays ignored across ``exec``;
+    here Ctrl-C is held meanwhile (blocked, so not lost) and delivered after."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():  # handlers are the main thread's
+        process.start()
+        return
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        process.start()
+    finally:
+        signal.signal(signal.SIGINT, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 class ReportWorkerError(RuntimeError):
@@ -44,11 +64,10 @@ def _serve(conn) -> None:
     """The worker process: warm up, say ``ready``, draw the one job, say ``done``."""
     import gc
     import os
-    import signal
     import sys
     import traceback
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's (ignored from birth: _started)
     # stopped during the job: unwind (no temporary file left); before it nothing is
     # written, so end at once: a shutdown that cuts an import short once wrote "Fatal
     # Python error: PyThreadState_Get" on the command's stderr beside its own error
@@ -117,7 +136,7 @@ class ReportWorker:
         self._ready = False
         self._conn, child = ctx.Pipe()
         self._process = ctx.Process(target=_serve, args=(child,), name="transcalib-report", daemon=True)
-        self._process.start()
+        _started(self._process)
         child.close()
 
     def wait_ready(self) -> None:
