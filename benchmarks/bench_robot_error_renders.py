@@ -21,7 +21,11 @@ trials a ratio is itself uncertain by about ``1 / sqrt(2 N)`` (N = 30: 13 %) and
 coverage by ``sqrt(0.95 * 0.05 / N)`` (N = 30: 4 points).
 
 Run ``nice python benchmarks/bench_robot_error_renders.py --trials N --jobs J`` (default 20
-trials per case, 1 process; 20-45 s a trial on one core). Each finished trial is appended
+trials per case, 1 process; 20-45 s a trial on one core). ``--read-noise DN`` and ``--blur PX``
+render a noisier camera (the preset's read noise is 1.2 grey levels, no optics blur): its
+tracks are noisier, a study of how much the tracker's own floor weighs once the pixel noise
+is nearer a user's (recorded in ``..._nDN_bPX.jsonl``; ``--layout`` runs one layout only).
+Each finished trial is appended
 to ``benchmarks/results/robot_error_renders.jsonl`` and a run continues from the trials
 found there (the same seeds), so the Monte Carlo grows over several runs; the table,
 ``benchmarks/results/robot_error_renders.md``, is rewritten from every trial recorded
@@ -42,6 +46,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -51,6 +56,7 @@ from transcalib.estimate.robot_error import sample_errors
 from transcalib.geometry.rotation import matrix_to_rotvec
 from transcalib.io import write_poses_csv
 from transcalib.synth.robot import robot_scene
+from transcalib.synth.robot_layout import preset_degradations
 
 OUT = Path(__file__).resolve().parent / "results" / "robot_error_renders.md"
 TRIALS = OUT.with_suffix(".jsonl")  # one finished trial per line: the Monte Carlo so far
@@ -60,25 +66,36 @@ CASES = ((0.0, 0.0), (0.1, 1.0), (0.2, 2.0))
 LAYOUTS = {"one session": dict(session_views=12, single_views=0),
            "session + singles": dict(session_views=6, single_views=6)}
 FIRST_SEED = 22500
+#: The renders' size (``robot_scene``'s default).
+IMAGE_SIZE = (640, 480)
 
 
-def trial(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2) -> dict:
+def trial(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2, camera=None) -> dict:
     """Render, write, calibrate through the CLI: errors and reported std per parameter,
-    the robot error found, or ``{"failed": why}``."""
-    out = calibrate_render(layout, s_rot, s_pos, seed, supersample)
+    the robot error found, or ``{"failed": why}``. ``camera``: ``(read noise DN, blur
+    px)`` instead of the preset's (:func:`noisier`)."""
+    degrade, blur = (True, 0.0) if camera is None else noisier(*camera)
+    out = calibrate_render(layout, s_rot, s_pos, seed, supersample, degrade=degrade, blur_sigma=blur)
     return out if isinstance(out, dict) else _row(*out, layout)
 
 
+def noisier(read_noise_dn: float, blur_px: float) -> tuple:
+    """``(degrade, blur_sigma)`` of :func:`calibrate_render`: the preset's camera effects
+    with ``read_noise_dn`` grey levels of read noise and ``blur_px`` of optics blur."""
+    return replace(preset_degradations(IMAGE_SIZE), read_noise_dn=float(read_noise_dn)), float(blur_px)
+
+
 def calibrate_render(layout: str, s_rot: float, s_pos: float, seed: int, supersample: int = 2, degrade=True,
-                     image_ext: str = "jpg"):
-    """Render (``supersample`` x ``supersample`` samples per pixel; ``degrade`` as
-    :func:`~transcalib.synth.robot.robot_scene` takes it), write (``image_ext`` ``jpg``
-    at :data:`JPEG_QUALITY` or ``png``), calibrate through the CLI: ``(robot scene,
-    --json summary, hand_eye.json)`` or ``{"failed": why}``."""
+                     image_ext: str = "jpg", blur_sigma: float = 0.0):
+    """Render (``supersample`` x ``supersample`` samples per pixel; ``degrade`` and
+    ``blur_sigma`` as :func:`~transcalib.synth.robot.robot_scene` takes them), write
+    (``image_ext`` ``jpg`` at :data:`JPEG_QUALITY` or ``png``), calibrate through the CLI:
+    ``(robot scene, --json summary, hand_eye.json)`` or ``{"failed": why}``."""
     opts = LAYOUTS[layout]
     n_views = opts["session_views"] + opts["single_views"]
     err = sample_errors(n_views, s_rot, s_pos, rng=seed + 7)
-    r = robot_scene("eye-in-hand", rng=seed, pose_error=err, supersample=supersample, degrade=degrade, **opts)
+    r = robot_scene("eye-in-hand", rng=seed, pose_error=err, supersample=supersample, degrade=degrade,
+                    blur_sigma=blur_sigma, **opts)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         names = [f"view{i:02d}.{image_ext}" for i in range(n_views)]
@@ -114,6 +131,7 @@ def _row(r, s: dict, he: dict, layout: str) -> dict:
     checks = [v for v in re["consistency_p"].values() if v is not None and np.isfinite(v)]
     row["check_p"] = min(checks) if checks else None  # the misfit check's lowest p-value
     row["dist_model"] = s["dist_model"]
+    row["sigma_px"] = s["sigma_px"]
     vf = (s.get("uncertainty") or {}).get("view_field")
     if vf is not None:  # each view's error field (docs/uncertainty.md section 7.1): RMS px, p-value, in the std
         row["view_field"] = (vf["rms_px"], vf["p_value"], vf["included"])
@@ -134,7 +152,8 @@ def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.nam
              f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}`: the trials recorded in "
              f"{log_name} over one or more runs (the last {elapsed:.0f} s). "
              "Eye-in-hand renders of `robot_scene` (640 x 480, realistic camera effects, JPEG 90; the samples per "
-             "pixel: see the file's name, ss4 = 4 x 4, else 2 x 2) at the true "
+             "pixel: see the file's name, ss4 = 4 x 4, else 2 x 2; _nDN_bPX: read noise DN grey levels and optics "
+             "blur PX px instead of the preset's 1.2 and none) at the true "
              "flange poses, `poses.csv` with the reported ones; `transcalib calibrate --images --poses --json` with "
              "default options (the robot error's scales estimated). ratio = RMS reported std / RMS error against "
              f"the truth (its own uncertainty ~1/sqrt(2N) = {1 / np.sqrt(2 * trials):.0%} at N = {trials}); cover = "
@@ -145,11 +164,12 @@ def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.nam
              "check p: the misfit check's lowest "
              "p-value, its median and shares below 0.01 and 0.001 (the verdict's level). field: each view's error "
              "field (docs/uncertainty.md section 7.1), the share of trials where its test found it and the median "
-             "RMS found (of the trials recorded with it).", ""]
+             "RMS found (of the trials recorded with it). sigma_px: the median pixel noise estimated (of the trials recorded "
+             "with it).", ""]
     for layout in LAYOUTS:
         keys = ["fx", "cx", "rx", "ry", "rz"] + (["t_x", "t_y", "t_z"] if layout != "one session" else [])
         head = ("| sigma_rot deg | sigma_pos mm | N | fails | " + " | ".join(f"{k} ratio / cover" for k in keys)
-                + " | sigma_rot est (on) | sigma_pos est (on) | misfit | check p | field | lens |")
+                + " | sigma_rot est (on) | sigma_pos est (on) | misfit | check p | field | lens | sigma_px |")
         lines += [f"## {layout}", "", head, "|" + "---|" * (head.count("|") - 1)]
         for (sr, sp) in CASES:
             chunk = results.get((layout, sr, sp), [])
@@ -162,7 +182,7 @@ def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.nam
             lens = ", ".join(f"{m} {sum(r['dist_model'] == m for r in ok)}" for m in sorted({r["dist_model"] for r in ok}))
             lines.append(f"| {sr} | {sp} | {len(chunk)} | {len(chunk) - len(ok)} | " + " | ".join(cells)
                          + f" | {np.median(rob[:, 0]):.3f} ({100 * on[0]:.0f} %) | {np.median(rob[:, 1]):.2f} "
-                           f"({100 * on[1]:.0f} %) | {_checks(ok)} | {_fields(ok)} | {lens} |")
+                           f"({100 * on[1]:.0f} %) | {_checks(ok)} | {_fields(ok)} | {lens} | {_sigma_px(ok)} |")
         fails = [r["failed"] for c, rows in results.items() if c[0] == layout for r in rows if "failed" in r]
         lines += [""] + ([f"Failures: {'; '.join(sorted(set(fails)))}", ""] if fails else [])
     return "\n".join(lines) + "\n"
@@ -181,6 +201,12 @@ def _checks(rows: list) -> str:
     low = (f"{np.median(p):.2f}; {100 * np.mean(p < 1e-2):.0f} / {100 * np.mean(p < 1e-3):.0f} % below 0.01 / "
            f"0.001 (of {len(p)})" if len(p) else "-")
     return f"{100 * misfit:.0f} %{held} | {low}"
+
+
+def _sigma_px(rows: list) -> str:
+    """Median estimated pixel noise (px) of the trials recorded with it."""
+    s = [r["sigma_px"] for r in rows if "sigma_px" in r]
+    return f"{np.median(s):.3f}" if s else "-"
 
 
 def _fields(rows: list) -> str:
@@ -225,10 +251,10 @@ PAIRED_KEYS = ("fx", "cx", "rx", "ry", "rz", "t_x", "t_y", "t_z")
 
 
 def _case_trial(case: tuple) -> dict:
-    """One trial of ``(layout, sigma_rot, sigma_pos, seed, supersample, code)`` as a JSON-able
-    record (``code``: :func:`_code_version`)."""
-    layout, sr, sp, seed, supersample, code = case
-    row = trial(layout, sr, sp, seed, supersample)
+    """One trial of ``(layout, sigma_rot, sigma_pos, seed, supersample, camera, code)`` as a
+    JSON-able record (``code``: :func:`_code_version`)."""
+    layout, sr, sp, seed, supersample, camera, code = case
+    row = trial(layout, sr, sp, seed, supersample, camera)
     plain = {k: (list(map(_plain, v)) if isinstance(v, tuple) else _plain(v)) for k, v in row.items()}
     return {"layout": layout, "sigma_rot": sr, "sigma_pos": sp, "seed": seed, "code": code, "row": plain}
 
@@ -270,19 +296,32 @@ def main(argv=None) -> None:
     p.add_argument("--supersample", type=int, default=2, help="samples per pixel along each axis of the renders")
     p.add_argument("--paired-with", type=Path, default=None, metavar="JSONL",
                    help="an earlier run's trials: the table gains their comparison on the same seeds")
+    p.add_argument("--read-noise", type=float, default=None, metavar="DN",
+                   help="read noise in grey levels instead of the preset's 1.2 (with --blur: a noisier camera)")
+    p.add_argument("--blur", type=float, default=0.0, metavar="PX", help="optics blur, Gaussian std in pixels")
+    p.add_argument("--layout", choices=tuple(LAYOUTS), action="append", default=None,
+                   help="run this layout only (repeatable; default both)")
     a = p.parse_args(argv)
     if a.paired_with is not None and not a.paired_with.is_file():
         p.error(f"--paired-with: no such file {a.paired_with}")
+    if a.read_noise is not None and a.read_noise < 0 or a.blur < 0:
+        p.error("--read-noise and --blur must be >= 0")
+    camera = None
+    if a.read_noise is not None or a.blur > 0:
+        camera = (preset_degradations(IMAGE_SIZE).read_noise_dn if a.read_noise is None else a.read_noise, a.blur)
     if a.out is None:
         a.out = OUT if a.supersample == 2 else OUT.with_name(f"{OUT.stem}_ss{a.supersample}.md")
+        if camera is not None:
+            a.out = a.out.with_name(f"{a.out.stem}_n{camera[0]:g}_b{camera[1]:g}.md")
     log = a.out.with_suffix(".jsonl")
     done = {(r["layout"], r["sigma_rot"], r["sigma_pos"], r["seed"]) for r in _recorded(log)}
     code = _code_version()
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs) as pool:
         for k in range(a.trials):  # trials interleaved over the cases: a run cut short stays balanced
-            todo = [(layout, sr, sp, FIRST_SEED + 1000 * g + k) for layout in LAYOUTS for g, (sr, sp) in enumerate(CASES)]
-            todo = [(*c, a.supersample, code) for c in todo if c not in done]
+            todo = [(layout, sr, sp, FIRST_SEED + 1000 * g + k) for layout in a.layout or LAYOUTS
+                    for g, (sr, sp) in enumerate(CASES)]
+            todo = [(*c, a.supersample, camera, code) for c in todo if c not in done]
             if not todo:
                 continue
             with log.open("a") as f:

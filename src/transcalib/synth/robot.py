@@ -318,7 +318,7 @@ def _sessions(R: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 
 def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views: int = 6, tilt_deg=(15.0, 45.0),
                 distance_mm=(500.0, 1000.0), image_size=(640, 480), degrade: bool | Degradations = True, rng=0,
-                supersample: int = 2, images: bool = True, pose_error=None) -> RobotRendered:
+                supersample: int = 2, images: bool = True, pose_error=None, blur_sigma: float = 0.0) -> RobotRendered:
     """The issue-20 preset: one 3-D pure-translation session plus single views tilted from it.
 
     Eye-in-hand, the camera on the flange looks down at a work cell (a textured table top,
@@ -355,6 +355,9 @@ def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views
         result stay the reported ones (what a controller records); the true poses are in
         ``meta["true_R"]``, ``meta["true_T"]``, the errors in ``meta["pose_error"]``.
         (The result's truth methods use ``R``, ``T``: the reported poses.)
+    blur_sigma : float
+        Optics blur (Gaussian std, pixels) before the sensor noise: a softer lens or a
+        slight defocus.
 
     Returns
     -------
@@ -375,7 +378,7 @@ def robot_scene(setup: str = "eye-in-hand", session_views: int = 6, single_views
     out = render_robot(scene.scene_surfaces, K, R_true, T_true, R_X, t_X, image_size, setup=setup,
                        static_surfaces=scene.static_surfaces, dist=PRESET_DIST if degrade is not False else (),
                        session_of_view=sess, corners=scene.corners, supersample=supersample, degrade=effects,
-                       images=images, rng=rng)
+                       blur_sigma=blur_sigma, images=images, rng=rng)
     if pose_error is None:
         return out
     return replace(out, R=R, T=T, meta={**out.meta, "true_R": R_true, "true_T": T_true,
