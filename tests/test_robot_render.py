@@ -165,6 +165,15 @@ def test_eye_to_hand_object_moves_with_the_flange_background_stays():
     assert np.ptp(moved[:, vis.all(0)], axis=0).max() > 50.0  # mm: the carried points moved in the base
 
 
+def test_optics_blur_is_a_gaussian_of_the_sharp_render():
+    kw = dict(session_views=4, single_views=0, image_size=(200, 150), degrade=False, supersample=1, rng=3)
+    sharp, soft = robot_scene("eye-in-hand", **kw), robot_scene("eye-in-hand", blur_sigma=1.5, **kw)
+    for a, b in zip(sharp.images, soft.images):
+        expected = cv2.GaussianBlur(a.astype(float), (0, 0), 1.5, borderType=cv2.BORDER_REPLICATE)
+        assert np.abs(b - expected).max() <= 1.0  # the sharp image was rounded to grey levels first
+        assert np.abs(np.diff(b.astype(float), axis=1)).mean() < 0.7 * np.abs(np.diff(a.astype(float), axis=1)).mean()
+
+
 def test_inputs_checked():
     r = robot_scene("eye-in-hand", images=False, rng=1)
     with pytest.raises(InputError, match="eye-in-hand the whole scene is fixed"):
