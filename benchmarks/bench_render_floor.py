@@ -43,7 +43,12 @@ observation shows (:meth:`RobotRendered.track_truth`):
 - in the summary, fx from the exact projections plus one component of the tracker's
   error: ``along`` the motion (each observation's error along its displacement from the
   track's first view) or ``across`` it (the rest), tracks next to another surface left
-  out (T-junctions): which component carries fx's lean.
+  out (T-junctions): which component carries fx's lean; and fx from the exact
+  projections plus the tracker's errors rearranged (:func:`_rearranged`): ``tracks
+  permuted`` (each track's error vector given to another track with the same views: the
+  errors' correlation along a track kept, their tie to its place and its neighbours
+  gone) and ``views shuffled`` (each view's errors shuffled among its tracks: their
+  correlation along a track gone): which structure of the errors the std misses.
 
 Writes ``benchmarks/results/NAME.md`` (default ``render_floor``; ``--quick``: 2 seeds, a scratch folder).
 """
@@ -69,7 +74,8 @@ VARIANTS = ("default", "clean", "lens+noise", "noisy")
 #: of a pixel more noise (the preset's read noise is 1.2).
 NOISY_READ_DN = 8.0
 #: The calibrations of each render (the summary's rows).
-CALIBRATIONS = ("tracked", "tracked - view field", "exact+noise", "exact+along", "exact+across")
+CALIBRATIONS = ("tracked", "tracked - view field", "exact+noise", "exact+along", "exact+across", "tracks permuted",
+                "views shuffled")
 
 
 def _degrade(variant: str):
@@ -123,14 +129,36 @@ def trial(job: tuple) -> dict:
     field = _view_field(err, exact, seen, r.K)
     out["field"] = float(np.sqrt(np.nanmean(field**2)))
     along = _along_part(err, exact, seen)
+    permuted, shuffled = _rearranged(np.where(seen[..., None], err, 0.0), seen, np.random.default_rng(seed + 1))
     for name, u in zip(CALIBRATIONS, (uv, uv - field, np.where(seen[..., None], noisy, np.nan),
-                                      exact + along, exact + (err - along))):
+                                      exact + along, exact + (err - along), exact + permuted, exact + shuffled)):
         cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
         e = cal.K[0, 0] - r.K[0, 0]
         reported = cal.uncertainty.reported["fx"] if cal.uncertainty is not None else "model"
         out[name] = {"fx_err": float(e), "fx_std": float(cal.std["fx"]), "sigma_px": float(cal.sigma_px),
                      "reported": reported}
     return out
+
+
+def _rearranged(err, seen, rng) -> tuple:
+    """The tracker's errors ``err`` rearranged: ``(tracks permuted, views shuffled)``.
+    Tracks permuted: each track takes the whole error vector of another track with the
+    same views and reference view (its errors' correlation across the views kept, their
+    tie to the track's place and to its neighbours' errors gone); views shuffled: within
+    each view the errors of its non-reference observations shuffled among its tracks
+    (each view's errors and their spread kept, their correlation along a track gone)."""
+    ref = np.argmax(seen, axis=0)
+    permuted, shuffled = err.copy(), err.copy()
+    _, group = np.unique(np.c_[seen.T, ref], axis=0, return_inverse=True)
+    for g in np.unique(group):
+        idx = np.flatnonzero(group == g)
+        permuted[:, idx] = err[:, rng.permutation(idx)]
+    is_ref = np.zeros_like(seen)
+    is_ref[ref, np.arange(seen.shape[1])] = True
+    for v in range(seen.shape[0]):
+        idx = np.flatnonzero(seen[v] & ~is_ref[v])
+        shuffled[v, idx] = err[v, rng.permutation(idx)]
+    return permuted, shuffled
 
 
 def _shift(err, seen) -> dict:
@@ -244,7 +272,10 @@ def table(rows: list, elapsed: float, seeds: int, supersample: int, command: str
         "the error along the displacement from the first view per px of displacement; radial: median per-view "
         "radial error at 300 px; z = fx error / reported std (tracked) and for the exact projections with white "
         "noise of the tracker's RMS error (exact+noise), and in the summary for the exact projections plus the "
-        "tracker's error along the motion or across it (exact+along, exact+across). Ratio = RMS std / RMS error "
+        "tracker's error along the motion or across it (exact+along, exact+across), or all of it rearranged: each "
+        "track's error vector given to another track with the same views (tracks permuted: the correlation along "
+        "a track kept, that with its place and its neighbours gone) or each view's errors shuffled among its "
+        "tracks (views shuffled: each view's errors kept, their correlation along a track gone). Ratio = RMS std / RMS error "
         "(1 when the std is right; its own uncertainty ~1/sqrt(2N)).", "", md_table(head, body), "", *summary, ""])
 
 

@@ -147,9 +147,10 @@ def _summary(rows: list, key: str):
     return float(np.sqrt(np.mean(sd**2)) / np.sqrt(np.mean(e**2))), float(np.mean(np.abs(e) < 1.96 * sd))
 
 
-def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.name) -> str:
+def table(results: dict, trials: int, elapsed: float, log_name: str = TRIALS.name, options: str = "") -> str:
+    """The Monte Carlo's table; ``options``: the command's other options, as shown."""
     lines = ["# Robot pose error on renders, through the CLI (issue 22)", "",
-             f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}`: the trials recorded in "
+             f"`nice python benchmarks/bench_robot_error_renders.py --trials {trials}{options}`: the trials recorded in "
              f"{log_name} over one or more runs (the last {elapsed:.0f} s). "
              "Eye-in-hand renders of `robot_scene` (640 x 480, realistic camera effects, JPEG 90; the samples per "
              "pixel: see the file's name, ss4 = 4 x 4, else 2 x 2; _nDN_bPX: read noise DN grey levels and optics "
@@ -328,19 +329,29 @@ def main(argv=None) -> None:
                 for record in pool.map(_case_trial, todo):
                     f.write(json.dumps(record) + "\n")
                     f.flush()
-            _write_table(log, a.out, time.perf_counter() - t0, a.paired_with)
+            _write_table(log, a.out, time.perf_counter() - t0, a.paired_with, _shown(a))
             print(f"trial {k + 1}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if log.exists():  # (also: --trials 0 rewrites the table of what is recorded)
-        sys.stdout.write(_write_table(log, a.out, time.perf_counter() - t0, a.paired_with))
+        sys.stdout.write(_write_table(log, a.out, time.perf_counter() - t0, a.paired_with, _shown(a)))
 
 
-def _write_table(log: Path, out: Path, elapsed: float, paired_with: Path | None = None) -> str:
+def _shown(a: argparse.Namespace) -> str:
+    """The options of a run that change its trials, as its table shows the command."""
+    shown = [f"--supersample {a.supersample}"] if a.supersample != 2 else []
+    if a.read_noise is not None:
+        shown.append(f"--read-noise {a.read_noise:g}")
+    if a.blur:
+        shown.append(f"--blur {a.blur:g}")
+    return "".join(" " + o for o in shown)
+
+
+def _write_table(log: Path, out: Path, elapsed: float, paired_with: Path | None = None, options: str = "") -> str:
     """The table of every trial recorded in ``log`` (and its comparison with the run
     ``paired_with`` on the same seeds), written to ``out``."""
     results = {}
     for r in _recorded(log):
         results.setdefault((r["layout"], r["sigma_rot"], r["sigma_pos"]), []).append(_row_of(r["row"]))
-    text = table(results, min(len(v) for v in results.values()), elapsed, log.name)
+    text = table(results, min(len(v) for v in results.values()), elapsed, log.name, options)
     if paired_with is not None:
         text += "\n" + paired_table(log, paired_with)
     out.write_text(text)
