@@ -22,9 +22,10 @@ coverage by ``sqrt(0.95 * 0.05 / N)`` (N = 30: 4 points).
 
 Run ``nice python benchmarks/bench_robot_error_renders.py --trials N --jobs J`` (default 20
 trials per case, 1 process; 20-45 s a trial on one core). ``--read-noise DN`` and ``--blur PX``
-render a noisier camera (the preset's read noise is 1.2 grey levels, no optics blur): its
-tracks are noisier, a study of how much the tracker's own floor weighs once the pixel noise
-is nearer a user's (recorded in ``..._nDN_bPX.jsonl``; ``--layout`` runs one layout only).
+render a noisier camera (the preset's read noise is 1.2 grey levels, no optics blur), whose
+tracks' pixel noise is nearer a user's: is the perfect robot's shortfall a fixed floor of
+the tracker that noisier tracks drown? (It is not: docs/uncertainty.md section 6.3.)
+Recorded in ``..._nDN_bPX.jsonl``; ``--layout`` runs one layout only.
 Each finished trial is appended
 to ``benchmarks/results/robot_error_renders.jsonl`` and a run continues from the trials
 found there (the same seeds), so the Monte Carlo grows over several runs; the table,
@@ -305,7 +306,7 @@ def main(argv=None) -> None:
     a = p.parse_args(argv)
     if a.paired_with is not None and not a.paired_with.is_file():
         p.error(f"--paired-with: no such file {a.paired_with}")
-    if a.read_noise is not None and a.read_noise < 0 or a.blur < 0:
+    if (a.read_noise is not None and a.read_noise < 0) or a.blur < 0:
         p.error("--read-noise and --blur must be >= 0")
     camera = None
     if a.read_noise is not None or a.blur > 0:
