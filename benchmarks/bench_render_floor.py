@@ -129,9 +129,10 @@ def trial(job: tuple) -> dict:
     field = _view_field(err, exact, seen, r.K)
     out["field"] = float(np.sqrt(np.nanmean(field**2)))
     along = _along_part(err, exact, seen)
-    permuted, shuffled = _rearranged(np.where(seen[..., None], err, 0.0), seen, np.random.default_rng(seed + 1))
+    permuted, shuffled = (np.where(seen[..., None], exact + e, np.nan)
+                          for e in _rearranged(np.where(seen[..., None], err, 0.0), seen, np.random.default_rng(seed + 1)))
     for name, u in zip(CALIBRATIONS, (uv, uv - field, np.where(seen[..., None], noisy, np.nan),
-                                      exact + along, exact + (err - along), exact + permuted, exact + shuffled)):
+                                      exact + along, exact + (err - along), permuted, shuffled)):
         cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
         e = cal.K[0, 0] - r.K[0, 0]
         reported = cal.uncertainty.reported["fx"] if cal.uncertainty is not None else "model"
