@@ -129,8 +129,8 @@ def trial(job: tuple) -> dict:
     field = _view_field(err, exact, seen, r.K)
     out["field"] = float(np.sqrt(np.nanmean(field**2)))
     along = _along_part(err, exact, seen)
-    permuted, shuffled = (np.where(seen[..., None], exact + e, np.nan)
-                          for e in _rearranged(np.where(seen[..., None], err, 0.0), seen, np.random.default_rng(seed + 1)))
+    # NaN where unseen stays there: a track's errors go only to tracks with the same views
+    permuted, shuffled = (exact + e for e in _rearranged(err, seen, np.random.default_rng(seed + 1)))
     for name, u in zip(CALIBRATIONS, (uv, uv - field, np.where(seen[..., None], noisy, np.nan),
                                       exact + along, exact + (err - along), permuted, shuffled)):
         cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
