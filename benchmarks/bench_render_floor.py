@@ -48,7 +48,10 @@ observation shows (:meth:`RobotRendered.track_truth`):
   permuted`` (each track's error vector given to another track with the same views: the
   errors' correlation along a track kept, their tie to its place and its neighbours
   gone) and ``views shuffled`` (each view's errors shuffled among its tracks: their
-  correlation along a track gone): which structure of the errors the std misses.
+  correlation along a track gone): which structure of the errors the std misses; and
+  ``tracked, one noise``: the tracked positions judged with one noise for every track
+  (``RansacOptions(noise_spread=False)``, the rule before 2026-12-05), whose choice of the
+  tracks followed the fit's error (docs/robust-and-diagnostics.md §2).
 
 Writes ``benchmarks/results/NAME.md`` (default ``render_floor``; ``--quick``: 2 seeds, a scratch folder).
 """
@@ -74,8 +77,8 @@ VARIANTS = ("default", "clean", "lens+noise", "noisy")
 #: of a pixel more noise (the preset's read noise is 1.2).
 NOISY_READ_DN = 8.0
 #: The calibrations of each render (the summary's rows).
-CALIBRATIONS = ("tracked", "tracked - view field", "exact+noise", "exact+along", "exact+across", "tracks permuted",
-                "views shuffled")
+CALIBRATIONS = ("tracked", "tracked, one noise", "tracked - view field", "exact+noise", "exact+along", "exact+across",
+                "tracks permuted", "views shuffled")
 
 
 def _degrade(variant: str):
@@ -108,7 +111,7 @@ def trial(job: tuple) -> dict:
     """One render of ``(variant, seed, supersample)``: the tracker's errors and the calibrations."""
     import tempfile
 
-    from transcalib import Poses, calibrate
+    from transcalib import Poses, RansacOptions, calibrate
     from transcalib.synth.robot import robot_scene
 
     variant, seed, supersample = job
@@ -131,9 +134,10 @@ def trial(job: tuple) -> dict:
     along = _along_part(err, exact, seen)
     # NaN where unseen stays there: a track's errors go only to tracks with the same views
     permuted, shuffled = (exact + e for e in _rearranged(err, seen, np.random.default_rng(seed + 1)))
-    for name, u in zip(CALIBRATIONS, (uv, uv - field, np.where(seen[..., None], noisy, np.nan),
+    for name, u in zip(CALIBRATIONS, (uv, uv, uv - field, np.where(seen[..., None], noisy, np.nan),
                                       exact + along, exact + (err - along), permuted, shuffled)):
-        cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, rng=0)
+        ransac = RansacOptions(noise_spread=name != "tracked, one noise")
+        cal = calibrate(u, Poses.of(r.T, r.R), image_size=r.image_size, ransac=ransac, rng=0)
         e = cal.K[0, 0] - r.K[0, 0]
         reported = cal.uncertainty.reported["fx"] if cal.uncertainty is not None else "model"
         out[name] = {"fx_err": float(e), "fx_std": float(cal.std["fx"]), "sigma_px": float(cal.sigma_px),

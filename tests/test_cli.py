@@ -388,6 +388,8 @@ def test_simulate_bad_options(tmp_path, args, words):
     (["--no-refine", "--robot-sigma", "0.1"], ["--no-refine", "--robot-sigma"]),
     (["--no-refine", "--distortion", "radial2"], ["--no-refine", "distortion"]),
     (["--no-robust", "--threshold-px", "3"], ["--no-robust"]),
+    (["--one-noise", "--no-robust"], ["--one-noise", "--no-robust"]),
+    (["--one-noise", "--threshold-px", "2"], ["--one-noise", "--threshold-px"]),
     (["--robot-sigma", "-1"], ["--robot-sigma", ">= 0"]),
     (["--no-robot-error", "--robot-sigma-deg", "0.1"], ["--no-robot-error", "--robot-sigma"]),
     (["--threshold-px", "0"], ["--threshold-px", "positive"]),

@@ -137,6 +137,10 @@ def _robust(g) -> None:
                      help="no RANSAC: every track is used as it comes")
     g.add_argument("--threshold-px", type=positive_float, metavar="PX",
                    help="RANSAC inlier threshold in pixels (default: from the pixel noise estimated from the data)")
+    g.add_argument("--one-noise", action="store_true",
+                   help="judge the tracks with one pixel noise for all (the chi-square rule); default: the final "
+                        "fit judges them again with the spread of their noise that the tracks show, so the "
+                        "noisier good tracks stay in")
     g.add_argument("--loss", choices=["linear", "huber", "cauchy"],
                    help="loss of the refinement's residuals (default linear: least squares)")
     g.add_argument("--loss-scale-px", type=positive_float, metavar="PX",
@@ -224,7 +228,11 @@ def build_options(args, size=None):
 
     fixed = parse_fix(args.fix, size)
     _check_refinement_options(args, fixed)
-    ransac = RansacOptions(**({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
+    if args.one_noise and (args.robust is False or args.threshold_px is not None):
+        raise OptionError("--one-noise", "has no effect with --no-robust or --threshold-px (no track is judged "
+                                         "by the noise the data show)")
+    ransac = RansacOptions(noise_spread=not args.one_noise,
+                           **({} if args.threshold_px is None else {"threshold_px": args.threshold_px}))
     if args.no_robot_error and (args.robot_error or args.robot_sigma is not None
                                 or args.robot_sigma_deg is not None):
         raise OptionError("--no-robot-error", "contradicts --robot-error / --robot-sigma / --robot-sigma-deg")

@@ -31,10 +31,12 @@ import math
 
 import numpy as np
 
+from scipy import special
+
 from .distributions import chi2_cdf, chi2_ppf, chi2_ppf_table
 
 __all__ = ["SIGMA_FLOOR_PX", "LOSS_SCALE", "OBS_QUANTILE", "track_dof", "chi2_quantiles",
-           "chi2_inliers", "inlier_rule", "median_sigma", "truncated_sigma", "truncation_factor",
+           "chi2_inliers", "inlier_rule", "noise_spread", "spread_quantiles", "median_sigma", "truncated_sigma", "truncation_factor",
            "observation_quantile", "sigma_from_threshold", "sigma_from_distance_threshold", "mad_sigma"]
 
 #: Smallest pixel noise any rule assumes: exact (simulated) data have rounding errors of
@@ -95,10 +97,117 @@ def chi2_inliers(errors: np.ndarray, dof: np.ndarray, sigma: float, alpha: float
         return np.isfinite(errors) & (errors < sigma * sigma * q)
 
 
-def inlier_rule(sse: np.ndarray, k: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
-    """Inlier tracks: ``sse_j < sigma^2 chi2_{2 k_j - 3}(1 - alpha)`` (:func:`chi2_inliers`
-    with ``nu`` = :func:`track_dof` of the ``k (n,)`` views that see each track)."""
-    return chi2_inliers(sse, track_dof(k), sigma, alpha)
+def inlier_rule(sse: np.ndarray, k: np.ndarray, sigma: float, alpha: float, tau: float = 0.0) -> np.ndarray:
+    """Inlier tracks of the ``k (n,)`` views that see them::
+
+        sse_j < sigma^2 Q_{nu_j}(1 - alpha; tau),   nu_j = 2 k_j - 3    (:func:`spread_quantiles`)
+
+    ``sigma^2`` the tracks' mean noise variance per coordinate and ``tau`` the spread of
+    their log noise variance (:func:`noise_spread`); with ``tau = 0`` (one noise for every
+    track) the chi-square rule :func:`chi2_inliers`. Real tracks differ in noise (texture,
+    contrast, blur): a rule with one sigma rejects the noisier good tracks, and as a track
+    near the threshold stays when the fit's error happens to explain part of its own,
+    that selection follows the fit's error and enlarges it (docs/robust-and-diagnostics.md
+    §2, "Tracks whose noise differs")."""
+    nu = track_dof(k)
+    q = spread_quantiles(1.0 - alpha, nu, tau)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(sse) & (sse < sigma * sigma * q)
+
+
+#: Probabilists' Gauss-Hermite nodes and normalised weights: expectations over a track's
+#: log noise variance ``tau Z``, ``Z ~ N(0, 1)``.
+_GH_Z, _GH_W = np.polynomial.hermite_e.hermegauss(32)
+_GH_W = _GH_W / _GH_W.sum()
+#: Largest spread of the tracks' log noise variance the rule takes in (a factor of
+#: ``exp(1 / 2) = 1.65`` in a track's sigma per std): an unweighted fit of tracks whose
+#: noise spreads by ``tau`` keeps ``exp(-tau^2)`` of a weighted fit's information (37 %
+#: here); wider, the noisiest tracks are better left out than averaged in.
+SPREAD_MAX = 1.0
+#: Fewest tracks (of at least 4 views, in groups of one length of at least
+#: :data:`SPREAD_MIN_GROUP`) from which :func:`noise_spread` measures a spread (else 0).
+SPREAD_MIN_DATA = 30
+SPREAD_MIN_GROUP = 10
+#: How many of its std (under one noise) the halves' rank correlation must exceed for a
+#: spread to be measured (a one-sided test at 2.3 %): data of one noise keep the
+#: chi-square rule.
+SPREAD_SIGNIFICANCE = 2.0
+
+
+def _centred_by_group(x: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """``x`` less the median of its group."""
+    out = np.empty_like(x)
+    for g in np.unique(group):
+        m = group == g
+        out[m] = x[m] - np.median(x[m])
+    return out
+
+
+def noise_spread(sse_a: np.ndarray, sse_b: np.ndarray, k: np.ndarray) -> float:
+    """The spread ``tau`` of the tracks' log noise variance, ``log sigma_j^2 ~ N(m, tau^2)``,
+    from the squared residuals of each track's two halves of views (alternate views of
+    those that see it: ``sse_a``, ``sse_b`` (n,) px^2, ``k`` (n,) its views).
+
+    A track's own noise is in both halves, a chi-square's chance and an error of one
+    observation or one view (an outlier, a wrong pose) in one: so ``tau^2`` is the
+    covariance of ``a = log sse_a``, ``b = log sse_b`` across tracks (each centred by its
+    track length's median), measured by their rank correlation ``rho_S`` (Pearson's
+    ``r = 2 sin(pi rho_S / 6)``) with the halves' chi-square variances ``v = psi_1(nu / 2)``,
+    ``nu ~ (2 k - 3) k_half / k``::
+
+        tau^2 = r sqrt((tau^2 + v_a) (tau^2 + v_b))
+
+    0 when ``rho_S`` is within :data:`SPREAD_SIGNIFICANCE` of its std ``1 / sqrt(n - 1)``
+    of zero or with fewer than :data:`SPREAD_MIN_DATA` tracks; at most :data:`SPREAD_MAX`.
+    """
+    sse_a, sse_b, k = np.asarray(sse_a, float), np.asarray(sse_b, float), np.asarray(k, np.intp)
+    ok = np.isfinite(sse_a) & np.isfinite(sse_b) & (sse_a > 0) & (sse_b > 0) & (k >= 4)
+    lengths, count = np.unique(k[ok], return_counts=True)
+    ok &= np.isin(k, lengths[count >= SPREAD_MIN_GROUP])
+    n = int(ok.sum())
+    if n < SPREAD_MIN_DATA:
+        return 0.0
+    a, b = (_centred_by_group(np.log(x[ok]), k[ok]) for x in (sse_a, sse_b))
+    ra, rb = (np.argsort(np.argsort(x)) for x in (a, b))
+    rho = float(np.corrcoef(ra, rb)[0, 1])
+    if not rho > SPREAD_SIGNIFICANCE / math.sqrt(n - 1):
+        return 0.0
+    r = min(2.0 * math.sin(math.pi * rho / 6.0), 0.999)
+    half = (k[ok] + 1) // 2, k[ok] // 2
+    v_a, v_b = (float(np.mean(special.polygamma(1, (2 * k[ok] - 3) * h / k[ok] / 2))) for h in half)
+    r2 = r * r
+    t = (r2 * (v_a + v_b) + math.sqrt((r2 * (v_a + v_b)) ** 2 + 4 * (1 - r2) * r2 * v_a * v_b)) / (2 * (1 - r2))
+    return min(math.sqrt(t), SPREAD_MAX)
+
+
+def _bisect(f, lo, hi, tol: float, steps: int = 60):
+    """Root of the increasing ``f`` between ``lo`` and ``hi`` (arrays: elementwise)."""
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        below = f(mid) < 0
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        if np.all(hi - lo < tol):
+            break
+    return 0.5 * (lo + hi)
+
+
+def spread_quantiles(p: float, dof: np.ndarray, tau: float) -> np.ndarray:
+    """``Q_nu(p; tau)`` per datum ``(n,)``: the ``p``-quantile of ``exp(tau Z - tau^2 / 2)
+    chi2(nu)`` (``Z ~ N(0, 1)``: a datum's noise variance relative to the mean one,
+    log-normal with spread ``tau``); ``chi2_nu(p)`` at ``tau = 0``. One quantile per
+    distinct ``nu`` (bisection in ``log x``, Gauss-Hermite over ``Z``), O(n)."""
+    dof = np.asarray(dof, np.intp)
+    if tau <= 0 or dof.size == 0:
+        return chi2_quantiles(p, dof)
+    nu = np.arange(1, int(dof.max()) + 1)
+    shift = (-tau * _GH_Z + 0.5 * tau * tau)[None]
+
+    def excess(logx):  # P(W < x) - p, per nu
+        return np.sum(_GH_W * chi2_cdf(np.exp(logx[:, None] + shift), nu[:, None]), axis=1) - p
+
+    start = np.log(chi2_ppf(p, nu))
+    logx = _bisect(excess, start - 2.0 * tau - 1.0, start + 5.0 * tau + 1.0, 1e-6)
+    return np.exp(logx)[dof - 1]
 
 
 def median_sigma(errors: np.ndarray, dof: np.ndarray, floor: float = SIGMA_FLOOR_PX) -> float:

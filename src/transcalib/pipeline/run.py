@@ -29,7 +29,8 @@ from ..types.options import check_fixed_distortion
 from ..validate import as_uv_T
 from .motion import Motion, motion_of
 from .result import with_motion
-from .stages import all_residuals, extend_to_all_tracks, from_linear, masked, refine_and_rejudge
+from .stages import (REJUDGE_FRACTION, all_residuals, extend_to_all_tracks, from_linear, judge_tracks, masked,
+                     refine_and_rejudge, triangulated)
 from .start import explain_motion, initial_estimate
 from .views_off import (leave_out_pose_outliers, orientation_off, pose_left_out, rejudge_views, view_indices,
                         without_views)
@@ -174,28 +175,41 @@ def calibrate(
     off_views = view_indices(start.off_views) + [o.view for o in pose_off]
     left_out = np.isin(np.arange(motion.n_views), off_views)
     uv = without_views(uv, off_views)
-    cal, inliers, stages, timings, rotation_data = fitted
-    begin = timings.pop("begin_s")
-    timings = {f"{start.stages[0]}_s": timings.pop("start_s") - begin, **timings}
-    if pose_off:
-        stages = stages + [f"{len(pose_off)} view(s) left out (pose)"]
-        timings["earlier_fits_s"] = begin - t0
-    result = replace(cal, camera=replace(cal.camera, image_size=image_size), inliers=inliers,
-                     residuals_px=all_residuals(uv, cal, inliers), options=opts, diagnostics=(),
-                     stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=start.ransac))
+
+    def finished(fit: _Fitted):  # the fit as the result, and what the checks find in it
+        cal, inliers, stages, timings, rotation_data = fit
+        timings = dict(timings)
+        begin = timings.pop("begin_s")
+        timings = {f"{start.stages[0]}_s": timings.pop("start_s") - begin, **timings}
+        if pose_off:
+            stages = stages + [f"{len(pose_off)} view(s) left out (pose)"]
+            timings["earlier_fits_s"] = begin - t0
+        result = replace(cal, camera=replace(cal.camera, image_size=image_size), inliers=inliers,
+                         residuals_px=all_residuals(uv, cal, inliers), options=opts, diagnostics=(),
+                         stats=replace(cal.stats, stages=tuple(stages), timings_s=timings, ransac=start.ransac))
+        found = [orientation_off(v, deg, motion.grouping.tolerance_deg) for v, deg in start.off_views]
+        if pose_off:
+            found.append(pose_left_out(pose_off, motion, view_ids=getattr(poses, "views", None), unit=unit))
+        found += diagnose(
+            uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
+            unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
+            views_left_out=left_out, view_ids=getattr(poses, "views", None), setup=setup)
+        if span is not None:  # the coplanar motion was understood: say what it allows instead
+            found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
+        if opts.check_rotation and not opts.refine:
+            found.append(skipped("rotation test (did the camera turn otherwise than the poses say?)",
+                                 "it needs the refined calibration (refine=False, CLI --no-refine)"))
+        return result, found
+
     t2 = time.perf_counter()
-    found = [orientation_off(v, deg, motion.grouping.tolerance_deg) for v, deg in start.off_views]
-    if pose_off:
-        found.append(pose_left_out(pose_off, motion, view_ids=getattr(poses, "views", None), unit=unit))
-    found += diagnose(
-        uv, motion.T, result, linear=result.linear, check_rotation=opts.check_rotation and opts.refine,
-        unit=unit, all_uv=uv, rotation_data=rotation_data, sessions=motion.session_of_view,
-        views_left_out=left_out, view_ids=getattr(poses, "views", None), setup=setup)
-    if span is not None:  # the coplanar motion was understood: say what it allows instead
-        found = [span] + [d for d in found if d.code not in ("translations_coplanar", "translations_small")]
-    if opts.check_rotation and not opts.refine:
-        found.append(skipped("rotation test (did the camera turn otherwise than the poses say?)",
-                             "it needs the refined calibration (refine=False, CLI --no-refine)"))
+    result, found = finished(fitted)
+    if not MISFIT_CODES & {d.code for d in found}:  # a misfit spreads the errors too: that is not noise
+        spread = _with_noise_spread(uv, motion.T, subset, start, fitted, opts, progress)
+        if spread is not fitted:
+            fitted = spread
+            t2 = time.perf_counter()
+            result, found = finished(fitted)
+    rotation_data = fitted.rotation_data
     report(progress, "diagnostics", warnings=len(found))
     t3 = time.perf_counter()
     info = _prediction(rotation_data or (uv, result), motion, opts, getattr(poses, "views", None))
@@ -204,6 +218,12 @@ def calibrate(
     result = replace(result, diagnostics=tuple(found), stats=replace(result.stats, timings_s=timings),
                      info={**result.info, **info, "views_left_out": _left_out_info(start.off_views, pose_off)})
     return with_motion(result, motion, start.notes)
+
+
+#: Diagnostics of a model misfit (a wrong fixed value, a pose or an orientation off): the
+#: tracks' errors then spread by more than their noise, and are not judged by that spread.
+MISFIT_CODES = frozenset({"fix_contradicted", "pose_outlier", "pose_repeated", "view_rotation", "view_residuals",
+                          "implausible_intrinsics"})
 
 
 def _left_out_info(off_views, pose_off) -> list:
@@ -230,6 +250,41 @@ def _start_and_fit(uv, motion: Motion, opts: CalibrateOptions, subset, coplanar:
             again = _fit(without_views(uv, view_indices(off)), motion.T, subset, start, opts, progress)
             fitted = _refitted(fitted, again)
     return start, fitted._replace(timings={"begin_s": begin, **fitted.timings})
+
+
+def _with_noise_spread(uv, T, subset, start, fitted: _Fitted, opts: CalibrateOptions, progress) -> _Fitted:
+    """The tracks judged again by the final fit with the spread of their noise taken in
+    (:func:`~.stages.judge_tracks`; docs/robust-and-diagnostics.md §2, "Tracks whose noise
+    differs"), and refitted where that changes the inlier set: the refinement and its
+    re-judging from the final fit (the lens model kept), then every track. Run last, once
+    the views whose pose or orientation is off are out and only when the checks find no
+    misfit (:data:`MISFIT_CODES`): a wrong pose or fixed value spreads the tracks' errors
+    too, which is not their noise. ``fitted`` itself when there is nothing to judge (no robust stage, a user threshold,
+    ``RansacOptions.noise_spread`` False), the set hardly changes, or the refit fails (the
+    spread was a misfit's)."""
+    if not (opts.refine and opts.ransac.noise_spread) or fitted.inliers is None or opts.ransac.threshold_px is not None:
+        return fitted
+    uv_sub, inliers = (uv, fitted.inliers) if subset is None else (uv[:, subset], fitted.inliers[subset])
+    X = triangulated(uv_sub, fitted.cal)
+    again = judge_tracks(uv_sub, fitted.cal, X, opts, spread=True)
+    if np.sum(again != inliers) <= max(2, REJUDGE_FRACTION * inliers.sum()):
+        return fitted
+    t1 = time.perf_counter()
+    kept = replace(opts, refinement=replace(opts.refinement, distortion=fitted.cal.dist_model))
+    begin = replace(fitted.cal, X=np.where(again[:, None], X, np.nan))
+    try:
+        cal, inliers, more = refine_and_rejudge(uv_sub, T, begin, again, kept, progress, start.flange, spread=True)
+    except DegenerateError:  # the spread was a misfit's (a wrong fixed value, say): the fit of one noise stands
+        return fitted
+    stages, timings, rotation_data = fitted.stages + ["noise spread: " + "+".join(more)], dict(fitted.timings), None
+    if subset is not None:
+        rotation_data = (masked(uv_sub, inliers), cal)
+        cal, inliers = extend_to_all_tracks(uv, T, cal, inliers, kept, progress, spread=True)
+        stages.append("all tracks")
+    timings["noise_spread_s"] = time.perf_counter() - t1
+    cal = replace(cal, linear=fitted.cal.linear,
+                  stats=replace(cal.stats, distortion_selection=fitted.cal.stats.distortion_selection))
+    return _Fitted(cal, inliers, stages, timings, rotation_data)
 
 
 def _refitted(old: _Fitted, new: _Fitted) -> _Fitted:

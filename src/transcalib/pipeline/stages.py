@@ -14,7 +14,7 @@ import numpy as np
 
 from ..check.common import camera_poses
 from ..estimate.layout import FlangeModel, complement
-from ..estimate.noise import SIGMA_FLOOR_PX, inlier_rule, sigma_from_threshold, truncation_factor
+from ..estimate.noise import SIGMA_FLOOR_PX, inlier_rule, noise_spread, sigma_from_threshold, truncation_factor
 from ..estimate.refine import climb_distortion, fit_refine, fit_refine_deferred, with_robot_scales
 from ..geometry.camera import DIST_NAMES, Camera, camera_frame, project, project_camera_frame
 from ..geometry.triangulate import triangulate
@@ -63,7 +63,7 @@ def _camera_values(cal: Calibration) -> dict:
     return {**values, "f": values["fx"]}
 
 
-def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptions, progress):
+def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOptions, progress, spread: bool = False):
     """From the calibration of a subset of the tracks, the maximum-likelihood one of all
     of them: every track triangulated and judged by the subset's camera (the inlier rule
     of the robust stage), then :data:`GAUSS_NEWTON_STEPS` undamped steps of the camera
@@ -75,7 +75,7 @@ def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOption
     X_all = triangulated(uv, cal)
     k = np.isfinite(uv[..., 0]).sum(axis=0)
     if inliers is not None:
-        inliers = inlier_rule(track_sse(uv, cal, X_all), k, rule_sigma(cal, opts), opts.ransac.false_rejection)
+        inliers = judge_tracks(uv, cal, X_all, opts, spread)
     start = replace(cal, X=X_all if inliers is None else np.where(inliers[:, None], X_all, np.nan))
     step = with_robot_scales(replace(opts.refinement, distortion=cal.dist_model, max_iterations=GAUSS_NEWTON_STEPS),
                              cal)  # the subset's robot error scales: one model for both fits
@@ -109,7 +109,8 @@ def _as_estimated(full: Calibration, subset: Calibration) -> Calibration:
                                              score_scales=b.score_scales))
 
 
-def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress, flange: FlangeModel | None = None):
+def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress, flange: FlangeModel | None = None,
+                       spread: bool = False):
     """Refine on the inliers (with ``flange``: the views' flange rotations and the offset);
     then judge every track again with the refined camera (RANSAC judged them with the
     linear, distortion-free one: this matters under strong distortion) and refit while the
@@ -139,7 +140,7 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
             chosen = replace(chosen, distortion=judge.dist_model)
             refit = replace(chosen, **given)
         X_all = triangulated(uv, judge)
-        again = inlier_rule(track_sse(uv, judge, X_all), k, rule_sigma(judge, opts), opts.ransac.false_rejection)
+        again = judge_tracks(uv, judge, X_all, opts, spread)
         # a few borderline tracks trading places change nothing: refit only for more
         if np.sum(again != inliers) <= max(2, REJUDGE_FRACTION * inliers.sum()) or again.sum() < 2:
             break
@@ -218,11 +219,13 @@ def untruncated(cal: Calibration, k: np.ndarray, alpha: float) -> Calibration:
                    stats=replace(cal.stats, sigma_truncation_factor=c))
 
 
-def track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
+def track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray, halves: bool = False):
     """Sum of squared reprojection errors (px^2) of each track over the views that see it
     (n_points,); inf for tracks that cannot be triangulated or fall behind the camera.
-    Evaluated ``TRACK_BLOCK`` tracks at a time (small temporaries)."""
-    out = np.empty(uv.shape[1])
+    With ``halves``, also the sums over each half of its views (alternate views of those
+    that see it: ``(sse, sse_a, sse_b)``, what :func:`transcalib.estimate.noise.noise_spread`
+    compares). Evaluated ``TRACK_BLOCK`` tracks at a time (small temporaries)."""
+    out = np.empty((3, uv.shape[1]))
     R_cam, C = camera_poses(cal, cal.T)
     for lo in range(0, uv.shape[1], TRACK_BLOCK):
         b = slice(lo, lo + TRACK_BLOCK)
@@ -230,10 +233,36 @@ def track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray) -> np.ndarray:
         pred = project_camera_frame(cal.camera.intrinsics, cal.camera.dist5, xc, valid=xc[2] > 0).pred  # behind: inf
         seen = np.isfinite(uv[:, b, 0])
         du, dv = uv[:, b, 0] - pred[0], uv[:, b, 1] - pred[1]
-        sse = np.sum(du * du + dv * dv, axis=0, where=seen)
+        e2 = du * du + dv * dv
+        first = (np.cumsum(seen, axis=0) % 2 == 1) & seen  # the 1st, 3rd, ... view that sees the track
+        rel = e2 / _view_levels(e2, seen) if halves else e2  # each view's own level out: a pose error is not noise
+        parts = [np.sum(e2, axis=0, where=seen)] + [np.sum(rel, axis=0, where=w) for w in (first, seen & ~first)]
         behind = np.any(seen & (xc[2] <= 0), axis=0)
-        out[b] = np.where(np.isfinite(X[b, 0]) & ~behind, sse, np.inf)
-    return out
+        out[:, b] = np.where(np.isfinite(X[b, 0]) & ~behind, parts, np.inf)
+    return tuple(out) if halves else out[0]
+
+
+def _view_levels(e2: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """``(n_views, 1)``: each view's median squared residual over the tracks it sees (1
+    for a view that sees none, or of exact residuals)."""
+    level = np.ones((len(e2), 1))
+    for i in np.flatnonzero(seen.any(axis=1)):
+        m = np.median(e2[i, seen[i]])
+        level[i] = m if m > 0 else 1.0
+    return level
+
+
+def judge_tracks(uv: np.ndarray, cal: Calibration, X: np.ndarray, opts: CalibrateOptions,
+                 spread: bool = False) -> np.ndarray:
+    """Inlier tracks ``(n_points,)`` by the refined camera ``cal`` and their points ``X``;
+    with ``spread`` the rule takes in the spread of the tracks' noise that their two
+    halves of views show (:func:`transcalib.estimate.noise.noise_spread`; none with a
+    user threshold)."""
+    k = np.isfinite(uv[..., 0]).sum(axis=0)
+    if not spread or opts.ransac.threshold_px is not None:
+        return inlier_rule(track_sse(uv, cal, X), k, rule_sigma(cal, opts), opts.ransac.false_rejection)
+    sse, sse_a, sse_b = track_sse(uv, cal, X, halves=True)
+    return inlier_rule(sse, k, rule_sigma(cal, opts), opts.ransac.false_rejection, noise_spread(sse_a, sse_b, k))
 
 
 def rule_sigma(cal: Calibration, opts: CalibrateOptions) -> float:

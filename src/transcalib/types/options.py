@@ -55,12 +55,21 @@ class RansacOptions:
         Probability, in (0, 1), that an all-inlier pair was drawn when the loop stops.
     max_trials : int
         Upper bound on the hypotheses drawn.
+    noise_spread : bool
+        True (default): once the refined fit stands (the views whose pose is off left
+        out), the tracks are judged again with the spread of their noise that each
+        track's two halves of views show (:func:`transcalib.estimate.noise.noise_spread`),
+        so the noisier good tracks stay in, and the fit is redone where that changes the
+        inliers (docs/robust-and-diagnostics.md §2, "Tracks whose noise differs"). False:
+        one noise for every track, the chi-square rule throughout. No effect with
+        ``threshold_px``.
     """
 
     threshold_px: float | None = None
     false_rejection: float = 0.01
     confidence: float = 0.999
     max_trials: int = 1000
+    noise_spread: bool = True
 
     def __post_init__(self):
         _positive("threshold_px", self.threshold_px, allow_none=True)
@@ -68,6 +77,8 @@ class RansacOptions:
             raise InputError(f"false_rejection must be in (0, 0.5), got {self.false_rejection!r}")
         if not (isinstance(self.confidence, (int, float)) and 0.0 < self.confidence < 1.0):
             raise InputError(f"confidence must be in (0, 1), got {self.confidence!r}")
+        if not isinstance(self.noise_spread, bool):
+            raise InputError(f"noise_spread must be True or False, got {self.noise_spread!r}")
         if isinstance(self.max_trials, bool) or not isinstance(self.max_trials, (int, np.integer)) \
                 or self.max_trials < 1:
             raise InputError(f"max_trials must be a positive integer, got {self.max_trials!r}")
