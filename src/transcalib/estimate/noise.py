@@ -30,14 +30,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from scipy import special
 
 from .distributions import chi2_cdf, chi2_ppf, chi2_ppf_table
 
 __all__ = ["SIGMA_FLOOR_PX", "LOSS_SCALE", "OBS_QUANTILE", "track_dof", "chi2_quantiles",
-           "chi2_inliers", "inlier_rule", "noise_spread", "spread_quantiles", "median_sigma", "truncated_sigma", "truncation_factor",
-           "observation_quantile", "sigma_from_threshold", "sigma_from_distance_threshold", "mad_sigma"]
+           "chi2_inliers", "inlier_rule", "noise_spread", "spread_quantiles", "median_sigma", "truncated_sigma",
+           "truncation_factor", "observation_quantile", "sigma_from_threshold", "sigma_from_distance_threshold", "mad_sigma"]
 
 #: Smallest pixel noise any rule assumes: exact (simulated) data have rounding errors of
 #: ~1e-10 px, which are not Gaussian; no real tracker is below a thousandth of a pixel.

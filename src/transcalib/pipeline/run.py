@@ -259,9 +259,9 @@ def _with_noise_spread(uv, T, subset, start, fitted: _Fitted, opts: CalibrateOpt
     re-judging from the final fit (the lens model kept), then every track. Run last, once
     the views whose pose or orientation is off are out and only when the checks find no
     misfit (:data:`MISFIT_CODES`): a wrong pose or fixed value spreads the tracks' errors
-    too, which is not their noise. ``fitted`` itself when there is nothing to judge (no robust stage, a user threshold,
-    ``RansacOptions.noise_spread`` False), the set hardly changes, or the refit fails (the
-    spread was a misfit's)."""
+    too, which is not their noise. ``fitted`` itself when there is nothing to judge (no
+    robust stage, a user threshold, ``RansacOptions.noise_spread`` False), the set
+    hardly changes, or the refit fails (the spread was a misfit's)."""
     if not (opts.refine and opts.ransac.noise_spread) or fitted.inliers is None or opts.ransac.threshold_px is not None:
         return fitted
     uv_sub, inliers = (uv, fitted.inliers) if subset is None else (uv[:, subset], fitted.inliers[subset])

@@ -70,7 +70,8 @@ def extend_to_all_tracks(uv, T, cal: Calibration, inliers, opts: CalibrateOption
     and every inlier track jointly, with the covariance at that solution. The subset's
     solution is a few of its standard deviations from the full one, where the cost is
     nearly quadratic: the first step lands within a few hundredths of a standard
-    deviation, the second within about 1e-4 (tests/test_pipeline.py). Returns
+    deviation, the second within about 1e-4 (tests/test_pipeline.py). ``spread``: the
+    judging takes in the spread of the tracks' noise (:func:`judge_tracks`). Returns
     ``(cal, inliers)``."""
     X_all = triangulated(uv, cal)
     k = np.isfinite(uv[..., 0]).sum(axis=0)
@@ -121,7 +122,8 @@ def refine_and_rejudge(uv, T, linear, inliers, opts: CalibrateOptions, progress,
     (:func:`_misfit_scales`) with the lens chosen again; the refits keep those scales until
     the inlier set settles (stages ``"reclassify+refine (scales held)"``), and the scales
     are estimated again from there on the settled set (``"refine (scales estimated)"``,
-    :func:`_held_as_start`). Returns ``(cal, inliers, stages)``."""
+    :func:`_held_as_start`). ``spread``: the judging takes in the spread of the tracks'
+    noise (:func:`judge_tracks`). Returns ``(cal, inliers, stages)``."""
     cal = fit_refine(masked(uv, inliers), T, linear, opts.refinement, flange=flange)
     report(progress, "refine", iterations=cal.stats.refine.iterations, rms_px=cal.rms_px, distortion=cal.dist_model)
     stages = ["refine"]
