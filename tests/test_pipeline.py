@@ -141,6 +141,20 @@ def test_tracks_whose_noise_differs_stay_in():
     assert abs(cal.K[0, 0] - scene.K[0, 0]) < 3 * cal.std["fx"]
 
 
+def test_noise_spread_with_a_subset_of_the_tracks():
+    """6000 tracks (above the 5000 of the iterative stages' subset) whose noise differs:
+    the pass judges the subset again, refits it and then every track, which nearly all
+    stay (one sigma's rule would leave a quarter out), with sigma their RMS noise."""
+    scene = simulate.random_scene(6000, 8, rng=5)
+    rng = np.random.default_rng(5)
+    s = 0.3 * np.exp(0.5 * (0.6 * rng.normal(size=6000) - 0.18))
+    cal = calibrate(scene.uv + rng.normal(size=scene.uv.shape) * s[None, :, None], scene.T, rng=0,
+                    check_rotation=False)
+    assert cal.stats.stages[-2].startswith("noise spread: refine") and cal.stats.stages[-1] == "all tracks"
+    assert cal.inliers.mean() > 0.99 and abs(cal.sigma_px / np.sqrt(np.mean(s**2)) - 1) < 0.02
+    assert abs(cal.K[0, 0] - scene.K[0, 0]) < 3 * cal.std["fx"] and cal.X.shape == (6000, 3)
+
+
 # --------------------------------------------------------------------------------------
 # Many tracks: the iterative stages on a subset, then one Gauss-Newton step with all
 # --------------------------------------------------------------------------------------
