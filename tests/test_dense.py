@@ -637,8 +637,8 @@ def test_interrupted_command_leaves_nothing(files, tmp_path, earlier, sig):
         if "dense: sweep" in line:
             break
     p.send_signal(sig)
-    p.communicate(timeout=60)
-    assert p.returncode == 130
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err[-2000:]
     assert sorted(x.name for x in tmp_path.iterdir()) == (["out"] if earlier else [])  # no temporary folder
     if earlier:
         assert (out / MANIFEST).read_bytes() == before and (out / "depth_0.npy").exists()
