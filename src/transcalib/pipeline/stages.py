@@ -236,11 +236,13 @@ def track_sse(uv: np.ndarray, cal: Calibration, X: np.ndarray, halves: bool = Fa
         seen = np.isfinite(uv[:, b, 0])
         du, dv = uv[:, b, 0] - pred[0], uv[:, b, 1] - pred[1]
         e2 = du * du + dv * dv
-        first = (np.cumsum(seen, axis=0) % 2 == 1) & seen  # the 1st, 3rd, ... view that sees the track
-        rel = e2 / _view_levels(e2, seen) if halves else e2  # each view's own level out: a pose error is not noise
-        parts = [np.sum(e2, axis=0, where=seen)] + [np.sum(rel, axis=0, where=w) for w in (first, seen & ~first)]
+        parts = [np.sum(e2, axis=0, where=seen)]
+        if halves:  # each view's own level out (a pose error is not noise), then alternate views
+            rel = e2 / _view_levels(e2, seen)
+            first = (np.cumsum(seen, axis=0) % 2 == 1) & seen  # the 1st, 3rd, ... view that sees the track
+            parts += [np.sum(rel, axis=0, where=w) for w in (first, seen & ~first)]
         behind = np.any(seen & (xc[2] <= 0), axis=0)
-        out[:, b] = np.where(np.isfinite(X[b, 0]) & ~behind, parts, np.inf)
+        out[:len(parts), b] = np.where(np.isfinite(X[b, 0]) & ~behind, parts, np.inf)
     return tuple(out) if halves else out[0]
 
 
